@@ -1,0 +1,36 @@
+# Two commands set everything up on a fresh machine: `make demo` and `make test`.
+# Both create .venv, install the pinned wheels and libosmesa6 when they are missing.
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+export PYOPENGL_PLATFORM ?= osmesa
+
+.PHONY: setup demo test lint bench-detector clean
+
+setup: $(STAMP)
+
+$(STAMP): requirements.txt requirements-dev.txt setup.py
+	@if ! ldconfig -p 2>/dev/null | grep -q libOSMesa.so; then \
+	  echo "installing libosmesa6 (headless OpenGL)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libosmesa6 >/dev/null; \
+	fi
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -r requirements-dev.txt
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+	@touch $@
+
+demo: $(STAMP)
+	$(PY) -m allo_mrad_ros.demo
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+test: lint
+	$(PY) -m pytest -q --timeout=600
+
+bench-detector: $(STAMP)
+	$(PY) -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json
+
+clean:
+	rm -rf build install log *.egg-info .pytest_cache .ruff_cache

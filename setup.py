@@ -1,0 +1,38 @@
+"""ament_python build of allo_mrad_ros (also installable with pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "allo_mrad_ros"
+
+
+def _files(pattern: str) -> list[str]:
+    return sorted(path for path in glob(pattern, recursive=True) if not path.endswith(".pyc"))
+
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*", "rosbag_tools", "rosbag_tools.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", _files("launch/*.py")),
+        (f"share/{PACKAGE}/config", _files("config/*")),
+        (f"share/{PACKAGE}/meshes", _files("meshes/*")),
+    ],
+    package_data={PACKAGE: ["data/*"]},
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="allo_mrad_ros maintainers",
+    maintainer_email="maintainers@allo-mrad-ros.invalid",
+    description="Model-reference anomaly detection (MRAD) for space-station proximity operations.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "mrad_demo = allo_mrad_ros.demo:main",
+        ],
+    },
+)
