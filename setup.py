@@ -1,6 +1,6 @@
 """ament_python build of allo_mrad_ros (also installable with pip)."""
 
-from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
@@ -8,7 +8,8 @@ PACKAGE = "allo_mrad_ros"
 
 
 def _files(pattern: str) -> list[str]:
-    return sorted(path for path in glob(pattern, recursive=True) if not path.endswith(".pyc"))
+    # setuptools wants paths relative to this file, as strings.
+    return sorted(str(path) for path in Path().glob(pattern) if path.is_file())
 
 
 setup(

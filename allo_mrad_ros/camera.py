@@ -83,7 +83,9 @@ class CameraIntrinsics:
         )
 
     @classmethod
-    def from_fov(cls, width: int, height: int, focal_mm: float, sensor_width_mm: float) -> CameraIntrinsics:
+    def from_fov(
+        cls, width: int, height: int, focal_mm: float, sensor_width_mm: float
+    ) -> CameraIntrinsics:
         """Intrinsics of a Blender-style camera (square pixels, centred principal point)."""
         f = focal_mm / sensor_width_mm * width
         return cls(width=width, height=height, fx=f, fy=f, cx=width / 2.0, cy=height / 2.0)
