@@ -1,0 +1,35 @@
+"""The MRAD detector core: pure NumPy/OpenCV, no ROS.
+
+Pipeline stages, each in one place:
+
+1. cell statistics -- :mod:`.statistics`; cross score -- :mod:`.score`
+2. scaling and threshold -- :mod:`.postprocess` (``scale_scores``, ``threshold_scores``)
+3. noise removal and blur -- :mod:`.postprocess` (``remove_noise``, ``blur_scores``)
+4. seeds -- :mod:`.regions` (``find_seeds``)
+5. region growing -- :mod:`.regions` (``grow_regions``)
+6. decision -- :mod:`.pipeline` (``decide``), composed by :func:`detect`
+"""
+
+from allo_mrad_ros.detector.params import PROFILES, MradParams, profile
+from allo_mrad_ros.detector.pipeline import (
+    METHODS,
+    DetectionResult,
+    Detector,
+    decide,
+    detect,
+    detect_pad,
+    detect_rxd,
+)
+
+__all__ = [
+    "METHODS",
+    "PROFILES",
+    "DetectionResult",
+    "Detector",
+    "MradParams",
+    "decide",
+    "detect",
+    "detect_pad",
+    "detect_rxd",
+    "profile",
+]

@@ -1,0 +1,64 @@
+"""Input checks and conversion of camera and reference images to the detector's layout."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Multiplier that brings each accepted dtype onto the 0..255 scale of an 8-bit image.
+_TO_8BIT_SCALE = {
+    np.dtype(np.uint8): 1.0,
+    np.dtype(np.uint16): 255.0 / 65535.0,
+    np.dtype(np.float32): 255.0,
+    np.dtype(np.float64): 255.0,
+}
+
+
+def check_image(image: object, name: str) -> np.ndarray:
+    """Validate an H x W x 3 colour image and return it as an ndarray.
+
+    Accepted dtypes are uint8, uint16 and float32/float64 (floats on the 0..1 scale).
+
+    Raises
+    ------
+    ValueError
+        Naming ``name`` and the offending shape, dtype or value.
+    """
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"{name} must be a numpy array, got {type(image).__name__}")
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"{name} must have shape (H, W, 3), got {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError(f"{name} is empty: shape {image.shape}")
+    if image.dtype not in _TO_8BIT_SCALE:
+        raise ValueError(
+            f"{name} has unsupported dtype {image.dtype}; use uint8, uint16, float32 or float64"
+        )
+    if image.dtype.kind == "f" and not np.isfinite(image).all():
+        bad = int(np.count_nonzero(~np.isfinite(image)))
+        raise ValueError(f"{name} contains {bad} NaN or Inf value(s)")
+    return image
+
+
+def to_float32(image: np.ndarray) -> np.ndarray:
+    """Return a validated image as C-contiguous float32 on the 0..255 scale."""
+    scale = _TO_8BIT_SCALE[image.dtype]
+    if scale == 1.0:
+        return np.ascontiguousarray(image, dtype=np.float32)
+    return np.ascontiguousarray(image * scale, dtype=np.float32)
+
+
+def check_aspect(query: np.ndarray, reference: np.ndarray) -> None:
+    """Require the reference to have the query's aspect ratio within one reference pixel.
+
+    Raises
+    ------
+    ValueError
+        If the aspect ratios disagree.
+    """
+    hq, wq = query.shape[:2]
+    hr, wr = reference.shape[:2]
+    if abs(wr - wq * hr / hq) > 1.0 or abs(hr - hq * wr / wq) > 1.0:
+        raise ValueError(
+            f"reference aspect ratio {wr}x{hr} does not match query {wq}x{hq} "
+            "(a reference may be smaller than the query but must have the same aspect ratio)"
+        )

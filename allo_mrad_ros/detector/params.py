@@ -1,0 +1,167 @@
+"""MRAD parameters: one validated dataclass, named profiles.
+
+Defaults are the paper's optimum (grid 4x4, tolerance 50, kernel 20 % of the cell, blur SD 5)
+plus the values this project chose where the paper is silent (see the README's "Detector
+parameters" section for the reasons).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any, Literal
+
+ScoreScaling = Literal["fixed", "per_image"]
+NoiseRemoval = Literal["local_std", "cell_spread", "none"]
+
+SCORE_RANGE = 255.0
+
+
+@dataclass(frozen=True)
+class MradParams:
+    """Parameters of :func:`allo_mrad_ros.detector.detect`.
+
+    All score-valued parameters are on the 0..255 scale of the scaled score map; colour
+    values are on the 0..255 scale of an 8-bit image whatever the input dtype.
+
+    Parameters
+    ----------
+    grid : int
+        Cells per side of the statistics grid (1 = no grid), 1..64.
+    tolerance : float
+        Region-growing range around a seed's blurred score, 0..255.
+    kernel_fraction : float
+        Side of the local-std window as a fraction of the cell's height and width, (0, 1].
+    blur_sigma : float
+        Standard deviation of the Gaussian blur in pixels at full query resolution, >= 0
+        (0 disables the blur).
+    score_scaling : {"fixed", "per_image"}
+        ``fixed`` maps raw score ``score_ref`` to 255 in every frame; ``per_image``
+        divides by the frame's maximum (the paper's reading).
+    score_ref : float
+        Raw cross score mapped to 255 by ``fixed`` scaling, > 0.
+    min_score : float
+        Scaled scores below this are zeroed; also the lowest seed and grown value, 0..255.
+    noise_removal : {"local_std", "cell_spread", "none"}
+        ``local_std`` zeroes pixels whose local standard deviation is below ``std_thresh``
+        (the paper's text); ``cell_spread`` zeroes a whole cell when the spread of its local
+        standard deviations is below ``std_thresh`` (the paper's pseudo-code).
+    std_thresh : float
+        Flatness threshold of noise removal on the 0..255 scale, 0..255.
+    large_anomaly_fraction : float
+        A cell with more than this fraction of scores above ``min_score`` is kept whole and
+        skips noise removal, (0, 1].
+    abs_floor : float
+        Absolute covariance regularisation (8-bit intensity units squared), > 0.
+    rel_floor : float
+        Covariance regularisation relative to the mean variance ``trace(S) / 3``, >= 0.
+    connectivity : {4, 8}
+        Region-growing neighbourhood (8 = the 3x3 square footprint).
+    area_threshold : float
+        Fraction of the image the mask must exceed for the frame to be anomalous, [0, 1).
+    process_scale : float
+        Linear scale at which the query is processed, (0, 1]; outputs are returned at the
+        query's resolution.
+    """
+
+    grid: int = 4
+    tolerance: float = 50.0
+    kernel_fraction: float = 0.20
+    blur_sigma: float = 5.0
+    score_scaling: ScoreScaling = "fixed"
+    score_ref: float = 1000.0
+    min_score: float = 25.0
+    noise_removal: NoiseRemoval = "local_std"
+    std_thresh: float = 10.0
+    large_anomaly_fraction: float = 0.90
+    abs_floor: float = 4.0
+    rel_floor: float = 1e-3
+    connectivity: int = 8
+    area_threshold: float = 0.001
+    process_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check_int(self.grid, "grid", 1, 64)
+        _check_range(self.tolerance, "tolerance", 0.0, SCORE_RANGE)
+        _check_range(self.kernel_fraction, "kernel_fraction", 0.0, 1.0, low_open=True)
+        _check_range(self.blur_sigma, "blur_sigma", 0.0, 100.0)
+        _check_choice(self.score_scaling, "score_scaling", ("fixed", "per_image"))
+        _check_range(self.score_ref, "score_ref", 0.0, 1e12, low_open=True)
+        _check_range(self.min_score, "min_score", 0.0, SCORE_RANGE)
+        _check_choice(self.noise_removal, "noise_removal", ("local_std", "cell_spread", "none"))
+        _check_range(self.std_thresh, "std_thresh", 0.0, SCORE_RANGE)
+        _check_range(self.large_anomaly_fraction, "large_anomaly_fraction", 0.0, 1.0, low_open=True)
+        _check_range(self.abs_floor, "abs_floor", 0.0, 1e6, low_open=True)
+        _check_range(self.rel_floor, "rel_floor", 0.0, 1.0)
+        _check_choice(self.connectivity, "connectivity", (4, 8))
+        _check_range(self.area_threshold, "area_threshold", 0.0, 1.0, high_open=True)
+        _check_range(self.process_scale, "process_scale", 0.0, 1.0, low_open=True)
+
+    def replace(self, **changes: Any) -> MradParams:
+        """Return a copy with ``changes`` applied (validated)."""
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            raise ValueError(f"unknown MRAD parameter(s): {sorted(unknown)}")
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the parameters as a plain dictionary."""
+        return asdict(self)
+
+
+def _check_int(value: object, name: str, low: int, high: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+
+
+def _check_range(
+    value: object,
+    name: str,
+    low: float,
+    high: float,
+    low_open: bool = False,
+    high_open: bool = False,
+) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    too_low = value <= low if low_open else value < low
+    too_high = value >= high if high_open else value > high
+    if too_low or too_high:
+        lo, hi = ("(" if low_open else "["), (")" if high_open else "]")
+        raise ValueError(f"{name} must be in {lo}{low:g}, {high:g}{hi}, got {value!r}")
+
+
+def _check_choice(value: object, name: str, choices: tuple[object, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+
+
+PROFILES: dict[str, MradParams] = {
+    # Project defaults: the paper's optimum with fixed score scaling.
+    "default": MradParams(),
+    # The paper read literally: per-image scaling of the score map.
+    "paper": MradParams(score_scaling="per_image"),
+    # Half-resolution processing for a loaded CPU.
+    "fast": MradParams(process_scale=0.5),
+}
+
+
+def profile(name: str, **overrides: Any) -> MradParams:
+    """Return a named parameter profile, optionally with overrides.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`PROFILES`.
+    **overrides
+        Fields to change, validated like the constructor's arguments.
+
+    Returns
+    -------
+    MradParams
+    """
+    if name not in PROFILES:
+        raise ValueError(f"unknown MRAD profile {name!r}; choose one of {sorted(PROFILES)}")
+    return PROFILES[name].replace(**overrides) if overrides else PROFILES[name]

@@ -1,0 +1,206 @@
+"""MRAD composed from its stages, the image decision, and the RXD/PAD baselines.
+
+Every method takes ``(query, reference, params)`` and returns a :class:`DetectionResult`,
+so the node, the evaluator and the benchmarks treat them alike.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from allo_mrad_ros.detector.images import check_aspect, check_image
+from allo_mrad_ros.detector.params import MradParams
+from allo_mrad_ros.detector.postprocess import (
+    blur_scores,
+    remove_noise,
+    scale_scores,
+    threshold_scores,
+)
+from allo_mrad_ros.detector.regions import find_seeds, grow_regions, seed_window
+from allo_mrad_ros.detector.score import cross_score, rx_score
+
+
+@dataclass(frozen=True)
+class DetectionResult:
+    """What a detector found in one query image.
+
+    Attributes
+    ----------
+    score : numpy.ndarray
+        H x W float32 in 0..255: the pixel anomaly score that pixel metrics rank.
+    raw_score : numpy.ndarray
+        H x W float32 raw score before scaling (at the processing resolution).
+    mask : numpy.ndarray
+        H x W uint8, 0 or 255.
+    area : int
+        Number of anomalous pixels in ``mask``; also the image-level score.
+    anomalous : bool
+        ``area`` exceeds the area threshold.
+    timings_ms : dict
+        Milliseconds per stage, in pipeline order, plus ``total``.
+    """
+
+    score: np.ndarray
+    raw_score: np.ndarray
+    mask: np.ndarray
+    area: int
+    anomalous: bool
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+Detector = Callable[[np.ndarray, np.ndarray | None, MradParams], DetectionResult]
+
+
+class _StageTimer:
+    def __init__(self) -> None:
+        self.timings: dict[str, float] = {}
+        self._start = time.perf_counter()
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        self.timings[name] = self.timings.get(name, 0.0) + 1e3 * (time.perf_counter() - start)
+
+    def finish(self) -> dict[str, float]:
+        self.timings["total"] = 1e3 * (time.perf_counter() - self._start)
+        return self.timings
+
+
+def decide(mask: np.ndarray, area_threshold: float) -> tuple[int, bool]:
+    """Stage 6: the mask's area and whether it exceeds ``area_threshold`` of the image."""
+    area = int(cv2.countNonZero(mask))
+    return area, area > area_threshold * mask.size
+
+
+def detect(
+    query: np.ndarray, reference: np.ndarray | None, params: MradParams | None = None
+) -> DetectionResult:
+    """Run MRAD on a query image against the rendered reference of the same view.
+
+    Parameters
+    ----------
+    query : numpy.ndarray
+        H x W x 3 camera image (uint8, uint16, or float on the 0..1 scale).
+    reference : numpy.ndarray
+        Rendered reference, same aspect ratio, any resolution.
+    params : MradParams, optional
+        Detector parameters (defaults if omitted).
+
+    Returns
+    -------
+    DetectionResult
+
+    Raises
+    ------
+    ValueError
+        For a malformed image (shape, dtype, NaN/Inf, empty), an aspect mismatch or an
+        image smaller than the grid.
+    """
+    params = params or MradParams()
+    if reference is None:
+        raise ValueError("reference is required for MRAD (got None)")
+    timer = _StageTimer()
+    query = check_image(query, "query")
+    reference = check_image(reference, "reference")
+    check_aspect(query, reference)
+    full_shape = query.shape[:2]
+    work = _resize_query(query, params.process_scale)
+    with timer.stage("cross_score"):
+        raw = cross_score(work, reference, params.grid, params.abs_floor, params.rel_floor)
+    with timer.stage("scale_threshold"):
+        scaled = threshold_scores(
+            scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
+        )
+    with timer.stage("noise_removal"):
+        cleaned = remove_noise(
+            scaled,
+            params.grid,
+            min_score=params.min_score,
+            kernel_fraction=params.kernel_fraction,
+            std_thresh=params.std_thresh,
+            large_anomaly_fraction=params.large_anomaly_fraction,
+            variant=params.noise_removal,
+        )
+    sigma = params.blur_sigma * params.process_scale
+    with timer.stage("blur"):
+        blurred = blur_scores(cleaned, sigma)
+    with timer.stage("seeds"):
+        seeds = find_seeds(blurred, params.min_score, seed_window(sigma))
+    with timer.stage("region_growing"):
+        mask = grow_regions(blurred, seeds, params.tolerance, params.min_score, params.connectivity)
+    with timer.stage("decision"):
+        score = np.where(mask > 0, blurred, np.float32(0.0))
+        score, mask = _restore_resolution(score, mask, full_shape)
+        area, anomalous = decide(mask, params.area_threshold)
+    return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
+
+
+def detect_pad(
+    query: np.ndarray, reference: np.ndarray | None, params: MradParams | None = None
+) -> DetectionResult:
+    """PAD baseline: the cross score with one cell and only a threshold after scaling."""
+    params = params or MradParams()
+    if reference is None:
+        raise ValueError("reference is required for PAD (got None)")
+    query = check_image(query, "query")
+    reference = check_image(reference, "reference")
+    check_aspect(query, reference)
+    timer = _StageTimer()
+    with timer.stage("cross_score"):
+        raw = cross_score(query, reference, 1, params.abs_floor, params.rel_floor)
+    return _threshold_only(raw, params, timer)
+
+
+def detect_rxd(
+    query: np.ndarray, reference: np.ndarray | None = None, params: MradParams | None = None
+) -> DetectionResult:
+    """RXD baseline: each pixel against the whole query's mean and covariance.
+
+    ``reference`` is accepted for a uniform interface and ignored.
+    """
+    params = params or MradParams()
+    query = check_image(query, "query")
+    timer = _StageTimer()
+    with timer.stage("rx_score"):
+        raw = rx_score(query, params.abs_floor, params.rel_floor)
+    return _threshold_only(raw, params, timer)
+
+
+def _threshold_only(raw: np.ndarray, params: MradParams, timer: _StageTimer) -> DetectionResult:
+    with timer.stage("scale_threshold"):
+        score = threshold_scores(
+            scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
+        )
+        mask = np.where(score > 0.0, np.uint8(255), np.uint8(0))
+    with timer.stage("decision"):
+        area, anomalous = decide(mask, params.area_threshold)
+    return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
+
+
+def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:
+    if scale == 1.0:
+        return query
+    height, width = query.shape[:2]
+    size = (max(1, round(width * scale)), max(1, round(height * scale)))
+    return cv2.resize(query, size, interpolation=cv2.INTER_AREA)
+
+
+def _restore_resolution(
+    score: np.ndarray, mask: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    if score.shape == shape:
+        return score, mask
+    size = (shape[1], shape[0])
+    score = cv2.resize(score, size, interpolation=cv2.INTER_LINEAR)
+    mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
+    return np.where(mask > 0, score, np.float32(0.0)), mask
+
+
+METHODS: dict[str, Detector] = {"MRAD": detect, "PAD": detect_pad, "RXD": detect_rxd}

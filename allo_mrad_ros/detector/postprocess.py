@@ -1,0 +1,121 @@
+"""Stages 2-3: scaling and threshold of the raw score, noise removal, blur."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from allo_mrad_ros.detector.grid import cell_slices
+from allo_mrad_ros.detector.params import SCORE_RANGE
+
+
+def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
+    """Map the raw score onto 0..255.
+
+    Parameters
+    ----------
+    raw : numpy.ndarray
+        H x W float32 raw score.
+    scaling : {"fixed", "per_image"}
+        ``fixed``: ``clip(255 * max(raw, 0) / score_ref, 0, 255)``; ``per_image``:
+        ``255 * max(raw, 0) / max(max(raw, 0))`` (all zeros when nothing is positive).
+    score_ref : float
+        Raw score mapped to 255 by ``fixed`` scaling.
+
+    Returns
+    -------
+    numpy.ndarray
+        H x W float32 in [0, 255].
+    """
+    positive = np.maximum(raw, 0.0, dtype=np.float32)
+    if scaling == "per_image":
+        peak = float(positive.max())
+        if peak <= 0.0:
+            return np.zeros_like(positive)
+        positive *= np.float32(SCORE_RANGE / peak)
+        return np.minimum(positive, SCORE_RANGE, out=positive)
+    if scaling == "fixed":
+        positive *= np.float32(SCORE_RANGE / score_ref)
+        return np.minimum(positive, SCORE_RANGE, out=positive)
+    raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+
+
+def threshold_scores(scaled: np.ndarray, min_score: float) -> np.ndarray:
+    """Zero every scaled score below ``min_score`` (in place; returns the array)."""
+    scaled[scaled < min_score] = 0.0
+    return scaled
+
+
+def local_std(scores: np.ndarray, window: tuple[int, int]) -> np.ndarray:
+    """Standard deviation over a ``(height, width)`` box around each pixel (reflected edges).
+
+    Box filters of the map and of its square give the local variance in O(1) per pixel.
+    """
+    mean = cv2.boxFilter(scores, cv2.CV_32F, (window[1], window[0]), borderType=cv2.BORDER_REFLECT)
+    mean_sq = cv2.boxFilter(
+        cv2.multiply(scores, scores),
+        cv2.CV_32F,
+        (window[1], window[0]),
+        borderType=cv2.BORDER_REFLECT,
+    )
+    variance = np.maximum(mean_sq - mean * mean, 0.0, dtype=np.float32)
+    return cv2.sqrt(variance)
+
+
+def std_window(height: int, width: int, grid: int, kernel_fraction: float) -> tuple[int, int]:
+    """Window of ``kernel_fraction`` of a cell's height and width, at least one pixel."""
+    return (
+        max(1, round(kernel_fraction * height / grid)),
+        max(1, round(kernel_fraction * width / grid)),
+    )
+
+
+def remove_noise(
+    scores: np.ndarray,
+    grid: int,
+    *,
+    min_score: float,
+    kernel_fraction: float,
+    std_thresh: float,
+    large_anomaly_fraction: float,
+    variant: str,
+) -> np.ndarray:
+    """Zero flat noise in a thresholded score map, cell by cell.
+
+    A cell with more than ``large_anomaly_fraction`` of its scores above ``min_score`` is a
+    large anomaly and is kept whole. Elsewhere ``local_std`` zeroes pixels whose local
+    standard deviation (window ``kernel_fraction`` of the cell) is below ``std_thresh``;
+    ``cell_spread`` zeroes a whole cell when the spread (max - min) of its local standard
+    deviations is below ``std_thresh``; ``none`` keeps the map.
+
+    Returns
+    -------
+    numpy.ndarray
+        A new H x W float32 map.
+    """
+    if variant not in ("local_std", "cell_spread", "none"):
+        raise ValueError(f"noise_removal must be local_std, cell_spread or none, got {variant!r}")
+    cleaned = scores.copy()
+    if variant == "none" or not cleaned.any():
+        return cleaned
+    height, width = scores.shape
+    spread = local_std(scores, std_window(height, width, grid, kernel_fraction))
+    flat = spread < std_thresh
+    for cell in cell_slices(height, width, grid):
+        cell_scores = scores[cell]
+        if np.count_nonzero(cell_scores > min_score) > large_anomaly_fraction * cell_scores.size:
+            continue
+        if variant == "local_std":
+            cleaned[cell][flat[cell]] = 0.0
+        elif float(np.ptp(spread[cell])) < std_thresh:
+            cleaned[cell] = 0.0
+    return cleaned
+
+
+def blur_scores(scores: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur with standard deviation ``sigma`` pixels (a copy when ``sigma == 0``)."""
+    if sigma <= 0.0:
+        return scores.copy()
+    return cv2.GaussianBlur(
+        scores, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT
+    )

@@ -1,0 +1,84 @@
+"""Stages 4-5: seeds (mean-shift modes) and region growing."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+_FILL_VALUE = 255
+
+
+def seed_window(sigma: float) -> int:
+    """Side of the local-maximum window for a blur of ``sigma`` px: ``2*ceil(sigma)+1``, >= 3."""
+    return max(3, 2 * math.ceil(sigma) + 1)
+
+
+def find_seeds(blurred: np.ndarray, min_score: float, window: int) -> np.ndarray:
+    """Return region-growing seeds: the modes of the blurred score density.
+
+    With a Gaussian kernel of the blur's bandwidth, the modes mean shift climbs to are the
+    local maxima of the blurred map, found here by comparing the map with its grey-scale
+    dilation. A plateau of equal maxima yields one seed (its first pixel in raster order).
+
+    Parameters
+    ----------
+    blurred : numpy.ndarray
+        H x W float32 blurred score map.
+    min_score : float
+        Seeds must score at least this and more than zero.
+    window : int
+        Side of the square neighbourhood a seed must dominate.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N, 2) int array of (row, col), sorted by descending score, then raster order.
+    """
+    kernel = np.ones((window, window), dtype=np.uint8)
+    dilated = cv2.dilate(blurred, kernel, borderType=cv2.BORDER_REPLICATE)
+    peaks = (blurred >= dilated) & (blurred >= min_score) & (blurred > 0.0)
+    if not peaks.any():
+        return np.empty((0, 2), dtype=np.int64)
+    _, labels = cv2.connectedComponents(peaks.view(np.uint8), connectivity=8)
+    flat_labels = labels.ravel()
+    order = np.flatnonzero(flat_labels)
+    _, first = np.unique(flat_labels[order], return_index=True)
+    indices = order[first]
+    values = blurred.ravel()[indices]
+    indices = indices[np.lexsort((indices, -values))]
+    return np.column_stack(np.unravel_index(indices, blurred.shape)).astype(np.int64)
+
+
+def grow_regions(
+    blurred: np.ndarray,
+    seeds: np.ndarray,
+    tolerance: float,
+    min_score: float,
+    connectivity: int = 8,
+) -> np.ndarray:
+    """Grow a region from every seed and return their union as a 0/255 mask.
+
+    A neighbour joins a seed's region when its blurred score lies within ``tolerance`` of
+    the seed's score (a seeded flood fill with a fixed range) and is at least ``min_score``
+    (so a weak seed cannot flood the empty background).
+
+    Returns
+    -------
+    numpy.ndarray
+        H x W uint8 mask with 0 and 255.
+    """
+    height, width = blurred.shape
+    fill_mask = np.zeros((height + 2, width + 2), dtype=np.uint8)
+    if len(seeds) == 0:
+        return fill_mask[1:-1, 1:-1].copy()
+    # Non-zero mask pixels stop the fill: below-threshold scores are a barrier.
+    fill_mask[1:-1, 1:-1][blurred < min_score] = 1
+    flags = connectivity | cv2.FLOODFILL_FIXED_RANGE | cv2.FLOODFILL_MASK_ONLY | (_FILL_VALUE << 8)
+    image = np.ascontiguousarray(blurred, dtype=np.float32)
+    for row, col in seeds:
+        if fill_mask[row + 1, col + 1]:
+            continue
+        cv2.floodFill(image, fill_mask, (int(col), int(row)), 0, tolerance, tolerance, flags)
+    return np.where(fill_mask[1:-1, 1:-1] == _FILL_VALUE, np.uint8(255), np.uint8(0))

@@ -1,0 +1,130 @@
+"""Stage 1a: colour statistics per grid cell, and their regularised inverses.
+
+Sums are accumulated exactly (integers) for 8-bit images and in float64 around a per-cell
+centre otherwise, so the covariances of flat cells (black sky, grey metal, saturated
+glare) come out as exact zeros or tiny values instead of cancellation noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from allo_mrad_ros.detector.grid import cell_slices
+from allo_mrad_ros.detector.images import to_float32
+
+# Index pairs of the upper triangle of a 3x3 colour covariance: (r,g), (r,b), (g,b).
+_CROSS_A = [0, 0, 1]
+_CROSS_B = [1, 2, 2]
+
+
+@dataclass(frozen=True)
+class CellStatistics:
+    """Mean and sample covariance (ddof = 1) of the pixels of each cell.
+
+    Attributes
+    ----------
+    mean : numpy.ndarray
+        (G*G, 3) float64, 0..255 scale, cells row-major.
+    cov : numpy.ndarray
+        (G*G, 3, 3) float64; zero for single-pixel cells.
+    count : numpy.ndarray
+        (G*G,) int64 pixel counts.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+    count: np.ndarray
+
+
+def cell_statistics(image: np.ndarray, grid: int) -> CellStatistics:
+    """Return the colour mean and covariance of every cell of a validated image.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        H x W x 3 image of an accepted dtype (see :func:`check_image`).
+    grid : int
+        Cells per side.
+
+    Returns
+    -------
+    CellStatistics
+    """
+    slices = cell_slices(image.shape[0], image.shape[1], grid)
+    if image.dtype == np.uint8:
+        return _statistics_uint8(image, slices)
+    return _statistics_float(to_float32(image), slices)
+
+
+def _statistics_uint8(image: np.ndarray, slices: list[tuple[slice, slice]]) -> CellStatistics:
+    # Products of 8-bit values fit in uint16 and their sums are exact in float64, so the
+    # covariance is exact up to the final division.
+    wide = image.astype(np.uint16)
+    squares = wide * wide
+    cross = wide[..., _CROSS_A] * wide[..., _CROSS_B]
+    n_cells = len(slices)
+    mean = np.empty((n_cells, 3))
+    cov = np.empty((n_cells, 3, 3))
+    count = np.empty(n_cells, dtype=np.int64)
+    for index, cell in enumerate(slices):
+        n = image[cell].shape[0] * image[cell].shape[1]
+        sums = np.array(cv2.sumElems(image[cell])[:3])
+        sq = np.array(cv2.sumElems(squares[cell])[:3])
+        cr = np.array(cv2.sumElems(cross[cell])[:3])
+        second = np.diag(sq)
+        second[_CROSS_A, _CROSS_B] = cr
+        second[_CROSS_B, _CROSS_A] = cr
+        mean[index] = sums / n
+        cov[index] = (second - np.outer(sums, sums) / n) / max(n - 1, 1)
+        count[index] = n
+    return CellStatistics(mean=mean, cov=cov, count=count)
+
+
+def _statistics_float(image: np.ndarray, slices: list[tuple[slice, slice]]) -> CellStatistics:
+    n_cells = len(slices)
+    mean = np.empty((n_cells, 3))
+    cov = np.empty((n_cells, 3, 3))
+    count = np.empty(n_cells, dtype=np.int64)
+    for index, cell in enumerate(slices):
+        pixels = image[cell].reshape(-1, 3)
+        n = pixels.shape[0]
+        centre = np.array(cv2.mean(image[cell])[:3])
+        centred = pixels.astype(np.float64) - centre
+        offset = centred.mean(axis=0)
+        mean[index] = centre + offset
+        cov[index] = (centred.T @ centred - n * np.outer(offset, offset)) / max(n - 1, 1)
+        count[index] = n
+    return CellStatistics(mean=mean, cov=cov, count=count)
+
+
+def regularised_precision(cov: np.ndarray, abs_floor: float, rel_floor: float) -> np.ndarray:
+    """Invert ``S + lambda * I`` with ``lambda = max(abs_floor, rel_floor * trace(S) / 3)``.
+
+    The inverse goes through a symmetric eigendecomposition; eigenvalues are clamped to a
+    tiny positive value so even unregularised singular matrices (``abs_floor = 0`` in
+    property tests) give a finite precision.
+
+    Parameters
+    ----------
+    cov : numpy.ndarray
+        (..., 3, 3) covariances.
+    abs_floor, rel_floor : float
+        Regularisation floors (>= 0).
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3, 3) float64 precision matrices.
+    """
+    cov = np.asarray(cov, dtype=np.float64)
+    trace = np.trace(cov, axis1=-2, axis2=-1)
+    lam = np.maximum(abs_floor, rel_floor * trace / 3.0)
+    regularised = cov + lam[..., None, None] * np.eye(3)
+    regularised = 0.5 * (regularised + np.swapaxes(regularised, -1, -2))
+    values, vectors = np.linalg.eigh(regularised)
+    floor = np.maximum(values.max(axis=-1, keepdims=True), 1.0) * 1e-12
+    inverse_values = 1.0 / np.maximum(values, floor)
+    return (vectors * inverse_values[..., None, :]) @ np.swapaxes(vectors, -1, -2)
