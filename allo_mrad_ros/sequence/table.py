@@ -1,0 +1,243 @@
+"""Parsing and formatting ``frames.csv``: one validated :class:`Frame` per data row."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterable, Mapping
+from pathlib import Path, PurePosixPath, PureWindowsPath
+
+import numpy as np
+
+from .model import (
+    ANOMALOUS,
+    COLUMNS,
+    EARTH_COLUMNS,
+    LABELS,
+    MAX_STAMP_NS,
+    MOON_COLUMNS,
+    NORMAL,
+    SPLITS,
+    SUN_COLUMNS,
+    UNIT_NORM_TOLERANCE,
+    Frame,
+    SequenceError,
+)
+
+
+def parse_int(text: str, column: str, minimum: int = 0) -> int:
+    """Parse a whole number not below ``minimum``."""
+    try:
+        value = int(text.strip())
+    except ValueError:
+        raise SequenceError(f"expected an integer, got {text!r}", column=column) from None
+    if value < minimum:
+        raise SequenceError(f"must be at least {minimum}, got {value}", column=column)
+    return value
+
+
+def parse_float(text: str, column: str) -> float:
+    """Parse a finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise SequenceError(f"expected a number, got {text!r}", column=column) from None
+    if not math.isfinite(value):
+        raise SequenceError(f"must be finite, got {text!r}", column=column)
+    return value
+
+
+def _choice(text: str, column: str, choices: tuple[str, ...]) -> str:
+    if text not in choices:
+        raise SequenceError(f"must be one of {', '.join(choices)}; got {text!r}", column=column)
+    return text
+
+
+def _relative_path(text: str, column: str, root: Path, required: bool) -> Path | None:
+    if not text:
+        if required:
+            raise SequenceError("path is empty", column=column)
+        return None
+    if PurePosixPath(text).is_absolute() or PureWindowsPath(text).is_absolute():
+        raise SequenceError(
+            f"path must be relative to the sequence root, got {text!r}", column=column
+        )
+    return root / text
+
+
+def _unit_vector(values: list[float], columns: tuple[str, ...]) -> None:
+    norm = math.sqrt(sum(v * v for v in values))
+    if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
+        span = f"{columns[0]}..{columns[-1]}"
+        raise SequenceError(f"not a unit vector (norm {norm:.6f})", column=span)
+
+
+def _body(record: Mapping[str, str], columns: tuple[str, ...]) -> np.ndarray | None:
+    texts = [record[c].strip() for c in columns]
+    if not any(texts):
+        return None
+    for column, text in zip(columns, texts, strict=True):
+        if not text:
+            raise SequenceError("empty while other columns of this body are set", column=column)
+    values = [parse_float(t, c) for c, t in zip(columns, texts, strict=True)]
+    if values[3] <= 0:
+        raise SequenceError(f"radius must be positive, got {values[3]}", column=columns[3])
+    return np.array(values)
+
+
+def frame_from_record(
+    record: Mapping[str, str], index: int, root: Path, extra_columns: Iterable[str] = ()
+) -> Frame:
+    """Validate one ``frames.csv`` record (column -> text) and build its :class:`Frame`.
+
+    Raises
+    ------
+    SequenceError
+        With ``column`` set; the caller adds the file and the row.
+    """
+    stamp_ns = parse_int(record["stamp_ns"], "stamp_ns")
+    if stamp_ns >= MAX_STAMP_NS:
+        raise SequenceError(
+            f"{stamp_ns} ns does not fit builtin_interfaces/Time (int32 seconds)",
+            column="stamp_ns",
+        )
+    split = _choice(record["split"], "split", SPLITS)
+    camera = parse_int(record["camera"], "camera")
+    image = _relative_path(record["image"], "image", root, required=True)
+    mask = _relative_path(record["mask"], "mask", root, required=False)
+    reference = _relative_path(record["reference"], "reference", root, required=False)
+    label = _choice(record["label"], "label", LABELS)
+    anomaly = record["anomaly"]
+    if label == NORMAL and anomaly:
+        raise SequenceError(f"must be empty for a normal frame, got {anomaly!r}", column="anomaly")
+    if label == ANOMALOUS and not anomaly.strip():
+        raise SequenceError("an anomalous frame needs the object type name", column="anomaly")
+    position = [parse_float(record[c], c) for c in ("tx", "ty", "tz")]
+    quaternion = [parse_float(record[c], c) for c in ("qx", "qy", "qz", "qw")]
+    _unit_vector(quaternion, ("qx", "qy", "qz", "qw"))
+    sun = [parse_float(record[c], c) for c in SUN_COLUMNS]
+    _unit_vector(sun, SUN_COLUMNS)
+    sun_strength = parse_float(record["sun_strength"], "sun_strength")
+    if sun_strength < 0:
+        raise SequenceError(f"must not be negative, got {sun_strength}", column="sun_strength")
+    return Frame(
+        index=index,
+        stamp_ns=stamp_ns,
+        split=split,
+        camera=camera,
+        image=image,
+        mask=mask,
+        reference=reference,
+        label=label,
+        anomaly=anomaly,
+        position=position,
+        quaternion=quaternion,
+        sun_direction=sun,
+        sun_strength=sun_strength,
+        earth=_body(record, EARTH_COLUMNS),
+        moon=_body(record, MOON_COLUMNS),
+        extra={c: record[c] for c in extra_columns},
+    )
+
+
+def read_frames(path: Path, root: Path) -> list[Frame]:
+    """Read and validate ``frames.csv``.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file.
+    root : pathlib.Path
+        Sequence root the paths in the file are relative to.
+
+    Returns
+    -------
+    list of Frame
+        The frames in playback order (at least one).
+
+    Raises
+    ------
+    SequenceError
+        Naming the file, the 1-based data row (and its line) and the column at fault.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SequenceError("file not found", file=path) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise SequenceError(f"cannot read file: {error}", file=path) from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise SequenceError("empty file, expected a header row", file=path, line=1) from None
+    except csv.Error as error:
+        raise SequenceError(f"malformed CSV: {error}", file=path, line=1) from None
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise SequenceError("duplicate column", file=path, line=1, column=name)
+        seen.add(name)
+    missing = [c for c in COLUMNS if c not in seen]
+    if missing:
+        raise SequenceError(
+            f"missing column(s): {', '.join(missing)}", file=path, line=1, column=missing[0]
+        )
+    extra_columns = [c for c in header if c not in COLUMNS]
+    frames: list[Frame] = []
+    previous_stamp = -1
+    line = reader.line_num + 1
+    while True:
+        try:
+            fields = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as error:
+            raise SequenceError(f"malformed CSV: {error}", file=path, line=line) from None
+        if not fields:  # blank line
+            line = reader.line_num + 1
+            continue
+        row = len(frames) + 1
+        if len(fields) != len(header):
+            raise SequenceError(
+                f"has {len(fields)} fields, the header has {len(header)}",
+                file=path,
+                row=row,
+                line=line,
+            )
+        record = dict(zip(header, fields, strict=True))
+        try:
+            frame = frame_from_record(record, len(frames), root, extra_columns)
+        except SequenceError as error:
+            raise error.located(file=path, row=row, line=line) from None
+        if frame.stamp_ns <= previous_stamp:
+            raise SequenceError(
+                f"stamps must be strictly increasing: {frame.stamp_ns} after {previous_stamp}",
+                file=path,
+                row=row,
+                line=line,
+                column="stamp_ns",
+            )
+        previous_stamp = frame.stamp_ns
+        frames.append(frame)
+        line = reader.line_num + 1
+    if not frames:
+        raise SequenceError("no frames", file=path, line=2)
+    return frames
+
+
+def format_float(value: float) -> str:
+    """Shortest text that reads back as exactly ``value``."""
+    return repr(float(value))
+
+
+def write_frames_text(records: list[Mapping[str, str]], extra_columns: list[str]) -> str:
+    """Return the ``frames.csv`` text of records (column -> text), standard columns first."""
+    stream = io.StringIO(newline="")
+    writer = csv.writer(stream, lineterminator="\n")
+    header = [*COLUMNS, *extra_columns]
+    writer.writerow(header)
+    for record in records:
+        writer.writerow([record.get(c, "") for c in header])
+    return stream.getvalue()

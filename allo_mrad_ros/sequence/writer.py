@@ -1,0 +1,432 @@
+"""Writing a sequence: :class:`SequenceWriter`.
+
+Write order makes an interrupted run obvious: images first, then ``sequence.yaml``, then
+``frames.csv`` under a temporary name renamed into place. A folder without ``frames.csv``
+is not a sequence, so a crash never leaves a valid-looking partial one.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from os import PathLike
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from .metafile import relative_posix, write_meta
+from .model import (
+    ANOMALOUS,
+    COLUMNS,
+    FRAMES_FILE,
+    LABELS,
+    MASK_ANOMALY,
+    MAX_STAMP_NS,
+    META_FILE,
+    NORMAL,
+    SPLITS,
+    UNIT_NORM_TOLERANCE,
+    Frame,
+    SequenceError,
+    SequenceMeta,
+)
+from .png import bad_mask_values, encode_png, read_png_header, write_atomic
+from .table import format_float, frame_from_record, write_frames_text
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
+_COLUMN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def _vector(values: object, length: int, name: str) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64)
+    if array.shape != (length,):
+        raise SequenceError(f"{name} must have {length} elements, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise SequenceError(f"{name} must be finite, got {array.tolist()}")
+    return array
+
+
+def _unit(values: object, length: int, name: str) -> np.ndarray:
+    array = _vector(values, length, name)
+    norm = float(np.linalg.norm(array))
+    if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
+        raise SequenceError(f"{name} must be a unit vector, got norm {norm:.6f}")
+    return array
+
+
+def _body(values: object, name: str) -> np.ndarray | None:
+    if values is None:
+        return None
+    array = _vector(values, 4, name)
+    if array[3] <= 0:
+        raise SequenceError(f"{name} radius must be positive, got {array[3]}")
+    return array
+
+
+class SequenceWriter:
+    """Write a sequence folder frame by frame.
+
+    Use it as a context manager: leaving the block normally calls :meth:`close`, leaving it
+    with an exception calls :meth:`abort`, so no ``frames.csv`` is written.
+
+    Parameters
+    ----------
+    root : path-like
+        Output folder, created if needed.
+    meta : SequenceMeta
+        Metadata; ``meta.mesh`` (if set) is the station model file to record.
+    copy_mesh : bool
+        Copy ``meta.mesh`` into ``root/meshes/`` (default). Otherwise record its path
+        relative to ``root``. Only single-file models (.glb, .ply, .stl, .obj without
+        material files) survive a copy intact.
+    overwrite : bool
+        Allow ``root`` to hold a sequence already. Its ``frames.csv`` and ``sequence.yaml``
+        are deleted at once, so an interrupted overwrite leaves no stale valid sequence.
+    start_ns : int
+        Stamp of the first frame when stamps are not given.
+    png_compression : int
+        zlib level 0-9 for written PNGs: output is lossless at any level, 3 balances speed
+        and size.
+
+    Raises
+    ------
+    SequenceError
+        If ``root`` already holds a sequence and ``overwrite`` is False, or a parameter is
+        invalid.
+
+    Examples
+    --------
+    >>> with SequenceWriter(out, meta) as writer:  # doctest: +SKIP
+    ...     writer.add_frame(split="test", camera=0, image=rgb, position=p, quaternion=q,
+    ...                      sun_direction=s, mask=mask, anomaly="drill")
+    """
+
+    def __init__(
+        self,
+        root: str | PathLike[str],
+        meta: SequenceMeta,
+        *,
+        copy_mesh: bool = True,
+        overwrite: bool = False,
+        start_ns: int = 0,
+        png_compression: int = 3,
+    ) -> None:
+        if not isinstance(meta, SequenceMeta):
+            raise SequenceError(f"meta must be SequenceMeta, got {type(meta).__name__}")
+        if (
+            isinstance(start_ns, bool)
+            or not isinstance(start_ns, int)
+            or not (0 <= start_ns < MAX_STAMP_NS)
+        ):
+            raise SequenceError(f"start_ns must be an integer in [0, 2**31 s), got {start_ns!r}")
+        if isinstance(png_compression, bool) or png_compression not in range(10):
+            raise SequenceError(f"png_compression must be 0-9, got {png_compression!r}")
+        if meta.mesh is not None and not meta.mesh.is_file():
+            raise SequenceError("mesh file not found", file=meta.mesh, column="mesh")
+        self.root = Path(root)
+        self.meta = meta
+        self._copy_mesh = copy_mesh
+        self._compression = png_compression
+        self._period_ns = max(1, round(1e9 / meta.rate_hz))
+        self._next_stamp = start_ns
+        self._last_stamp = -1
+        self._records: list[dict[str, str]] = []
+        self._frames: list[Frame] = []
+        self._extra_columns: list[str] = []
+        self._written: set[str] = set()
+        self._state = "open"
+        existing = [n for n in (FRAMES_FILE, META_FILE) if (self.root / n).exists()]
+        if existing and not overwrite:
+            raise SequenceError(
+                "folder already holds a sequence; pass overwrite=True to replace it",
+                file=self.root / existing[0],
+            )
+        self.root.mkdir(parents=True, exist_ok=True)
+        for name in (FRAMES_FILE, META_FILE):
+            (self.root / name).unlink(missing_ok=True)
+
+    def __enter__(self) -> SequenceWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    @property
+    def frames(self) -> tuple[Frame, ...]:
+        """The frames added so far, as a reader would return them."""
+        return tuple(self._frames)
+
+    def _require_open(self) -> None:
+        if self._state != "open":
+            raise SequenceError(f"writer is {self._state}")
+
+    def _check_array(self, array: object, what: str, channels: int) -> np.ndarray:
+        array = np.asarray(array)
+        camera = self.meta.camera
+        shape = (camera.height, camera.width) + ((channels,) if channels > 1 else ())
+        if array.dtype != np.uint8 or array.shape != shape:
+            raise SequenceError(
+                f"{what} must be uint8 of shape {shape}, got {array.dtype} {array.shape}"
+            )
+        return array
+
+    def _prepare(self, data: object, split: str, camera: int, name: str, kind: str) -> tuple:
+        """Validate one image input without touching the disk.
+
+        Returns ``(relative path, array to write or None)``.
+        """
+        if isinstance(data, (str, PathLike)):
+            path = Path(data)
+            header = read_png_header(path)
+            camera_size = (self.meta.camera.width, self.meta.camera.height)
+            if (header.width, header.height) != camera_size:
+                raise SequenceError(
+                    f"size {header.width}x{header.height} differs from camera "
+                    f"{camera_size[0]}x{camera_size[1]}",
+                    file=path,
+                )
+            ok = header.is_grey8 if kind == "masks" else header.is_rgb8
+            if not ok:
+                raise SequenceError(f"unexpected pixel layout {header.describe()}", file=path)
+            return relative_posix(path, self.root), None
+        channels = 1 if kind == "masks" else 3
+        array = self._check_array(data, kind[:-1], channels)
+        if kind == "masks":
+            bad = bad_mask_values(array)
+            if bad:
+                raise SequenceError(f"mask values must be 0, 1 or 2; found {bad[:10]}")
+        relative = f"{split}/Camera{camera}/{kind}/{name}.png"
+        if relative in self._written:
+            raise SequenceError(f"duplicate file {relative}: frame names must be unique")
+        return relative, array
+
+    def add_frame(
+        self,
+        *,
+        split: str,
+        camera: int,
+        image: np.ndarray | PathLike[str],
+        position: object,
+        quaternion: object,
+        sun_direction: object,
+        sun_strength: float = 1.0,
+        mask: np.ndarray | PathLike[str] | None = None,
+        reference: np.ndarray | PathLike[str] | None = None,
+        label: str | None = None,
+        anomaly: str = "",
+        earth: object = None,
+        moon: object = None,
+        name: str | None = None,
+        stamp_ns: int | None = None,
+        extra: Mapping[str, object] | None = None,
+    ) -> Frame:
+        """Add one frame: write its PNGs now and keep its row for :meth:`close`.
+
+        Parameters
+        ----------
+        split : str
+            ``train``, ``val`` or ``test``.
+        camera : int
+            Camera index ``N`` (folder ``Camera<N>``), non-negative.
+        image : numpy.ndarray or path-like
+            RGB uint8 (height, width, 3) array, written to
+            ``<split>/Camera<N>/images/<name>.png``; or an existing PNG, recorded by its path
+            relative to the root (nothing is copied).
+        position : array_like, shape (3,)
+            Camera optical frame origin in the station frame, metres.
+        quaternion : array_like, shape (4,)
+            ``(x, y, z, w)`` orientation of the optical frame in the station frame, unit norm
+            within 1e-3; written as given (see :func:`~allo_mrad_ros.geometry.pose_components`
+            to split a 4x4 pose).
+        sun_direction : array_like, shape (3,)
+            Unit vector towards the Sun in the station frame.
+        sun_strength : float
+            Relative sun intensity, non-negative.
+        mask : numpy.ndarray or path-like, optional
+            uint8 (height, width) array of classes 0, 1, 2, written to ``masks/``; or an
+            existing 8-bit single-channel PNG, referenced.
+        reference : numpy.ndarray or path-like, optional
+            Pre-rendered reference, like ``image``, written to ``references/``.
+        label : str, optional
+            ``normal`` or ``anomalous``. By default taken from a mask array (class-2 pixels
+            present) or else from ``anomaly`` (non-empty means anomalous). A label that
+            contradicts a mask array is an error.
+        anomaly : str
+            Object type name; required for anomalous frames, empty for normal ones.
+        earth, moon : array_like, shape (4,), optional
+            ``(x, y, z, r)`` of the scaled-down body in the station frame, metres.
+        name : str, optional
+            File name stem, unique per split and camera; defaults to the frame index as six
+            digits. Letters, digits and ``._+-`` only.
+        stamp_ns : int, optional
+            Frame time; defaults to the previous stamp plus one period of ``meta.rate_hz``
+            (the first frame gets ``start_ns``). Must increase strictly.
+        extra : Mapping[str, object], optional
+            Values of extra columns (names of letters, digits and ``_``), written with
+            ``str`` (floats with ``repr``); rows without a value get an empty cell.
+
+        Returns
+        -------
+        Frame
+            The frame as :func:`read_sequence` will return it.
+
+        Raises
+        ------
+        SequenceError
+            If a value is invalid; nothing is recorded for the frame then.
+        """
+        self._require_open()
+        index = len(self._records)
+        if split not in SPLITS:
+            raise SequenceError(f"split must be one of {', '.join(SPLITS)}; got {split!r}")
+        if isinstance(camera, bool) or not isinstance(camera, (int, np.integer)) or camera < 0:
+            raise SequenceError(f"camera must be a non-negative integer, got {camera!r}")
+        camera = int(camera)
+        name = f"{index:06d}" if name is None else name
+        if not isinstance(name, str) or not _NAME.match(name) or name.lower().endswith(".png"):
+            raise SequenceError(
+                f"name must be a file stem of letters, digits and ._+- without .png, got {name!r}"
+            )
+        if stamp_ns is None:
+            stamp_ns = max(self._next_stamp, self._last_stamp + 1)
+        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, (int, np.integer)):
+            raise SequenceError(f"stamp_ns must be an integer, got {stamp_ns!r}")
+        stamp_ns = int(stamp_ns)
+        if stamp_ns <= self._last_stamp or stamp_ns >= MAX_STAMP_NS:
+            raise SequenceError(
+                f"stamp_ns must increase strictly and stay below 2**31 s: {stamp_ns} after "
+                f"{self._last_stamp}"
+            )
+        position = _vector(position, 3, "position")
+        quaternion = _unit(quaternion, 4, "quaternion")
+        sun_direction = _unit(sun_direction, 3, "sun_direction")
+        if not math.isfinite(sun_strength) or sun_strength < 0:
+            raise SequenceError(f"sun_strength must be finite and >= 0, got {sun_strength!r}")
+        earth = _body(earth, "earth")
+        moon = _body(moon, "moon")
+        label = self._label(label, anomaly, mask)
+        extra_text = self._extra_text(extra or {})
+        # Validate every input before writing any file, so a rejected frame leaves nothing.
+        files = {
+            column: self._prepare(data, split, camera, name, f"{column}s")
+            for column, data in (("image", image), ("mask", mask), ("reference", reference))
+            if data is not None
+        }
+        record = {
+            "stamp_ns": str(stamp_ns),
+            "split": split,
+            "camera": str(camera),
+            "image": files["image"][0],
+            "mask": files["mask"][0] if "mask" in files else "",
+            "reference": files["reference"][0] if "reference" in files else "",
+            "label": label,
+            "anomaly": anomaly,
+        }
+        values = [*position, *quaternion, *sun_direction, sun_strength]
+        numeric = (
+            "tx",
+            "ty",
+            "tz",
+            "qx",
+            "qy",
+            "qz",
+            "qw",
+            "sun_x",
+            "sun_y",
+            "sun_z",
+            "sun_strength",
+        )
+        record.update({c: format_float(v) for c, v in zip(numeric, values, strict=True)})
+        for body, value in (("earth", earth), ("moon", moon)):
+            for axis, component in zip(("x", "y", "z", "r"), range(4), strict=True):
+                record[f"{body}_{axis}"] = "" if value is None else format_float(value[component])
+        record.update(extra_text)
+        frame = frame_from_record(
+            {c: record.get(c, "") for c in (*COLUMNS, *extra_text)}, index, self.root, extra_text
+        )
+        for relative, array in files.values():
+            if array is not None:
+                write_atomic(self.root / relative, encode_png(array, self._compression))
+                self._written.add(relative)
+        for key in extra_text:
+            if key not in self._extra_columns:
+                self._extra_columns.append(key)
+        self._records.append(record)
+        self._frames.append(frame)
+        self._last_stamp = stamp_ns
+        self._next_stamp = stamp_ns + self._period_ns
+        return frame
+
+    def _label(self, label: str | None, anomaly: str, mask: object) -> str:
+        if not isinstance(anomaly, str) or anomaly != anomaly.strip() or "\n" in anomaly:
+            raise SequenceError(f"anomaly must be a name without surrounding spaces: {anomaly!r}")
+        from_mask = None
+        if mask is not None and not isinstance(mask, (str, PathLike)):
+            from_mask = ANOMALOUS if np.any(np.asarray(mask) == MASK_ANOMALY) else NORMAL
+        if label is None:
+            label = from_mask or (ANOMALOUS if anomaly else NORMAL)
+        if label not in LABELS:
+            raise SequenceError(f"label must be one of {', '.join(LABELS)}; got {label!r}")
+        if from_mask is not None and label != from_mask:
+            raise SequenceError(f"label {label!r} contradicts the mask (it is {from_mask!r})")
+        if label == ANOMALOUS and not anomaly:
+            raise SequenceError("an anomalous frame needs the anomaly object type name")
+        if label == NORMAL and anomaly:
+            raise SequenceError(f"a normal frame must have no anomaly name, got {anomaly!r}")
+        return label
+
+    @staticmethod
+    def _extra_text(extra: Mapping[str, object]) -> dict[str, str]:
+        text = {}
+        for key, value in extra.items():
+            if not isinstance(key, str) or not _COLUMN.match(key) or key in COLUMNS:
+                raise SequenceError(f"invalid or reserved extra column name {key!r}")
+            text[key] = format_float(value) if isinstance(value, float) else str(value)
+            if "\n" in text[key] or "\r" in text[key]:
+                raise SequenceError(f"extra column {key!r} value must be one line")
+        return text
+
+    def close(self) -> None:
+        """Write ``sequence.yaml`` and then ``frames.csv``; copy the mesh if asked.
+
+        Calling it again does nothing.
+
+        Raises
+        ------
+        SequenceError
+            If no frame was added or the writer was aborted.
+        """
+        if self._state == "closed":
+            return
+        self._require_open()
+        if not self._records:
+            raise SequenceError("no frames were added")
+        mesh = None
+        if self.meta.mesh is not None:
+            if self._copy_mesh:
+                target = self.root / "meshes" / self.meta.mesh.name
+                target.parent.mkdir(parents=True, exist_ok=True)
+                if self.meta.mesh.absolute() != target.absolute():
+                    write_atomic(target, self.meta.mesh.read_bytes())
+                mesh = f"meshes/{self.meta.mesh.name}"
+            else:
+                mesh = relative_posix(self.meta.mesh, self.root)
+        write_meta(self.root / META_FILE, self.meta, mesh)
+        text = write_frames_text(self._records, self._extra_columns)
+        write_atomic(self.root / FRAMES_FILE, text.encode("utf-8"))
+        self._state = "closed"
+
+    def abort(self) -> None:
+        """Stop without writing the metadata; images written so far stay on disk."""
+        if self._state == "open":
+            self._state = "aborted"
