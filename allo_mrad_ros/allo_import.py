@@ -1,0 +1,493 @@
+"""Turn a split of a real ALLO download into an ALLO sequence (``allo-synth import-allo``).
+
+ALLO ships images and masks only; the sequence adds what MRAD needs from ALLO's own tables,
+which the package carries (``data/camera_base_poses.csv``, ``data/ephemeris_2030.csv``):
+
+* the camera pose of ``Camera<N>`` is the base pose ``N`` of the split's table, converted
+  from Blender Euler angles to a ROS optical-frame quaternion. ALLO perturbed every render
+  by N(0, 1 m) per axis and N(0, 0.2 rad) per angle and did not save the result, so the pose
+  is only the base pose;
+* Sun, Earth and Moon come from ALLO's ephemeris row of the image's day;
+* ``sun_strength`` is ALLO's sun lamp strength divided by its default, 10;
+* intrinsics are ALLO's camera (:data:`~allo_mrad_ros.camera.ALLO_INTRINSICS`);
+* frames are ordered by (day, camera, name) and stamped at a nominal rate from
+  2030-01-01T00:00Z.
+
+Images are referenced in place by default: ``frames.csv`` holds their paths relative to the
+output folder (``../ALLO/test/Camera0/images/...``), so nothing is copied and the ALLO tree
+stays untouched; the pair of folders can be moved together. With ``copy=True`` the PNGs are
+copied into the sequence's own ``<split>/Camera<N>/`` layout, which makes it self-contained.
+Pointing the output at the folder that holds the split (``ALLO/`` for ``ALLO/test``) with the
+split named after its folder gives the format's own layout without copying: the import then
+only adds ``sequence.yaml`` and ``frames.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import math
+import re
+import shutil
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib import resources
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from .camera import ALLO_INTRINSICS, CameraIntrinsics
+from .ephemeris import EPOCH_2030, EphemerisError, allo_sky
+from .geometry import blender_camera_to_optical, euler_zyx_to_matrix, matrix_to_quaternion
+from .sequence import Sequence as AlloSequence
+from .sequence import (
+    SequenceError,
+    SequenceMeta,
+    SequenceWriter,
+    read_sequence,
+    validate_sequence,
+)
+
+ALLO_SPLITS = ("train", "test")
+ALLO_DEFAULT_SUN_STRENGTH = 10.0
+"""ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
+
+EPOCH_2030_NS = int(EPOCH_2030.timestamp()) * 10**9
+"""Default stamp of the first imported frame: 2030-01-01T00:00:00Z in nanoseconds."""
+
+_CAMERA_DIR = re.compile(r"^Camera(\d+)$")
+_POSE_COLUMNS = ("split", "index", "x", "y", "z", "roll", "pitch", "yaw")
+
+
+class AlloImportError(ValueError):
+    """An ALLO tree, file name or pose table cannot be imported."""
+
+
+@dataclass(frozen=True)
+class AlloName:
+    """The fields of an ALLO image name.
+
+    Attributes
+    ----------
+    day : int
+        Day of 2030, ALLO's ephemeris row (1-based).
+    anomaly : str
+        Anomaly object name, empty for normal images.
+    sun_strength : float
+        ALLO's sun lamp strength (10 by default).
+    scale, depth : float or None
+        Anomaly scale (-1 when not varied) and depth offset in metres; None for normal images.
+    colour : str or None
+        Anomaly colour (``default`` when not varied); None for normal images.
+    """
+
+    day: int
+    anomaly: str
+    sun_strength: float
+    scale: float | None = None
+    depth: float | None = None
+    colour: str | None = None
+
+    @property
+    def is_anomalous(self) -> bool:
+        """True for names of anomalous renders."""
+        return bool(self.anomaly)
+
+
+def _number(text: str, what: str, name: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise AlloImportError(f"{name}: {what} {text!r} is not a finite number")
+    return value
+
+
+def parse_allo_name(name: str, source: str | None = None) -> AlloName:
+    """Parse an ALLO image file name.
+
+    Parameters
+    ----------
+    name : str
+        ``<day>_normal_<sun_strength>.png`` or
+        ``<day>_<anomaly>_<sun_strength>_<scale>_<depth>_<colour>.png`` (the suffix is
+        optional; anomaly names may contain underscores).
+    source : str, optional
+        How to name the file in error messages (e.g. its full path); default ``name``.
+
+    Returns
+    -------
+    AlloName
+        The parsed fields.
+
+    Raises
+    ------
+    AlloImportError
+        Naming the file, if the name does not follow either pattern.
+    """
+    stem = name[:-4] if name.lower().endswith(".png") else name
+    where = name if source is None else source
+    fields = stem.split("_")
+    expected = "<day>_normal_<sun>.png or <day>_<anomaly>_<sun>_<scale>_<depth>_<colour>.png"
+    if len(fields) == 3 and fields[1] == "normal":
+        day_text, anomaly, strength_text = fields
+        scale = depth = colour = None
+    elif len(fields) >= 6:
+        day_text, *anomaly_parts, strength_text, scale_text, depth_text, colour = fields
+        anomaly = "_".join(anomaly_parts)
+        if anomaly == "normal" or not all(anomaly_parts):
+            raise AlloImportError(f"{where}: invalid anomaly name {anomaly!r}; expected {expected}")
+        scale = _number(scale_text, "scale", where)
+        depth = _number(depth_text, "depth", where)
+        if not colour:
+            raise AlloImportError(f"{where}: empty colour; expected {expected}")
+    else:
+        raise AlloImportError(f"{where}: not an ALLO image name; expected {expected}")
+    if not day_text.isdigit() or int(day_text) < 1:
+        raise AlloImportError(f"{where}: day {day_text!r} is not a positive integer")
+    strength = _number(strength_text, "sun strength", where)
+    if strength < 0:
+        raise AlloImportError(f"{where}: sun strength {strength_text!r} is negative")
+    return AlloName(
+        day=int(day_text),
+        anomaly="" if anomaly == "normal" else anomaly,
+        sun_strength=strength,
+        scale=scale,
+        depth=depth,
+        colour=colour,
+    )
+
+
+def base_pose_to_optical(
+    position: object, roll: float, pitch: float, yaw: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Convert an ALLO base pose (Blender camera, XYZ Euler) to the ROS optical convention.
+
+    Parameters
+    ----------
+    position : array_like, shape (3,)
+        Camera position in the station frame, metres.
+    roll, pitch, yaw : float
+        Blender XYZ Euler angles in radians: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+
+    Returns
+    -------
+    position : numpy.ndarray
+        Shape (3,), unchanged.
+    quaternion : numpy.ndarray
+        ``(x, y, z, w)`` of the optical frame (x right, y down, z forward) in the station
+        frame, ``w >= 0``.
+    """
+    rotation = blender_camera_to_optical(euler_zyx_to_matrix(roll, pitch, yaw))
+    return np.asarray(position, dtype=np.float64).reshape(3), matrix_to_quaternion(rotation)
+
+
+def parse_base_poses(
+    text: str, source: str = "camera_base_poses.csv"
+) -> dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """Parse a base-pose table (``split,index,x,y,z,roll,pitch,yaw``).
+
+    Returns
+    -------
+    dict
+        ``{split: {index: (position, optical quaternion xyzw)}}``.
+
+    Raises
+    ------
+    AlloImportError
+        Naming the source, the line and the column at fault.
+    """
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header is None or [h.strip() for h in header] != list(_POSE_COLUMNS):
+        raise AlloImportError(f"{source}, line 1: header must be {','.join(_POSE_COLUMNS)}")
+    poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+    for fields in reader:
+        line = reader.line_num
+        if not fields:
+            continue
+        if len(fields) != len(_POSE_COLUMNS):
+            raise AlloImportError(f"{source}, line {line}: expected 8 fields, got {len(fields)}")
+        record = dict(zip(_POSE_COLUMNS, (f.strip() for f in fields), strict=True))
+        split = record["split"]
+        if split not in ALLO_SPLITS:
+            raise AlloImportError(f"{source}, line {line}, column 'split': got {split!r}")
+        if not record["index"].isdigit():
+            raise AlloImportError(
+                f"{source}, line {line}, column 'index': not an index: {record['index']!r}"
+            )
+        values = {}
+        for column in _POSE_COLUMNS[2:]:
+            try:
+                values[column] = _number(record[column], column, "")
+            except AlloImportError:
+                raise AlloImportError(
+                    f"{source}, line {line}, column {column!r}: not a finite number: "
+                    f"{record[column]!r}"
+                ) from None
+        index = int(record["index"])
+        if index in poses.setdefault(split, {}):
+            raise AlloImportError(f"{source}, line {line}: duplicate pose {split} {index}")
+        poses[split][index] = base_pose_to_optical(
+            [values["x"], values["y"], values["z"]], values["roll"], values["pitch"], values["yaw"]
+        )
+    return poses
+
+
+def allo_base_poses(split: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Return ALLO's base poses of one split from the shipped table.
+
+    Parameters
+    ----------
+    split : str
+        ``train`` (cameras 0-39) or ``test`` (cameras 0-9).
+
+    Returns
+    -------
+    dict of int to (position, quaternion)
+        Optical-frame poses in the station frame (see :func:`base_pose_to_optical`).
+    """
+    if split not in ALLO_SPLITS:
+        raise AlloImportError(f"split must be train or test, got {split!r}")
+    resource = resources.files("allo_mrad_ros") / "data" / "camera_base_poses.csv"
+    table = parse_base_poses(resource.read_text(encoding="utf-8"))
+    return table.get(split, {})
+
+
+@dataclass(frozen=True)
+class _Item:
+    day: int
+    camera: int
+    image: Path
+    mask: Path | None
+    name: AlloName
+
+
+def _scan(split_dir: Path, poses: Mapping[int, object], split: str) -> list[_Item]:
+    items: list[_Item] = []
+    camera_dirs = []
+    for entry in sorted(split_dir.iterdir()):
+        match = _CAMERA_DIR.match(entry.name)
+        if match and entry.is_dir():
+            camera_dirs.append((int(match.group(1)), entry))
+    if not camera_dirs:
+        raise AlloImportError(f"{split_dir}: no Camera<N> folders")
+    for camera, folder in camera_dirs:
+        if camera not in poses:
+            raise AlloImportError(
+                f"{folder}: no base pose {camera} for split {split!r} "
+                f"(the table has {min(poses)}-{max(poses)})"
+                if poses
+                else f"{folder}: no base poses for split {split!r}"
+            )
+        images = folder / "images"
+        if not images.is_dir():
+            raise AlloImportError(f"{folder}: no images/ folder")
+        for image in sorted(images.glob("*.png")):
+            name = parse_allo_name(image.name, source=str(image))
+            mask = folder / "masks" / image.name
+            items.append(_Item(name.day, camera, image, mask if mask.is_file() else None, name))
+    if not items:
+        raise AlloImportError(f"{split_dir}: no images found under Camera<N>/images/")
+    items.sort(key=lambda item: (item.day, item.camera, item.image.name))
+    return items
+
+
+def import_allo(
+    allo_split_dir: str | PathLike[str],
+    out_dir: str | PathLike[str],
+    split: str | None = None,
+    *,
+    copy: bool = False,
+    rate_hz: float = 10.0,
+    start_ns: int = EPOCH_2030_NS,
+    intrinsics: CameraIntrinsics = ALLO_INTRINSICS,
+    name: str | None = None,
+    overwrite: bool = False,
+    validate: bool = False,
+    progress: bool = False,
+) -> AlloSequence:
+    """Import one ALLO split as a sequence.
+
+    Parameters
+    ----------
+    allo_split_dir : path-like
+        An ALLO split folder holding ``Camera<N>/images/*.png`` (and ``masks/``).
+    out_dir : path-like
+        Output sequence folder; may be the folder that contains ``allo_split_dir``.
+    split : str, optional
+        ``train`` or ``test``: picks the base-pose table and is the frames' split. By default
+        the folder's name, which must then be one of the two.
+    copy : bool
+        Copy images and masks into ``out_dir`` instead of referencing them in place.
+    rate_hz : float
+        Nominal frame rate for the stamps.
+    start_ns : int
+        Stamp of the first frame (default 2030-01-01T00:00:00Z).
+    intrinsics : CameraIntrinsics
+        Camera intrinsics; every image must have its size.
+    name : str, optional
+        Sequence name; default ``ALLO <split>``.
+    overwrite : bool
+        Replace a sequence already in ``out_dir``.
+    validate : bool
+        Finish with :func:`~allo_mrad_ros.sequence.validate_sequence`, which decodes every
+        mask (values 0/1/2, agreement with the label); otherwise only headers are checked.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    Sequence
+        The imported sequence, read back from ``out_dir``.
+
+    Raises
+    ------
+    AlloImportError
+        For a bad tree, file name or day, naming the file.
+    SequenceError
+        If an image or mask does not fit the format (wrong size or pixel layout).
+    """
+    split_dir = Path(allo_split_dir)
+    if not split_dir.is_dir():
+        raise AlloImportError(f"{split_dir}: ALLO split folder not found")
+    if split is None:
+        split = split_dir.resolve().name
+        if split not in ALLO_SPLITS:
+            raise AlloImportError(
+                f"{split_dir}: cannot tell the split from the folder name; pass split='train' "
+                "or split='test'"
+            )
+    poses = allo_base_poses(split)
+    items = _scan(split_dir, poses, split)
+    out = Path(out_dir)
+    meta = SequenceMeta(
+        name=name if name is not None else f"ALLO {split}", camera=intrinsics, rate_hz=rate_hz
+    )
+    iterator = items
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(items, desc=f"import-allo {split}", unit="frame", file=sys.stderr)
+    with SequenceWriter(out, meta, overwrite=overwrite, start_ns=start_ns) as writer:
+        for item in iterator:
+            try:
+                sky = allo_sky(item.day)
+            except EphemerisError as error:
+                raise AlloImportError(f"{item.image}: {error}") from None
+            image, mask = item.image, item.mask
+            if copy:
+                image = _copy(image, out / split / f"Camera{item.camera}" / "images")
+                mask = _copy(mask, out / split / f"Camera{item.camera}" / "masks")
+            position, quaternion = poses[item.camera]
+            allo = item.name
+            extra = {
+                "allo_day": allo.day,
+                "allo_sun_strength": allo.sun_strength,
+                "allo_scale": "" if allo.scale is None else allo.scale,
+                "allo_depth": "" if allo.depth is None else allo.depth,
+                "allo_colour": allo.colour or "",
+            }
+            try:
+                writer.add_frame(
+                    split=split,
+                    camera=item.camera,
+                    image=image,
+                    mask=mask,
+                    anomaly=allo.anomaly,
+                    position=position,
+                    quaternion=quaternion,
+                    sun_direction=sky.sun_direction,
+                    sun_strength=allo.sun_strength / ALLO_DEFAULT_SUN_STRENGTH,
+                    earth=sky.earth,
+                    moon=sky.moon,
+                    extra=extra,
+                )
+            except SequenceError as error:
+                raise error.located(file=item.image) from None
+    return validate_sequence(out) if validate else read_sequence(out)
+
+
+def _copy(source: Path | None, folder: Path) -> Path | None:
+    if source is None:
+        return None
+    target = folder / source.name
+    if source.absolute() != target.absolute():
+        folder.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source, target)
+    return target
+
+
+def add_import_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``import-allo`` sub-command to an ``argparse`` sub-parser collection.
+
+    The sub-parser's ``func`` default runs the import and returns an exit status, so a
+    front end calls ``args.func(args)``.
+    """
+    parser = subparsers.add_parser(
+        "import-allo",
+        help="turn a real ALLO split into a sequence",
+        description="Turn a split of a real ALLO download (<split>/Camera<N>/images, masks) "
+        "into an ALLO sequence, with ALLO's base poses and ephemeris. Images are referenced "
+        "in place unless --copy is given.",
+    )
+    parser.add_argument("split_dir", type=Path, help="ALLO split folder, e.g. ALLO/test")
+    parser.add_argument("--out", type=Path, required=True, help="output sequence folder")
+    parser.add_argument(
+        "--split",
+        choices=ALLO_SPLITS,
+        default=None,
+        help="which base-pose table (default: the split folder's name)",
+    )
+    parser.add_argument("--copy", action="store_true", help="copy images and masks")
+    parser.add_argument(
+        "--rate-hz", type=float, default=10.0, help="nominal frame rate (default 10)"
+    )
+    parser.add_argument("--name", default=None, help="sequence name (default 'ALLO <split>')")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing sequence")
+    parser.add_argument(
+        "--validate", action="store_true", help="decode every mask and check it against labels"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(func=_run_import)
+    return parser
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    try:
+        sequence = import_allo(
+            args.split_dir,
+            args.out,
+            args.split,
+            copy=args.copy,
+            rate_hz=args.rate_hz,
+            name=args.name,
+            overwrite=args.overwrite,
+            validate=args.validate,
+            progress=not args.quiet,
+        )
+    except (AlloImportError, SequenceError) as error:
+        print(f"import-allo: error: {error}", file=sys.stderr)
+        return 1
+    anomalous = sum(frame.is_anomalous for frame in sequence.frames)
+    print(
+        f"wrote {sequence.root}: {len(sequence)} frames "
+        f"({len(sequence) - anomalous} normal, {anomalous} anomalous)"
+    )
+    return 0
+
+
+def main_import(argv: Sequence[str] | None = None) -> int:
+    """Run ``import-allo`` as a stand-alone command; returns the exit status."""
+    parser = argparse.ArgumentParser(prog="allo-synth")
+    add_import_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["import-allo", *(sys.argv[1:] if argv is None else argv)])
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main_import())

@@ -1,0 +1,502 @@
+"""Sun, Earth and Moon as seen from a Gateway-like station in lunar orbit, scaled for rendering.
+
+Two sources give the same :class:`Sky` (all in the station frame, metres):
+
+* :class:`StationEphemeris` computes it from JPL DE421 (``skyfield`` + ``skyfield-data``,
+  offline) for a station on a Keplerian lunar orbit (:class:`LunarOrbit`);
+* :func:`read_allo_ephemeris` / :func:`allo_sky` read ALLO's own 2030 table, shipped with
+  the package.
+
+Scaling, as in ALLO
+    A renderer cannot draw the Sun 150 million km away, so each body is placed at a fixed
+    scaled distance along its true direction with its radius scaled by the same factor:
+    ``r' = R * d' / D``. The ratio radius/distance, hence the apparent angular radius
+    ``asin(r'/d')``, is exactly the true one. The default distances are ALLO's (Moon 500 m,
+    Earth 2 km, Sun 4 km, read off its table): they keep the true depth order, so the Moon
+    can hide the Earth, and stay inside a 10 km far clip plane.
+
+The orbit
+    A two-body ellipse around the Moon (Moon GM only: no Earth or Sun perturbation), perilune
+    altitude 3,000 km and apolune altitude 70,000 km, period about 7.8 days (Gateway's
+    real NRHO, shaped by the Earth's pull, takes 6.6). Its orientation is fixed in the J2000
+    ecliptic frame: inclination 90 deg (polar; the lunar equator is within 1.5 deg of the
+    ecliptic), ascending node on the vernal equinox direction, argument of perilune 90 deg,
+    so perilune lies over the north pole and apolune over the south pole as for Gateway's
+    southern L2 NRHO. Perilune passage at 2030-01-01T00:00Z.
+
+The station frame
+    The station holds an inertially fixed attitude tied to its orbit: +z points from the
+    Moon's centre to perilune (at closest approach the Moon is straight "below", along -z),
+    +y is the direction of flight at perilune and +x = y cross z is opposite to the orbit's
+    angular momentum. The Moon therefore always lies in the station's y-z plane, as in ALLO's
+    table, whose Moon x is 0 on every row.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import warnings
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
+from functools import cache
+from importlib import resources
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+EPOCH_2030 = datetime(2030, 1, 1, tzinfo=timezone.utc)
+"""2030-01-01T00:00:00Z, day 1.0 of :meth:`StationEphemeris.sky_on_day`."""
+
+# IAU 2015 nominal solar radius; mean Earth and Moon radii.
+SUN_RADIUS_KM = 695_700.0
+EARTH_RADIUS_KM = 6_371.0
+MOON_RADIUS_KM = 1_737.4
+# Lunar GM of DE421.
+MOON_GM_KM3_S2 = 4_902.800066
+# IAU 1976 mean obliquity of the ecliptic at J2000 (84381.448 arcsec).
+OBLIQUITY_J2000_DEG = 23.439291111
+
+# ALLO's scaled distances (ephemeris_2030.csv: every row at exactly these distances).
+MOON_DISTANCE_M = 500.0
+EARTH_DISTANCE_M = 2_000.0
+SUN_DISTANCE_M = 4_000.0
+
+ALLO_TABLE_COLUMNS = (
+    "moon_r",
+    "moon_x",
+    "moon_y",
+    "moon_z",
+    "sun_r",
+    "sun_x",
+    "sun_y",
+    "sun_z",
+    "earth_r",
+    "earth_x",
+    "earth_y",
+    "earth_z",
+)
+"""Columns of ALLO's ``ephemeris_2030.csv`` (Blender units = metres, station frame)."""
+
+
+class EphemerisError(ValueError):
+    """Invalid orbit parameters, times or ephemeris table contents."""
+
+
+def _check_aware(when: object, name: str) -> None:
+    if not isinstance(when, datetime):
+        raise EphemerisError(f"{name} must be a datetime, got {type(when).__name__}")
+    if when.tzinfo is None or when.utcoffset() is None:
+        raise EphemerisError(f"{name} must be timezone-aware (e.g. UTC), got {when!r}")
+
+
+def _frozen(values: object, length: int, name: str) -> np.ndarray:
+    array = np.array(values, dtype=np.float64)
+    if array.shape != (length,) or not np.all(np.isfinite(array)):
+        raise EphemerisError(f"{name} must be {length} finite numbers, got {values!r}")
+    array.setflags(write=False)
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class Sky:
+    """Sun, Earth and Moon in the station frame at one time, scaled for rendering.
+
+    Attributes
+    ----------
+    sun_direction : numpy.ndarray
+        Unit vector from the station origin towards the Sun, shape (3,).
+    sun, earth, moon : numpy.ndarray
+        ``(x, y, z, r)``: scaled-down centre and radius in metres, apparent size kept.
+    """
+
+    sun_direction: np.ndarray
+    sun: np.ndarray
+    earth: np.ndarray
+    moon: np.ndarray
+
+    def __post_init__(self) -> None:
+        direction = _frozen(self.sun_direction, 3, "sun_direction")
+        if abs(np.linalg.norm(direction) - 1.0) > 1e-9:
+            raise EphemerisError(f"sun_direction must be a unit vector, got {direction}")
+        object.__setattr__(self, "sun_direction", direction)
+        for body in ("sun", "earth", "moon"):
+            value = _frozen(getattr(self, body), 4, body)
+            distance = float(np.linalg.norm(value[:3]))
+            if not 0 < value[3] < distance:
+                raise EphemerisError(
+                    f"{body} radius must be positive and below its distance, "
+                    f"got r={value[3]} at {distance}"
+                )
+            object.__setattr__(self, body, value)
+
+    def angular_radius(self, body: str) -> float:
+        """Apparent angular radius of ``sun``, ``earth`` or ``moon`` in radians."""
+        if body not in ("sun", "earth", "moon"):
+            raise EphemerisError(f"body must be sun, earth or moon, got {body!r}")
+        value = getattr(self, body)
+        return math.asin(value[3] / float(np.linalg.norm(value[:3])))
+
+
+def _scaled(vectors_km: np.ndarray, radius_km: float, distance_m: float) -> np.ndarray:
+    """(N, 3) true vectors -> (N, 4) ``(x, y, z, r)`` at ``distance_m``, same angular size."""
+    true_distance = np.linalg.norm(vectors_km, axis=1, keepdims=True)
+    scale = distance_m / true_distance
+    return np.hstack([vectors_km * scale, radius_km * scale])
+
+
+@dataclass(frozen=True)
+class LunarOrbit:
+    """A Keplerian orbit around the Moon, oriented in the J2000 ecliptic frame.
+
+    Parameters
+    ----------
+    perilune_altitude_km, apolune_altitude_km : float
+        Altitudes above the mean lunar radius; ``0 < perilune <= apolune``.
+    inclination_deg : float
+        Inclination to the J2000 ecliptic.
+    raan_deg : float
+        Ecliptic longitude of the ascending node.
+    arg_perilune_deg : float
+        Argument of perilune, measured from the ascending node in the direction of motion.
+    mean_anomaly_deg : float
+        Mean anomaly at ``epoch`` (0: perilune passage).
+    epoch : datetime.datetime
+        Timezone-aware reference time.
+    """
+
+    perilune_altitude_km: float = 3_000.0
+    apolune_altitude_km: float = 70_000.0
+    inclination_deg: float = 90.0
+    raan_deg: float = 0.0
+    arg_perilune_deg: float = 90.0
+    mean_anomaly_deg: float = 0.0
+    epoch: datetime = EPOCH_2030
+
+    def __post_init__(self) -> None:
+        for name in (
+            "perilune_altitude_km",
+            "apolune_altitude_km",
+            "inclination_deg",
+            "raan_deg",
+            "arg_perilune_deg",
+            "mean_anomaly_deg",
+        ):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise EphemerisError(f"{name} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise EphemerisError(f"{name} must be finite, got {value!r}")
+        if not 0 < self.perilune_altitude_km <= self.apolune_altitude_km:
+            raise EphemerisError(
+                "need 0 < perilune_altitude_km <= apolune_altitude_km, got "
+                f"{self.perilune_altitude_km} and {self.apolune_altitude_km}"
+            )
+        _check_aware(self.epoch, "epoch")
+
+    @property
+    def perilune_radius_km(self) -> float:
+        """Distance from the Moon's centre at perilune."""
+        return MOON_RADIUS_KM + self.perilune_altitude_km
+
+    @property
+    def apolune_radius_km(self) -> float:
+        """Distance from the Moon's centre at apolune."""
+        return MOON_RADIUS_KM + self.apolune_altitude_km
+
+    @property
+    def semi_major_axis_km(self) -> float:
+        """Semi-major axis."""
+        return 0.5 * (self.perilune_radius_km + self.apolune_radius_km)
+
+    @property
+    def eccentricity(self) -> float:
+        """Eccentricity."""
+        rp, ra = self.perilune_radius_km, self.apolune_radius_km
+        return (ra - rp) / (ra + rp)
+
+    @property
+    def period_s(self) -> float:
+        """Orbital period in seconds."""
+        return 2.0 * math.pi * math.sqrt(self.semi_major_axis_km**3 / MOON_GM_KM3_S2)
+
+    def perifocal_basis(self) -> np.ndarray:
+        """Return the 3x3 matrix whose columns are P (to perilune), Q (flight direction at
+        perilune) and W (angular momentum), in J2000 ecliptic axes."""
+        angles = np.radians([self.raan_deg, self.inclination_deg, self.arg_perilune_deg])
+        return Rotation.from_euler("ZXZ", angles).as_matrix()
+
+    def position_km(self, seconds_since_epoch: object) -> np.ndarray:
+        """Station position relative to the Moon's centre, J2000 ecliptic axes, km.
+
+        Parameters
+        ----------
+        seconds_since_epoch : array_like
+            Times (TT seconds after ``epoch``), any shape.
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape ``(..., 3)``.
+        """
+        t = np.asarray(seconds_since_epoch, dtype=np.float64)
+        a, e = self.semi_major_axis_km, self.eccentricity
+        mean_motion = 2.0 * math.pi / self.period_s
+        mean = np.remainder(math.radians(self.mean_anomaly_deg) + mean_motion * t, 2 * math.pi)
+        # Newton on Kepler's equation; starting at pi converges for every e < 1.
+        eccentric = np.full_like(mean, math.pi) if e > 0.8 else mean + e * np.sin(mean)
+        for _ in range(50):
+            step = (eccentric - e * np.sin(eccentric) - mean) / (1.0 - e * np.cos(eccentric))
+            eccentric = eccentric - step
+            if np.all(np.abs(step) < 1e-13):
+                break
+        p_coord = a * (np.cos(eccentric) - e)
+        q_coord = a * math.sqrt(1.0 - e * e) * np.sin(eccentric)
+        basis = self.perifocal_basis()
+        return p_coord[..., None] * basis[:, 0] + q_coord[..., None] * basis[:, 1]
+
+    def station_axes(self) -> np.ndarray:
+        """Return the 3x3 matrix whose columns are the station frame's x, y, z axes in J2000
+        ecliptic axes: ``x = -W``, ``y = Q``, ``z = P`` (see the module notes)."""
+        basis = self.perifocal_basis()
+        return np.column_stack([-basis[:, 2], basis[:, 1], basis[:, 0]])
+
+
+GATEWAY_LIKE_ORBIT = LunarOrbit()
+"""The default orbit: 3,000 x 70,000 km altitude, polar, apolune over the south pole."""
+
+
+def day_to_datetime(day: float, year: int = 2030) -> datetime:
+    """Return the UTC time of a 1-based, possibly fractional day of ``year``.
+
+    Day 1.0 is January 1st at 00:00 UTC and day 1.5 is noon that day, which matches ALLO's
+    day numbering (its table's row ``d`` is January 1st plus ``d - 1`` days).
+    """
+    if isinstance(day, bool) or not isinstance(day, (int, float)) or not math.isfinite(day):
+        raise EphemerisError(f"day must be a finite number, got {day!r}")
+    start = datetime(year, 1, 1, tzinfo=timezone.utc)
+    days_in_year = (datetime(year + 1, 1, 1, tzinfo=timezone.utc) - start).days
+    if not 1 <= day < days_in_year + 1:
+        raise EphemerisError(f"day must be in [1, {days_in_year + 1}) for {year}, got {day}")
+    return start + timedelta(days=day - 1)
+
+
+@cache
+def _de421() -> tuple[object, object]:
+    # Imported lazily: loading skyfield and the 17 MB kernel takes about a second.
+    from skyfield.api import Loader
+    from skyfield_data import get_skyfield_data_path
+
+    with warnings.catch_warnings():
+        # skyfield-data warns about its Earth-orientation file (finals2000A.all), which
+        # these geometric positions do not use.
+        warnings.filterwarnings("ignore", message=".*has expired.*", category=RuntimeWarning)
+        loader = Loader(get_skyfield_data_path(), expire=False, verbose=False)
+    return loader.timescale(builtin=True), loader("de421.bsp")
+
+
+# ICRF (J2000 equatorial) to J2000 ecliptic axes.
+_ECLIPTIC_FROM_ICRF = Rotation.from_euler("x", -math.radians(OBLIQUITY_J2000_DEG)).as_matrix()
+
+
+class StationEphemeris:
+    """Sun, Earth and Moon seen from a station on a lunar orbit, from DE421.
+
+    Parameters
+    ----------
+    orbit : LunarOrbit
+        The station's orbit; also fixes the station frame (see the module notes).
+    moon_distance_m, earth_distance_m, sun_distance_m : float
+        Scaled distances at which the bodies are placed, positive.
+
+    Notes
+    -----
+    Positions are geometric (no light-time or aberration: both are below 30 arcsec, far
+    under a pixel of the 1920x1080 camera's ~0.043 deg pixels).
+    """
+
+    def __init__(
+        self,
+        orbit: LunarOrbit = GATEWAY_LIKE_ORBIT,
+        *,
+        moon_distance_m: float = MOON_DISTANCE_M,
+        earth_distance_m: float = EARTH_DISTANCE_M,
+        sun_distance_m: float = SUN_DISTANCE_M,
+    ) -> None:
+        if not isinstance(orbit, LunarOrbit):
+            raise EphemerisError(f"orbit must be a LunarOrbit, got {type(orbit).__name__}")
+        for name, value in (
+            ("moon_distance_m", moon_distance_m),
+            ("earth_distance_m", earth_distance_m),
+            ("sun_distance_m", sun_distance_m),
+        ):
+            if not math.isfinite(value) or value <= 0:
+                raise EphemerisError(f"{name} must be positive and finite, got {value!r}")
+        self.orbit = orbit
+        self.distances_m = {
+            "moon": float(moon_distance_m),
+            "earth": float(earth_distance_m),
+            "sun": float(sun_distance_m),
+        }
+        # Rows are the station axes in ICRF: maps ICRF vectors into the station frame.
+        self.station_from_icrf = orbit.station_axes().T @ _ECLIPTIC_FROM_ICRF
+
+    def _times(self, whens: list[datetime]) -> tuple[object, np.ndarray]:
+        for when in whens:
+            _check_aware(when, "time")
+        timescale, _ = _de421()
+        times = timescale.from_datetimes(whens)
+        epoch = timescale.from_datetime(self.orbit.epoch)
+        return times, (np.asarray(times.tt) - epoch.tt) * 86_400.0
+
+    def station_positions_km(self, whens: Iterable[datetime]) -> np.ndarray:
+        """Station positions relative to the Moon's centre, station axes, km, shape (N, 3)."""
+        whens = list(whens)
+        if not whens:
+            return np.zeros((0, 3))
+        _, seconds = self._times(whens)
+        ecliptic = self.orbit.position_km(seconds)
+        return ecliptic @ self.orbit.station_axes()
+
+    def skies(self, whens: Iterable[datetime]) -> list[Sky]:
+        """Return the :class:`Sky` at each of several timezone-aware times (vectorised)."""
+        whens = list(whens)
+        if not whens:
+            return []
+        times, seconds = self._times(whens)
+        _, kernel = _de421()
+        moon = kernel["moon"]
+        station = self.orbit.position_km(seconds) @ self.orbit.station_axes()
+        relative = {"moon": -station}
+        for body in ("sun", "earth"):
+            from_moon = np.asarray((kernel[body] - moon).at(times).position.km).reshape(3, -1)
+            relative[body] = from_moon.T @ self.station_from_icrf.T - station
+        radii = {"sun": SUN_RADIUS_KM, "earth": EARTH_RADIUS_KM, "moon": MOON_RADIUS_KM}
+        scaled = {
+            body: _scaled(vectors, radii[body], self.distances_m[body])
+            for body, vectors in relative.items()
+        }
+        sun_direction = scaled["sun"][:, :3] / self.distances_m["sun"]
+        sun_direction /= np.linalg.norm(sun_direction, axis=1, keepdims=True)
+        return [
+            Sky(
+                sun_direction=sun_direction[i],
+                sun=scaled["sun"][i],
+                earth=scaled["earth"][i],
+                moon=scaled["moon"][i],
+            )
+            for i in range(len(whens))
+        ]
+
+    def sky(self, when: datetime) -> Sky:
+        """Return the :class:`Sky` at one timezone-aware time."""
+        return self.skies([when])[0]
+
+    def sky_on_day(self, day: float, year: int = 2030) -> Sky:
+        """Return the :class:`Sky` on a 1-based, possibly fractional day (see
+        :func:`day_to_datetime`)."""
+        return self.sky(day_to_datetime(day, year))
+
+
+def _allo_table_error(source: str, line: int, column: str | None, reason: str) -> EphemerisError:
+    where = f"{source}, line {line}" + (f", column {column!r}" if column else "")
+    return EphemerisError(f"{where}: {reason}")
+
+
+def parse_allo_ephemeris(text: str, source: str = "ephemeris_2030.csv") -> dict[int, Sky]:
+    """Parse the text of ALLO's ephemeris table.
+
+    Parameters
+    ----------
+    text : str
+        CSV text: one row per day, 12 numbers (:data:`ALLO_TABLE_COLUMNS`). Row 0 holds
+        uninitialised memory in ALLO's file and is skipped (only its field count is checked).
+    source : str
+        Name used in error messages.
+
+    Returns
+    -------
+    dict of int to Sky
+        Keyed by day (the row number, from 1), in the station frame, metres.
+
+    Raises
+    ------
+    EphemerisError
+        Naming the source, the line and the column at fault.
+    """
+    rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text)), start=1) if r]
+    if len(rows) < 2:
+        raise _allo_table_error(source, len(rows) + 1, None, "need row 0 and at least one day")
+    skies: dict[int, Sky] = {}
+    for day, (line, fields) in enumerate(rows):
+        if len(fields) != len(ALLO_TABLE_COLUMNS):
+            raise _allo_table_error(
+                source, line, None, f"expected {len(ALLO_TABLE_COLUMNS)} fields, got {len(fields)}"
+            )
+        if day == 0:
+            continue
+        values = {}
+        for column, field in zip(ALLO_TABLE_COLUMNS, fields, strict=True):
+            try:
+                value = float(field)
+            except ValueError:
+                raise _allo_table_error(source, line, column, f"not a number: {field!r}") from None
+            if not math.isfinite(value):
+                raise _allo_table_error(source, line, column, f"not finite: {field!r}")
+            values[column] = value
+        bodies = {}
+        for body in ("moon", "sun", "earth"):
+            centre = np.array([values[f"{body}_{axis}"] for axis in "xyz"])
+            radius = values[f"{body}_r"]
+            if not 0 < radius < np.linalg.norm(centre):
+                raise _allo_table_error(
+                    source,
+                    line,
+                    f"{body}_r",
+                    f"radius must be positive and below the distance {np.linalg.norm(centre):g}",
+                )
+            bodies[body] = np.append(centre, radius)
+        sun_direction = bodies["sun"][:3] / np.linalg.norm(bodies["sun"][:3])
+        skies[day] = Sky(sun_direction=sun_direction, **bodies)
+    return skies
+
+
+def read_allo_ephemeris(path: str | PathLike[str] | None = None) -> dict[int, Sky]:
+    """Read ALLO's ephemeris table, by default the copy shipped in the package.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        A table in ALLO's format; None for the package's ``data/ephemeris_2030.csv``.
+
+    Returns
+    -------
+    dict of int to Sky
+        Keyed by ALLO day (1-364 for the shipped table).
+    """
+    if path is None:
+        return dict(_shipped_allo_table())
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as error:
+        raise EphemerisError(f"{path}: cannot read: {error.strerror}") from None
+    return parse_allo_ephemeris(text, str(path))
+
+
+@cache
+def _shipped_allo_table() -> Mapping[int, Sky]:
+    resource = resources.files("allo_mrad_ros") / "data" / "ephemeris_2030.csv"
+    return parse_allo_ephemeris(resource.read_text(encoding="utf-8"), "ephemeris_2030.csv")
+
+
+def allo_sky(day: int) -> Sky:
+    """Return the :class:`Sky` of ALLO's shipped table for one ALLO day (1-364)."""
+    table = _shipped_allo_table()
+    if isinstance(day, bool) or not isinstance(day, (int, np.integer)) or int(day) not in table:
+        raise EphemerisError(f"ALLO day must be an integer in 1-{max(table)}, got {day!r}")
+    return table[int(day)]
