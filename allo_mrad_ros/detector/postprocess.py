@@ -47,7 +47,9 @@ def threshold_scores(scaled: np.ndarray, min_score: float) -> np.ndarray:
 
 
 def local_std(scores: np.ndarray, window: tuple[int, int]) -> np.ndarray:
-    """Standard deviation over a ``(height, width)`` box around each pixel (reflected edges).
+    """Standard deviation over a ``(height, width)`` box around each pixel.
+
+    Edges are reflected (``BORDER_REFLECT``) at the borders of ``scores``.
 
     Box filters of the map and of its square give the local variance in O(1) per pixel.
     """
@@ -98,16 +100,17 @@ def remove_noise(
     cleaned = scores.copy()
     if variant == "none" or not cleaned.any():
         return cleaned
-    height, width = scores.shape
-    spread = local_std(scores, std_window(height, width, grid, kernel_fraction))
-    flat = spread < std_thresh
-    for cell in cell_slices(height, width, grid):
+    for cell in cell_slices(*scores.shape, grid):
         cell_scores = scores[cell]
+        if not cell_scores.any():
+            continue
         if np.count_nonzero(cell_scores > min_score) > large_anomaly_fraction * cell_scores.size:
             continue
+        # The window stays inside the cell (reflected at its edges): cells are independent.
+        spread = local_std(cell_scores, std_window(*cell_scores.shape, 1, kernel_fraction))
         if variant == "local_std":
-            cleaned[cell][flat[cell]] = 0.0
-        elif float(np.ptp(spread[cell])) < std_thresh:
+            cleaned[cell][spread < std_thresh] = 0.0
+        elif float(np.ptp(spread)) < std_thresh:
             cleaned[cell] = 0.0
     return cleaned
 

@@ -1,0 +1,202 @@
+"""The four ALLO metrics: I.AUROC, P.AUROC, P.AP and P.FPR95 (anomalib's definitions).
+
+Pixel metrics pool the pixels of all test images. A 300-frame 1080p test split holds 600 M
+pixels, too many to sort, so :class:`PixelScoreHistogram` counts positives and negatives per
+score bin as frames arrive; with bins of 1/64 on the 0..255 score scale the curves are those
+of the scores rounded to that grid. The exact functions on arrays are the reference the
+histogram is tested against, and they are themselves tested against scikit-learn.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+POSITIVE_CLASS = 2
+TARGET_TPR = 0.95
+
+
+class MetricsError(ValueError):
+    """Scores and labels cannot be scored (shape mismatch, one class only, bad values)."""
+
+
+@dataclass(frozen=True)
+class Curve:
+    """Operating points ordered by decreasing threshold (the first point is (0, 0))."""
+
+    thresholds: np.ndarray
+    tpr: np.ndarray
+    fpr: np.ndarray
+    precision: np.ndarray
+
+
+def curve_from_counts(positives: np.ndarray, negatives: np.ndarray) -> Curve:
+    """Build the ROC/PR operating points from per-threshold counts.
+
+    Parameters
+    ----------
+    positives, negatives : numpy.ndarray
+        Counts of positive and negative samples at each distinct score, ordered by
+        decreasing score.
+
+    Returns
+    -------
+    Curve
+    """
+    positives = np.asarray(positives, dtype=np.float64)
+    negatives = np.asarray(negatives, dtype=np.float64)
+    total_pos, total_neg = positives.sum(), negatives.sum()
+    if total_pos == 0 or total_neg == 0:
+        raise MetricsError(
+            f"need both classes: {int(total_pos)} positive and {int(total_neg)} negative samples"
+        )
+    tp = np.concatenate([[0.0], np.cumsum(positives)])
+    fp = np.concatenate([[0.0], np.cumsum(negatives)])
+    predicted = tp + fp
+    precision = np.divide(tp, predicted, out=np.ones_like(tp), where=predicted > 0)
+    thresholds = np.arange(len(tp), dtype=np.float64)
+    return Curve(thresholds, tp / total_pos, fp / total_neg, precision)
+
+
+def auroc_from_curve(curve: Curve) -> float:
+    """Area under the ROC curve (trapezoids, as scikit-learn's ``roc_auc_score``)."""
+    return float(np.trapezoid(curve.tpr, curve.fpr))
+
+
+def average_precision_from_curve(curve: Curve) -> float:
+    """Average precision, ``sum_n (R_n - R_{n-1}) P_n`` (scikit-learn's definition)."""
+    return float(np.sum(np.diff(curve.tpr) * curve.precision[1:]))
+
+
+def fpr_at_tpr_from_curve(curve: Curve, target_tpr: float = TARGET_TPR) -> float:
+    """False-positive rate at the first operating point whose TPR reaches ``target_tpr``.
+
+    Walking the thresholds from high to low, this is the highest threshold that detects
+    ``target_tpr`` of the positives, hence the smallest such FPR.
+    """
+    reached = np.flatnonzero(curve.tpr >= target_tpr - 1e-12)
+    return float(curve.fpr[reached[0]])
+
+
+def _counts_by_score(scores: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    scores = np.asarray(scores, dtype=np.float64).ravel()
+    labels = np.asarray(labels).ravel().astype(bool)
+    if scores.shape != labels.shape:
+        raise MetricsError(f"{scores.size} scores but {labels.size} labels")
+    if not np.isfinite(scores).all():
+        raise MetricsError("scores contain NaN or Inf")
+    unique, inverse = np.unique(-scores, return_inverse=True)
+    positives = np.bincount(inverse, weights=labels, minlength=unique.size)
+    negatives = np.bincount(inverse, weights=~labels, minlength=unique.size)
+    return positives, negatives
+
+
+def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float:
+    """Exact area under the ROC curve of binary ``labels`` ranked by ``scores``."""
+    return auroc_from_curve(curve_from_counts(*_counts_by_score(scores, labels)))
+
+
+def average_precision(scores: np.ndarray, labels: np.ndarray) -> float:
+    """Exact average precision of binary ``labels`` ranked by ``scores``."""
+    return average_precision_from_curve(curve_from_counts(*_counts_by_score(scores, labels)))
+
+
+def fpr_at_tpr(scores: np.ndarray, labels: np.ndarray, target_tpr: float = TARGET_TPR) -> float:
+    """Exact false-positive rate at the first threshold reaching ``target_tpr``."""
+    return fpr_at_tpr_from_curve(curve_from_counts(*_counts_by_score(scores, labels)), target_tpr)
+
+
+class PixelScoreHistogram:
+    """Pooled pixel scores of many frames as per-bin positive/negative counts.
+
+    Parameters
+    ----------
+    low, high : float
+        Score range; scores are clipped into it (0..255 for every detector here).
+    bins_per_unit : int
+        Bin resolution: scores are rounded to the nearest ``1 / bins_per_unit``.
+    """
+
+    def __init__(self, low: float = 0.0, high: float = 255.0, bins_per_unit: int = 64) -> None:
+        if not high > low or bins_per_unit < 1:
+            raise MetricsError(f"bad histogram range [{low}, {high}] x {bins_per_unit}")
+        self.low, self.high, self.bins_per_unit = low, high, bins_per_unit
+        size = round((high - low) * bins_per_unit) + 1
+        self.positives = np.zeros(size, dtype=np.int64)
+        self.negatives = np.zeros(size, dtype=np.int64)
+
+    def update(self, scores: np.ndarray, mask: np.ndarray) -> None:
+        """Add one frame: ``scores`` H x W and its ground-truth ``mask`` (class 2 = anomaly)."""
+        if scores.shape != mask.shape:
+            raise MetricsError(f"score map {scores.shape} and mask {mask.shape} differ in shape")
+        if not np.isfinite(scores).all():
+            raise MetricsError("score map contains NaN or Inf")
+        clipped = np.clip(scores, self.low, self.high)
+        index = np.rint((clipped - self.low) * self.bins_per_unit).astype(np.int64).ravel()
+        positive = (mask == POSITIVE_CLASS).ravel()
+        size = self.positives.size
+        self.positives += np.bincount(index[positive], minlength=size)
+        self.negatives += np.bincount(index[~positive], minlength=size)
+
+    def curve(self) -> Curve:
+        """The operating points, thresholds from the highest bin down."""
+        keep = (self.positives + self.negatives)[::-1] > 0
+        return curve_from_counts(self.positives[::-1][keep], self.negatives[::-1][keep])
+
+
+@dataclass(frozen=True)
+class AlloMetrics:
+    """The four ALLO metrics as fractions in 0..1 (``nan`` where undefined)."""
+
+    i_auroc: float
+    p_auroc: float
+    p_ap: float
+    p_fpr95: float
+
+    def as_dict(self) -> dict[str, float]:
+        """The metrics as a dictionary with the report's keys."""
+        return {
+            "i_auroc": self.i_auroc,
+            "p_auroc": self.p_auroc,
+            "p_ap": self.p_ap,
+            "p_fpr95": self.p_fpr95,
+        }
+
+
+class MetricsAccumulator:
+    """Accumulate frames and compute I.AUROC, P.AUROC, P.AP and P.FPR95.
+
+    The image score is the detector's anomalous area; the image label is whether the
+    ground-truth mask has any class-2 pixel.
+    """
+
+    def __init__(self, bins_per_unit: int = 64) -> None:
+        self.pixels = PixelScoreHistogram(bins_per_unit=bins_per_unit)
+        self.image_scores: list[float] = []
+        self.image_labels: list[bool] = []
+
+    def update(self, score_map: np.ndarray, image_score: float, mask: np.ndarray) -> None:
+        """Add one frame's pixel scores, image score and ground-truth mask."""
+        self.pixels.update(score_map, mask)
+        self.image_scores.append(float(image_score))
+        self.image_labels.append(bool(np.any(mask == POSITIVE_CLASS)))
+
+    def compute(self) -> AlloMetrics:
+        """Return the metrics; a metric whose labels hold one class only is ``nan``."""
+        nan = float("nan")
+        labels = np.array(self.image_labels, dtype=bool)
+        i_auroc = (
+            roc_auc(np.array(self.image_scores), labels)
+            if labels.any() and not labels.all()
+            else nan
+        )
+        if self.pixels.positives.sum() == 0 or self.pixels.negatives.sum() == 0:
+            return AlloMetrics(i_auroc, nan, nan, nan)
+        curve = self.pixels.curve()
+        return AlloMetrics(
+            i_auroc,
+            auroc_from_curve(curve),
+            average_precision_from_curve(curve),
+            fpr_at_tpr_from_curve(curve),
+        )

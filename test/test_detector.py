@@ -1,0 +1,224 @@
+"""detect() end to end: the hard cases of mrad.md, bad input, and a synthetic scene."""
+
+import cv2
+import numpy as np
+import pytest
+
+from allo_mrad_ros.detector import METHODS, MradParams, detect, profile
+from allo_mrad_ros.example_scene import example_pair
+
+STAGES = [
+    "cross_score",
+    "scale_threshold",
+    "noise_removal",
+    "blur",
+    "seeds",
+    "region_growing",
+    "decision",
+    "total",
+]
+
+
+def assert_well_formed(result, shape):
+    assert result.score.shape == shape and result.score.dtype == np.float32
+    assert result.mask.shape == shape and result.mask.dtype == np.uint8
+    assert np.isfinite(result.score).all() and np.isfinite(result.raw_score).all()
+    assert result.score.min() >= 0 and result.score.max() <= 255
+    assert set(np.unique(result.mask)) <= {0, 255}
+    assert result.area == np.count_nonzero(result.mask)
+    assert not result.score[result.mask == 0].any()
+
+
+@pytest.fixture(scope="module")
+def pair():
+    return example_pair(270, 480, seed=3)
+
+
+def iou(a, b):
+    return np.count_nonzero(a & b) / max(np.count_nonzero(a | b), 1)
+
+
+def test_pasted_object_is_found_and_clean_frame_is_not(pair):
+    reference = cv2.resize(pair.reference, (240, 135), interpolation=cv2.INTER_AREA)
+    found = detect(pair.query, reference)
+    assert_well_formed(found, pair.query.shape[:2])
+    assert found.anomalous
+    assert iou(found.mask > 0, pair.object_mask > 0) >= 0.5
+    clean = detect(pair.clean_query, reference)
+    assert not clean.anomalous
+    assert list(found.timings_ms) == STAGES
+
+
+def test_full_hd_example_meets_iou():
+    pair = example_pair()
+    reference = cv2.resize(pair.reference, (480, 270), interpolation=cv2.INTER_AREA)
+    result = detect(pair.query, reference)
+    assert result.anomalous and iou(result.mask > 0, pair.object_mask > 0) >= 0.5
+    assert not detect(pair.clean_query, reference).anomalous
+
+
+def test_identical_query_and_reference_are_not_anomalous(pair):
+    result = detect(pair.reference, pair.reference)
+    assert not result.anomalous and result.area == 0
+    assert np.abs(result.raw_score).max() < 1e-3
+
+
+def test_repeat_runs_are_bit_identical(pair):
+    a = detect(pair.query, pair.reference)
+    b = detect(pair.query.copy(), pair.reference.copy())
+    for field in ("score", "raw_score", "mask"):
+        assert getattr(a, field).tobytes() == getattr(b, field).tobytes()
+    assert a.area == b.area
+
+
+@pytest.mark.parametrize(
+    "fill", [0, 255, "grey"], ids=["all_black", "saturated", "r_equals_g_equals_b"]
+)
+def test_degenerate_cells(fill):
+    rng = np.random.default_rng(0)
+    reference = np.zeros((64, 64, 3), dtype=np.uint8)
+    if fill == "grey":
+        reference[:] = rng.integers(80, 120, (64, 64), dtype=np.uint8)[..., None]
+    else:
+        reference[:] = fill
+    result = detect(reference.copy(), reference)
+    assert_well_formed(result, (64, 64))
+    assert not result.anomalous
+    query = reference.copy()
+    query[20:36, 20:36] = (30, 200, 90)  # a coloured object no cell of the reference has
+    found = detect(query, reference, MradParams(grid=2))
+    assert_well_formed(found, (64, 64))
+    assert found.anomalous
+
+
+def test_single_pixel_cells():
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    result = detect(image, image.copy(), MradParams(grid=16))
+    assert_well_formed(result, (16, 16))
+    assert not result.anomalous
+
+
+def test_image_smaller_than_grid_is_rejected():
+    image = np.zeros((3, 3, 3), dtype=np.uint8)
+    with pytest.raises(ValueError, match="grid=4 is too fine for a 3x3 image"):
+        detect(image, image)
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32, np.float64])
+def test_uint16_and_float_inputs_match_uint8(pair, dtype):
+    scale = 257 if dtype == np.uint16 else 1 / 255
+    query = (pair.query.astype(np.float64) * scale).astype(dtype)
+    reference = (pair.reference.astype(np.float64) * scale).astype(dtype)
+    result = detect(query, reference)
+    expected = detect(pair.query, pair.reference)
+    assert_well_formed(result, pair.query.shape[:2])
+    assert result.anomalous == expected.anomalous
+    assert iou(result.mask > 0, expected.mask > 0) > 0.95
+
+
+@pytest.mark.parametrize("size", [(480, 270), (240, 135), (120, 68)])
+def test_lower_resolution_reference_still_finds_the_object(pair, size):
+    reference = cv2.resize(pair.reference, size, interpolation=cv2.INTER_AREA)
+    result = detect(pair.query, reference)
+    assert result.anomalous and iou(result.mask > 0, pair.object_mask > 0) >= 0.5
+    assert not detect(pair.clean_query, reference).anomalous
+
+
+def test_constant_score_map_gives_no_seeds_and_empty_mask():
+    image = np.full((32, 32, 3), 77, dtype=np.uint8)
+    result = detect(image, image.copy())
+    assert result.area == 0 and not result.mask.any() and not result.score.any()
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"grid": 1},
+        {"grid": 16},
+        {"tolerance": 0.0},
+        {"blur_sigma": 0.0},
+        {"noise_removal": "cell_spread"},
+        {"noise_removal": "none"},
+        {"score_scaling": "per_image"},
+        {"process_scale": 0.5},
+        {"connectivity": 4},
+    ],
+    ids=lambda c: "-".join(f"{k}={v}" for k, v in c.items()),
+)
+def test_extreme_and_alternative_parameters_stay_well_formed(pair, changes):
+    result = detect(pair.query, pair.reference, MradParams().replace(**changes))
+    assert_well_formed(result, pair.query.shape[:2])
+    clean = detect(pair.reference, pair.reference, MradParams().replace(**changes))
+    assert not clean.anomalous
+
+
+@pytest.mark.parametrize("name", sorted(METHODS))
+def test_every_method_shares_the_interface(pair, name):
+    result = METHODS[name](pair.query, pair.reference, MradParams())
+    assert_well_formed(result, pair.query.shape[:2])
+    assert "total" in result.timings_ms
+
+
+@pytest.mark.parametrize(
+    ("query", "reference", "message"),
+    [
+        (np.zeros((8, 8), np.uint8), np.zeros((8, 8, 3), np.uint8), r"query must have shape"),
+        (np.zeros((8, 8, 4), np.uint8), np.zeros((8, 8, 3), np.uint8), r"query must have shape"),
+        (np.zeros((8, 8, 3), np.uint8), np.zeros((8, 8, 1), np.uint8), r"reference must have"),
+        (np.zeros((0, 8, 3), np.uint8), np.zeros((8, 8, 3), np.uint8), r"query is empty"),
+        (np.zeros((8, 8, 3), np.int32), np.zeros((8, 8, 3), np.uint8), r"unsupported dtype int32"),
+        (np.zeros((8, 8, 3), bool), np.zeros((8, 8, 3), np.uint8), r"unsupported dtype bool"),
+        (np.full((8, 8, 3), np.nan), np.zeros((8, 8, 3)), r"query contains 192 NaN or Inf"),
+        (np.zeros((8, 8, 3)), np.full((8, 8, 3), np.inf), r"reference contains 192 NaN"),
+        (np.zeros((90, 160, 3), np.uint8), np.zeros((90, 90, 3), np.uint8), r"aspect ratio"),
+        ([[1, 2, 3]], np.zeros((8, 8, 3), np.uint8), r"query must be a numpy array"),
+    ],
+)
+def test_bad_images_raise_value_error_naming_the_argument(query, reference, message):
+    with pytest.raises(ValueError, match=message):
+        detect(query, reference)
+
+
+def test_missing_reference_is_rejected():
+    with pytest.raises(ValueError, match="reference is required"):
+        detect(np.zeros((8, 8, 3), np.uint8), None)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"grid": 0}, r"grid must be an integer in \[1, 64\], got 0"),
+        ({"grid": 2.5}, r"grid must be an integer"),
+        ({"blur_sigma": -1.0}, r"blur_sigma must be in \[0, 100\], got -1.0"),
+        ({"tolerance": 300.0}, r"tolerance must be in \[0, 255\], got 300.0"),
+        ({"tolerance": float("nan")}, r"tolerance must be finite"),
+        ({"kernel_fraction": 0.0}, r"kernel_fraction must be in \(0, 1\]"),
+        ({"score_scaling": "log"}, r"score_scaling must be one of"),
+        ({"noise_removal": "median"}, r"noise_removal must be one of"),
+        ({"abs_floor": 0.0}, r"abs_floor must be in \(0"),
+        ({"connectivity": 6}, r"connectivity must be one of \[4, 8\]"),
+        ({"area_threshold": 1.0}, r"area_threshold must be in \[0, 1\)"),
+        ({"process_scale": 2.0}, r"process_scale must be in \(0, 1\]"),
+        ({"min_score": "high"}, r"min_score must be a number"),
+        ({"gird": 4}, r"unknown MRAD parameter"),
+    ],
+)
+def test_invalid_parameters_raise_value_error_naming_them(changes, message):
+    with pytest.raises(ValueError, match=message):
+        MradParams().replace(**changes)
+
+
+def test_profiles():
+    assert profile("default") == MradParams()
+    assert profile("paper").score_scaling == "per_image"
+    assert profile("fast", grid=6).grid == 6
+    paper = MradParams()
+    assert (paper.grid, paper.tolerance, paper.kernel_fraction, paper.blur_sigma) == (
+        4,
+        50.0,
+        0.2,
+        5.0,
+    )
+    with pytest.raises(ValueError, match="unknown MRAD profile 'best'"):
+        profile("best")

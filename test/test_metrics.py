@@ -1,0 +1,111 @@
+"""The four ALLO metrics against scikit-learn and a hand-computed case."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
+
+from allo_mrad_ros.metrics import (
+    MetricsAccumulator,
+    MetricsError,
+    PixelScoreHistogram,
+    auroc_from_curve,
+    average_precision,
+    average_precision_from_curve,
+    fpr_at_tpr,
+    fpr_at_tpr_from_curve,
+    roc_auc,
+)
+
+
+def sklearn_fpr95(labels, scores):
+    fpr, tpr, _ = roc_curve(labels, scores)
+    return fpr[np.argmax(tpr >= 0.95)]
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 400), ties=st.booleans())
+def test_exact_metrics_match_sklearn(seed, n, ties):
+    rng = np.random.default_rng(seed)
+    labels = rng.random(n) < rng.uniform(0.05, 0.95)
+    if labels.all() or not labels.any():
+        labels[0] = not labels[0]
+    scores = rng.normal(size=n) + labels * rng.uniform(0, 2)
+    if ties:
+        scores = np.round(scores * 2) / 2
+    assert roc_auc(scores, labels) == pytest.approx(roc_auc_score(labels, scores), abs=1e-12)
+    assert average_precision(scores, labels) == pytest.approx(
+        average_precision_score(labels, scores), abs=1e-12
+    )
+    assert fpr_at_tpr(scores, labels) == pytest.approx(sklearn_fpr95(labels, scores), abs=1e-12)
+
+
+def test_fpr95_hand_computed():
+    # 20 positives scored 20..39 (one weak positive at 0.5), 10 negatives at 0..9 and one at 25.
+    positives = np.r_[np.arange(21.0, 40.0), 0.5]
+    negatives = np.r_[np.arange(0.0, 10.0), 25.0]
+    scores = np.r_[positives, negatives]
+    labels = np.r_[np.ones(20, bool), np.zeros(11, bool)]
+    # TPR reaches 19/20 = 0.95 at threshold 21: one negative (25) is above it -> FPR 1/11.
+    assert fpr_at_tpr(scores, labels) == pytest.approx(1 / 11)
+    # Asking for all positives needs threshold 0.5: negatives 1..9 and 25 are above -> 10/11.
+    assert fpr_at_tpr(scores, labels, 1.0) == pytest.approx(10 / 11)
+
+
+def test_histogram_equals_exact_metrics_on_grid_scores():
+    rng = np.random.default_rng(3)
+    masks = [
+        np.where(rng.random((20, 30)) < 0.1, 2, rng.integers(0, 2, (20, 30))) for _ in range(4)
+    ]
+    scores = [np.round(rng.random((20, 30)) * 255 * 64) / 64 + 30 * (m == 2) for m in masks]
+    scores = [np.clip(s, 0, 255) for s in scores]
+    histogram = PixelScoreHistogram()
+    for s, m in zip(scores, masks, strict=True):
+        histogram.update(s, m)
+    pooled_scores = np.concatenate([s.ravel() for s in scores])
+    pooled_labels = np.concatenate([(m == 2).ravel() for m in masks])
+    curve = histogram.curve()
+    assert auroc_from_curve(curve) == pytest.approx(roc_auc_score(pooled_labels, pooled_scores))
+    assert average_precision_from_curve(curve) == pytest.approx(
+        average_precision_score(pooled_labels, pooled_scores)
+    )
+    assert fpr_at_tpr_from_curve(curve) == pytest.approx(
+        sklearn_fpr95(pooled_labels, pooled_scores)
+    )
+
+
+def test_accumulator_pools_frames_and_uses_area_as_image_score():
+    rng = np.random.default_rng(4)
+    accumulator = MetricsAccumulator()
+    image_scores, image_labels = [], []
+    for index in range(6):
+        mask = np.ones((10, 10), np.uint8)
+        if index % 2:
+            mask[2:5, 2:5] = 2
+        score = rng.random((10, 10)) * 100 + 100 * (mask == 2)
+        area = float(np.count_nonzero(score > 150))
+        accumulator.update(score, area, mask)
+        image_scores.append(area)
+        image_labels.append(bool(index % 2))
+    metrics = accumulator.compute()
+    assert metrics.i_auroc == pytest.approx(roc_auc_score(image_labels, image_scores))
+    assert 0.9 < metrics.p_auroc <= 1.0 and 0.0 <= metrics.p_fpr95 <= 1.0
+    assert set(metrics.as_dict()) == {"i_auroc", "p_auroc", "p_ap", "p_fpr95"}
+
+
+def test_single_class_is_an_error_or_nan():
+    with pytest.raises(MetricsError, match="need both classes"):
+        roc_auc(np.arange(5.0), np.zeros(5, bool))
+    accumulator = MetricsAccumulator()
+    accumulator.update(np.zeros((4, 4)), 0.0, np.ones((4, 4), np.uint8))
+    assert np.isnan(accumulator.compute().p_ap)
+
+
+def test_bad_inputs_are_named():
+    with pytest.raises(MetricsError, match="3 scores but 2 labels"):
+        roc_auc(np.arange(3.0), np.array([True, False]))
+    with pytest.raises(MetricsError, match="NaN or Inf"):
+        PixelScoreHistogram().update(np.full((2, 2), np.nan), np.zeros((2, 2)))
+    with pytest.raises(MetricsError, match="differ in shape"):
+        PixelScoreHistogram().update(np.zeros((2, 2)), np.zeros((2, 3)))
