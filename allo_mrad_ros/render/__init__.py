@@ -1,0 +1,30 @@
+"""Reference rendering of the station CAD model (pyrender; OSMesa on CPU, EGL on a GPU).
+
+Importing this package does not import pyrender or OpenGL: the backend is chosen first,
+when a :class:`ReferenceRenderer` is built.
+"""
+
+from allo_mrad_ros.render.backend import RendererError, choose_backend
+from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.render.renderer import (
+    DEFAULT_SCALE,
+    LABEL_ANOMALY,
+    LABEL_SPACE,
+    LABEL_STATION,
+    ExtraObject,
+    ReferenceRenderer,
+    RenderResult,
+)
+
+__all__ = [
+    "DEFAULT_SCALE",
+    "LABEL_ANOMALY",
+    "LABEL_SPACE",
+    "LABEL_STATION",
+    "CelestialBody",
+    "ExtraObject",
+    "ReferenceRenderer",
+    "RenderResult",
+    "RendererError",
+    "choose_backend",
+]

@@ -1,0 +1,109 @@
+"""OpenGL backend selection for headless rendering (OSMesa on CPU, EGL on a GPU).
+
+PyOpenGL binds its platform (``PYOPENGL_PLATFORM``) once, when ``OpenGL`` is first imported,
+so the backend must be chosen before pyrender is imported. :func:`import_pyrender` does both
+in the right order; the rest of the package imports pyrender only through it.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import os
+import sys
+from pathlib import Path
+from types import ModuleType
+
+BACKENDS = ("egl", "osmesa")
+ENV_BACKEND = "ALLO_MRAD_GL_BACKEND"
+_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+INSTALL_HINT = (
+    "install a headless OpenGL backend: on a CPU-only machine `apt-get install libosmesa6` "
+    "(and use PYOPENGL_PLATFORM=osmesa), on a GPU machine the vendor driver with EGL "
+    "(libEGL, PYOPENGL_PLATFORM=egl)"
+)
+
+
+class RendererError(RuntimeError):
+    """The renderer could not start, or was given an invalid model, pose or parameter."""
+
+
+def gpu_present() -> bool:
+    """Return True if this machine exposes a GPU render node (DRM or NVIDIA device)."""
+    dri = Path("/dev/dri")
+    has_render_node = dri.is_dir() and any(dri.glob("renderD*"))
+    return has_render_node or Path("/dev/nvidia0").exists()
+
+
+def choose_backend(requested: str | None = None) -> str:
+    """Return the OpenGL backend to use, ``"egl"`` or ``"osmesa"``.
+
+    Parameters
+    ----------
+    requested : str or None
+        An explicit choice. None falls back to the environment variable
+        ``ALLO_MRAD_GL_BACKEND``, then ``PYOPENGL_PLATFORM``, then EGL if a GPU is present
+        and ``libEGL`` is installed, else OSMesa.
+
+    Returns
+    -------
+    str
+        The backend name.
+
+    Raises
+    ------
+    RendererError
+        If the name is not a supported backend, or no backend library is installed.
+    """
+    name = requested or os.environ.get(ENV_BACKEND) or os.environ.get("PYOPENGL_PLATFORM")
+    if name:
+        name = name.strip().lower()
+        if name not in BACKENDS:
+            raise RendererError(
+                f"unsupported OpenGL backend {name!r}; use one of {', '.join(BACKENDS)}"
+            )
+        return name
+    if gpu_present() and ctypes.util.find_library(_LIBRARIES["egl"]):
+        return "egl"
+    if ctypes.util.find_library(_LIBRARIES["osmesa"]):
+        return "osmesa"
+    raise RendererError(f"no headless OpenGL backend found; {INSTALL_HINT}")
+
+
+def import_pyrender(backend: str) -> ModuleType:
+    """Select ``backend`` for PyOpenGL and import pyrender.
+
+    Parameters
+    ----------
+    backend : str
+        ``"egl"`` or ``"osmesa"`` (see :func:`choose_backend`).
+
+    Returns
+    -------
+    module
+        The ``pyrender`` module.
+
+    Raises
+    ------
+    RendererError
+        If OpenGL was already imported for another platform in this process, the backend's
+        library is missing, or pyrender fails to import.
+    """
+    if backend not in BACKENDS:
+        raise RendererError(f"unsupported OpenGL backend {backend!r}")
+    current = os.environ.get("PYOPENGL_PLATFORM")
+    if "OpenGL" in sys.modules and current != backend:
+        raise RendererError(
+            f"OpenGL was already imported with PYOPENGL_PLATFORM={current!r}; cannot switch "
+            f"to {backend!r} in this process. Set PYOPENGL_PLATFORM={backend} before starting."
+        )
+    if not ctypes.util.find_library(_LIBRARIES[backend]):
+        raise RendererError(f"OpenGL backend {backend!r} is not installed; {INSTALL_HINT}")
+    # pyrender's OffscreenRenderer reads this variable too, at context creation.
+    os.environ["PYOPENGL_PLATFORM"] = backend
+    try:
+        import pyrender
+    except Exception as error:  # ImportError, or OSError/AttributeError from PyOpenGL
+        raise RendererError(
+            f"pyrender failed to import with {backend}: {error}; {INSTALL_HINT}"
+        ) from error
+    return pyrender

@@ -1,0 +1,207 @@
+"""Load a station CAD model into a few GPU-friendly vertex groups, one per material.
+
+pyrender issues one draw call (and binds all light uniforms from Python) per primitive, so a
+CAD model with hundreds of parts would be slow to render. Loading bakes every node's
+transform into its vertices and merges all parts that share a material.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+from allo_mrad_ros.render.backend import RendererError
+
+_LOG = logging.getLogger(__name__)
+# A station spanning more than this is probably in millimetres or centimetres.
+_SUSPICIOUS_EXTENT_M = 2000.0
+
+ModelSource = str | PathLike | trimesh.Trimesh | trimesh.Scene
+
+
+@dataclass(frozen=True)
+class MeshGroup:
+    """Triangles sharing one material, in the station frame.
+
+    Attributes
+    ----------
+    name : str
+        Material name (for logs).
+    positions, normals : numpy.ndarray
+        (n, 3) float32 vertex positions (metres) and unit normals.
+    faces : numpy.ndarray
+        (m, 3) uint32 vertex indices, counter-clockwise seen from outside.
+    uv : numpy.ndarray or None
+        (n, 2) float32 texture coordinates, if the material has textures.
+    colours : numpy.ndarray or None
+        (n, 4) float32 vertex colours in [0, 1], for models coloured per vertex or face.
+    material : trimesh.visual.material.PBRMaterial or None
+        The glTF metallic-roughness material; None for a default grey.
+    """
+
+    name: str
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray | None
+    colours: np.ndarray | None
+    material: PBRMaterial | None
+
+
+def _material_of(mesh: trimesh.Trimesh) -> PBRMaterial | None:
+    if mesh.visual.kind != "texture" or mesh.visual.material is None:
+        return None
+    material = mesh.visual.material
+    if isinstance(material, SimpleMaterial):
+        material = material.to_pbr()
+    return material if isinstance(material, PBRMaterial) else None
+
+
+def _part_arrays(mesh: trimesh.Trimesh, transform: np.ndarray, two_sided: bool) -> dict:
+    """Vertex arrays of one placed part, flat-shaded where the file gave no normals."""
+    material = _material_of(mesh)
+    kind = mesh.visual.kind
+    uv = mesh.visual.uv if kind == "texture" and material is not None else None
+    colours = None
+    if kind == "vertex":
+        colours = np.asarray(mesh.visual.vertex_colors, dtype=np.float32) / 255.0
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    # trimesh computes vertex normals lazily; only the cache tells whether the file had them.
+    # glTF says a client must use flat normals when a mesh has none, and so do we.
+    has_normals = "vertex_normals" in mesh._cache.cache
+    if has_normals and kind != "face":
+        positions = np.asarray(mesh.vertices, dtype=np.float64)
+        normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
+    else:
+        positions = np.asarray(mesh.vertices, dtype=np.float64)[faces].reshape(-1, 3)
+        normals = np.repeat(np.asarray(mesh.face_normals, dtype=np.float64), 3, axis=0)
+        uv = None if uv is None else np.asarray(uv)[faces].reshape(-1, 2)
+        if kind == "face":
+            colours = np.repeat(
+                np.asarray(mesh.visual.face_colors, dtype=np.float32) / 255.0, 3, axis=0
+            )
+        elif colours is not None:
+            colours = colours[faces].reshape(-1, colours.shape[1])
+        faces = np.arange(len(positions), dtype=np.int64).reshape(-1, 3)
+    rotation = transform[:3, :3]
+    positions = positions @ rotation.T + transform[:3, 3]
+    normals = normals @ np.linalg.inv(rotation)  # inverse-transpose, for scaled nodes too
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    if np.linalg.det(rotation) < 0:  # a mirroring node flips the winding
+        faces = faces[:, ::-1]
+    if two_sided or (material is not None and material.doubleSided):
+        # Both sides visible: add the reversed faces with flipped normals so that every
+        # render pass (including the back-face-culled segmentation pass) sees them.
+        n = len(positions)
+        positions = np.vstack([positions, positions])
+        normals = np.vstack([normals, -normals])
+        faces = np.vstack([faces, faces[:, ::-1] + n])
+        uv = None if uv is None else np.vstack([uv, uv])
+        colours = None if colours is None else np.vstack([colours, colours])
+    return {
+        "positions": positions,
+        "normals": normals,
+        "faces": faces,
+        "uv": uv,
+        "colours": colours,
+        "material": material,
+    }
+
+
+def _as_scene(source: ModelSource) -> trimesh.Scene:
+    if isinstance(source, trimesh.Scene):
+        return source
+    if isinstance(source, trimesh.Trimesh):
+        return trimesh.Scene(source)
+    path = Path(source)
+    if not path.is_file():
+        raise RendererError(f"station model file not found: {path}")
+    try:
+        return trimesh.load(path, force="scene")
+    except Exception as error:  # trimesh raises many types for unreadable files
+        raise RendererError(f"cannot load station model {path}: {error}") from error
+
+
+def _merge(name: str, parts: Sequence[dict]) -> MeshGroup:
+    offsets = np.cumsum([0] + [len(p["positions"]) for p in parts[:-1]])
+    uv = None
+    if all(p["uv"] is not None for p in parts):
+        uv = np.vstack([p["uv"] for p in parts]).astype(np.float32)
+    colours = None
+    if all(p["colours"] is not None for p in parts):
+        colours = np.vstack([p["colours"] for p in parts]).astype(np.float32)
+    return MeshGroup(
+        name=name,
+        positions=np.vstack([p["positions"] for p in parts]).astype(np.float32),
+        normals=np.vstack([p["normals"] for p in parts]).astype(np.float32),
+        faces=np.vstack([p["faces"] + o for p, o in zip(parts, offsets, strict=True)]).astype(
+            np.uint32
+        ),
+        uv=uv,
+        colours=colours,
+        material=parts[0]["material"],
+    )
+
+
+def load_model(
+    sources: ModelSource | Iterable[ModelSource], two_sided: bool = False
+) -> list[MeshGroup]:
+    """Load one or more meshes/scenes and merge their parts by material.
+
+    Parameters
+    ----------
+    sources : path, trimesh.Trimesh, trimesh.Scene, or a list of them
+        Any format trimesh loads (glTF/GLB, OBJ, STL, PLY, ...), in metres, in the station
+        frame. Scene node transforms are applied.
+    two_sided : bool
+        Make every part visible from both sides (thin sheets such as blankets), as glTF's
+        ``doubleSided`` does per material: reversed copies of the faces are added.
+
+    Returns
+    -------
+    list of MeshGroup
+        One group per distinct material (plus one for vertex-coloured and one for untextured
+        parts), in first-seen order.
+
+    Raises
+    ------
+    RendererError
+        If a file is missing or unreadable, or the model contains no triangles.
+    """
+    if isinstance(sources, (str, PathLike, trimesh.Trimesh, trimesh.Scene)):
+        sources = [sources]
+    groups: dict[tuple, list[dict]] = {}
+    names: dict[tuple, str] = {}
+    for source in sources:
+        scene = _as_scene(source)
+        for node in scene.graph.nodes_geometry:
+            transform, geometry_name = scene.graph[node]
+            mesh = scene.geometry[geometry_name]
+            if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+                continue
+            transform = np.asarray(transform, dtype=np.float64)
+            if not np.all(np.isfinite(transform)) or not np.all(np.isfinite(mesh.vertices)):
+                raise RendererError(f"station model part {geometry_name!r} has non-finite values")
+            part = _part_arrays(mesh, transform, two_sided)
+            material = part["material"]
+            key = (
+                None if material is None else hash(material),
+                part["uv"] is not None,
+                part["colours"] is not None,
+            )
+            groups.setdefault(key, []).append(part)
+            names.setdefault(key, (material.name if material is not None else None) or "default")
+    if not groups:
+        raise RendererError("station model contains no triangles")
+    merged = [_merge(names[key], parts) for key, parts in groups.items()]
+    extent = float(np.ptp(np.vstack([g.positions for g in merged]), axis=0).max())
+    if extent > _SUSPICIOUS_EXTENT_M:
+        _LOG.warning("station model spans %.0f m: the renderer expects metres", extent)
+    return merged
