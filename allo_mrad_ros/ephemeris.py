@@ -428,7 +428,9 @@ def parse_allo_ephemeris(text: str, source: str = "ephemeris_2030.csv") -> dict[
     EphemerisError
         Naming the source, the line and the column at fault.
     """
-    rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text)), start=1) if r]
+    rows = list(enumerate(csv.reader(io.StringIO(text)), start=1))
+    while rows and not rows[-1][1]:
+        rows.pop()  # trailing blank lines; a blank line inside would shift the days
     if len(rows) < 2:
         raise _allo_table_error(source, len(rows) + 1, None, "need row 0 and at least one day")
     skies: dict[int, Sky] = {}

@@ -56,9 +56,12 @@ def _true_vectors_km(ephemeris: StationEphemeris) -> dict[str, np.ndarray]:
     times = timescale.from_datetimes(DAYS)
     station = ephemeris.station_positions_km(DAYS)
     vectors = {"moon": -station}
-    for body in ("sun", "earth"):
-        icrf = np.asarray((kernel[body] - kernel["moon"]).at(times).position.km).T
-        vectors[body] = icrf @ ephemeris.station_from_icrf.T - station
+    try:
+        for body in ("sun", "earth"):
+            icrf = np.asarray((kernel[body] - kernel["moon"]).at(times).position.km).T
+            vectors[body] = icrf @ ephemeris.station_from_icrf.T - station
+    finally:
+        kernel.close()
     return vectors
 
 
@@ -233,7 +236,9 @@ def test_allo_parser_ignores_row_zero_values_only() -> None:
     with pytest.raises(EphemerisError, match=r"t\.csv, line 1: expected 12 fields, got 3"):
         parse_allo_ephemeris(f"1,2,3\n{GOOD_ROW}\n", "t.csv")
     with pytest.raises(EphemerisError, match="at least one day"):
-        parse_allo_ephemeris(GOOD_ROW + "\n", "t.csv")
+        parse_allo_ephemeris(GOOD_ROW + "\n\n", "t.csv")
+    with pytest.raises(EphemerisError, match="line 2: expected 12 fields, got 0"):
+        parse_allo_ephemeris(f"{GOOD_ROW}\n\n{GOOD_ROW}\n", "t.csv")
 
 
 @pytest.mark.parametrize(

@@ -229,7 +229,7 @@ def test_referenced_images_are_stored_relative(tmp_path: Path) -> None:
             quaternion=[0, 0, 0, 1],
             sun_direction=[0, 1, 0],
         )
-    rows = list(csv.DictReader((root / FRAMES_FILE).open()))
+    rows = list(csv.DictReader(io.StringIO((root / FRAMES_FILE).read_text())))
     assert rows[0]["image"] == "../elsewhere/img.png"
     sequence = read_sequence(root)
     np.testing.assert_array_equal(sequence.load_image(sequence[0]), _image(1)[..., ::-1])
