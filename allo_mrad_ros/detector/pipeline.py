@@ -136,7 +136,7 @@ def detect(
     with timer.stage("region_growing"):
         mask = grow_regions(blurred, seeds, params.tolerance, params.min_score, params.connectivity)
     with timer.stage("decision"):
-        score = np.where(mask > 0, blurred, np.float32(0.0))
+        score = _masked(blurred, mask)
         score, mask = _restore_resolution(score, mask, full_shape)
         area, anomalous = decide(mask, params.area_threshold)
     return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
@@ -178,7 +178,7 @@ def _threshold_only(raw: np.ndarray, params: MradParams, timer: _StageTimer) -> 
         score = threshold_scores(
             scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
         )
-        mask = np.where(score > 0.0, np.uint8(255), np.uint8(0))
+        mask = cv2.compare(score, 0.0, cv2.CMP_GT)
     with timer.stage("decision"):
         area, anomalous = decide(mask, params.area_threshold)
     return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
@@ -200,7 +200,13 @@ def _restore_resolution(
     size = (shape[1], shape[0])
     score = cv2.resize(score, size, interpolation=cv2.INTER_LINEAR)
     mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
-    return np.where(mask > 0, score, np.float32(0.0)), mask
+    return _masked(score, mask), mask
+
+
+def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(values)
+    cv2.copyTo(values, mask, out)
+    return out
 
 
 METHODS: dict[str, Detector] = {"MRAD": detect, "PAD": detect_pad, "RXD": detect_rxd}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -27,22 +29,24 @@ def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
     numpy.ndarray
         H x W float32 in [0, 255].
     """
-    positive = np.maximum(raw, 0.0, dtype=np.float32)
     if scaling == "per_image":
-        peak = float(positive.max())
-        if peak <= 0.0:
-            return np.zeros_like(positive)
-        positive *= np.float32(SCORE_RANGE / peak)
-        return np.minimum(positive, SCORE_RANGE, out=positive)
-    if scaling == "fixed":
-        positive *= np.float32(SCORE_RANGE / score_ref)
-        return np.minimum(positive, SCORE_RANGE, out=positive)
-    raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+        peak = float(raw.max())
+        factor = SCORE_RANGE / peak if peak > 0.0 else 0.0
+    elif scaling == "fixed":
+        factor = SCORE_RANGE / score_ref
+    else:
+        raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+    _, positive = cv2.threshold(raw, 0.0, 0.0, cv2.THRESH_TOZERO)
+    scaled = cv2.multiply(positive, factor)
+    cv2.threshold(scaled, SCORE_RANGE, SCORE_RANGE, cv2.THRESH_TRUNC, dst=scaled)
+    return scaled
 
 
 def threshold_scores(scaled: np.ndarray, min_score: float) -> np.ndarray:
     """Zero every scaled score below ``min_score`` (in place; returns the array)."""
-    scaled[scaled < min_score] = 0.0
+    # THRESH_TOZERO keeps values strictly above its threshold: use the float just below.
+    below = float(np.nextafter(np.float32(min_score), np.float32(-np.inf)))
+    cv2.threshold(scaled, below, 0.0, cv2.THRESH_TOZERO, dst=scaled)
     return scaled
 
 
@@ -119,6 +123,8 @@ def blur_scores(scores: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur with standard deviation ``sigma`` pixels (a copy when ``sigma == 0``)."""
     if sigma <= 0.0:
         return scores.copy()
+    # Truncate the kernel at 3 sigma (OpenCV's float default is 4 sigma): 0.3 % of the mass.
+    size = 2 * math.ceil(3.0 * sigma) + 1
     return cv2.GaussianBlur(
-        scores, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT
+        scores, (size, size), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT
     )

@@ -38,17 +38,21 @@ def find_seeds(blurred: np.ndarray, min_score: float, window: int) -> np.ndarray
     """
     kernel = np.ones((window, window), dtype=np.uint8)
     dilated = cv2.dilate(blurred, kernel, borderType=cv2.BORDER_REPLICATE)
-    peaks = (blurred >= dilated) & (blurred >= min_score) & (blurred > 0.0)
-    if not peaks.any():
+    floor = max(float(min_score), float(np.finfo(np.float32).tiny))
+    peaks = cv2.bitwise_and(
+        cv2.compare(blurred, dilated, cv2.CMP_GE), cv2.compare(blurred, floor, cv2.CMP_GE)
+    )
+    points = cv2.findNonZero(peaks)
+    if points is None:
         return np.empty((0, 2), dtype=np.int64)
-    _, labels = cv2.connectedComponents(peaks.view(np.uint8), connectivity=8)
-    flat_labels = labels.ravel()
-    order = np.flatnonzero(flat_labels)
-    _, first = np.unique(flat_labels[order], return_index=True)
-    indices = order[first]
-    values = blurred.ravel()[indices]
-    indices = indices[np.lexsort((indices, -values))]
-    return np.column_stack(np.unravel_index(indices, blurred.shape)).astype(np.int64)
+    _, labels = cv2.connectedComponents(peaks, connectivity=8)
+    points = points.reshape(-1, 2)  # OpenCV 4 gives (N, 1, 2), OpenCV 5 (N, 2)
+    cols, rows = points[:, 0], points[:, 1]
+    # findNonZero lists pixels in raster order, so the first hit per label is its first pixel.
+    _, first = np.unique(labels[rows, cols], return_index=True)
+    rows, cols = rows[first].astype(np.int64), cols[first].astype(np.int64)
+    order = np.lexsort((cols, rows, -blurred[rows, cols]))
+    return np.column_stack([rows[order], cols[order]])
 
 
 def grow_regions(
@@ -74,11 +78,12 @@ def grow_regions(
     if len(seeds) == 0:
         return fill_mask[1:-1, 1:-1].copy()
     # Non-zero mask pixels stop the fill: below-threshold scores are a barrier.
-    fill_mask[1:-1, 1:-1][blurred < min_score] = 1
+    below = cv2.compare(blurred, float(min_score), cv2.CMP_LT)
+    np.bitwise_and(below, 1, out=fill_mask[1:-1, 1:-1])
     flags = connectivity | cv2.FLOODFILL_FIXED_RANGE | cv2.FLOODFILL_MASK_ONLY | (_FILL_VALUE << 8)
     image = np.ascontiguousarray(blurred, dtype=np.float32)
     for row, col in seeds:
         if fill_mask[row + 1, col + 1]:
             continue
         cv2.floodFill(image, fill_mask, (int(col), int(row)), 0, tolerance, tolerance, flags)
-    return np.where(fill_mask[1:-1, 1:-1] == _FILL_VALUE, np.uint8(255), np.uint8(0))
+    return cv2.compare(fill_mask[1:-1, 1:-1], _FILL_VALUE, cv2.CMP_EQ)

@@ -15,9 +15,11 @@ import numpy as np
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
 
-# Index pairs of the upper triangle of a 3x3 colour covariance: (r,g), (r,b), (g,b).
-_CROSS_A = [0, 0, 1]
-_CROSS_B = [1, 2, 2]
+# Channel products (c, next c): (0,1), (1,2), (2,0) cover the off-diagonal of a 3x3
+# covariance; cv2.mixChannels builds the rotated image without NumPy's fancy-index copies.
+_CROSS_A = [0, 1, 2]
+_CROSS_B = [1, 2, 0]
+_ROTATE_CHANNELS = [1, 0, 2, 1, 0, 2]
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,9 @@ def _statistics_uint8(image: np.ndarray, slices: list[tuple[slice, slice]]) -> C
     # covariance is exact up to the final division.
     wide = image.astype(np.uint16)
     squares = wide * wide
-    cross = wide[..., _CROSS_A] * wide[..., _CROSS_B]
+    rotated = np.empty_like(wide)
+    cv2.mixChannels([wide], [rotated], _ROTATE_CHANNELS)
+    cross = wide * rotated
     n_cells = len(slices)
     mean = np.empty((n_cells, 3))
     cov = np.empty((n_cells, 3, 3))

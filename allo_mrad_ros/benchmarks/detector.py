@@ -1,0 +1,164 @@
+"""Benchmark of :func:`allo_mrad_ros.detector.detect` at 1920x1080.
+
+Prints median and p95 per stage and in total, the peak resident memory, and the speed and
+error of the float64 per-pixel oracle measured in the same run; writes the same figures to
+a JSON report. The oracle lives in the tests (``test/mrad_oracle.py`` of a source checkout)
+and is skipped when the package runs from an install without its tests.
+
+Usage: ``python -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json``
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+
+import cv2
+import numpy as np
+
+from allo_mrad_ros.detector import MradParams, detect
+from allo_mrad_ros.detector.score import cross_score
+from allo_mrad_ros.example_scene import example_pair
+
+_ORACLE_PATH = Path(__file__).resolve().parents[2] / "test" / "mrad_oracle.py"
+
+
+def _load_oracle() -> ModuleType | None:
+    if not _ORACLE_PATH.is_file():
+        return None
+    spec = importlib.util.spec_from_file_location("mrad_oracle", _ORACLE_PATH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _summary(samples: list[float]) -> dict[str, float]:
+    return {"median": float(np.median(samples)), "p95": float(np.percentile(samples, 95))}
+
+
+def run(frames: int, warmup: int, oracle_frames: int, ref_scale: float) -> dict:
+    """Time ``detect`` and the oracle on the built-in 1080p example; return the figures."""
+    pair = example_pair(1080, 1920)
+    ref_size = (round(1920 * ref_scale), round(1080 * ref_scale))
+    reference = cv2.resize(pair.reference, ref_size, interpolation=cv2.INTER_AREA)
+    params = MradParams()
+    for _ in range(warmup):
+        detect(pair.query, reference, params)
+    totals: list[float] = []
+    stages: dict[str, list[float]] = {}
+    result = None
+    for _ in range(frames):
+        start = time.perf_counter()
+        result = detect(pair.query, reference, params)
+        totals.append(1e3 * (time.perf_counter() - start))
+        for name, ms in result.timings_ms.items():
+            if name != "total":
+                stages.setdefault(name, []).append(ms)
+    report: dict = {
+        "image": "1920x1080",
+        "reference": f"{ref_size[0]}x{ref_size[1]}",
+        "frames": frames,
+        "warmup": warmup,
+        "params": params.to_dict(),
+        "stages_ms": {name: _summary(values) for name, values in stages.items()},
+        "detect_ms_median": float(np.median(totals)),
+        "detect_ms_p95": float(np.percentile(totals, 95)),
+        "anomalous": bool(result.anomalous),
+        "area": int(result.area),
+        "machine": {"cpus": _cpu_count(), "python": platform.python_version()},
+    }
+    oracle = _load_oracle()
+    if oracle is None or oracle_frames == 0:
+        report["oracle_ms_median"] = None
+        report["speedup_vs_oracle"] = None
+    else:
+        fast = cross_score(pair.query, reference, params.grid, params.abs_floor, params.rel_floor)
+        oracle_times = []
+        for _ in range(oracle_frames):
+            start = time.perf_counter()
+            exact = oracle.cross_score_vectorised(
+                pair.query, reference, params.grid, params.abs_floor, params.rel_floor
+            )
+            oracle_times.append(1e3 * (time.perf_counter() - start))
+        error = np.abs(fast.astype(np.float64) - exact)
+        report["oracle_frames"] = oracle_frames
+        report["oracle_ms_median"] = float(np.median(oracle_times))
+        report["speedup_vs_oracle"] = report["oracle_ms_median"] / report["detect_ms_median"]
+        report["score_speedup_vs_oracle"] = (
+            report["oracle_ms_median"] / report["stages_ms"]["cross_score"]["median"]
+        )
+        report["oracle_max_abs_error"] = float(error.max())
+        report["oracle_max_rel_error"] = float(error.max() / max(np.abs(exact).max(), 1e-12))
+    report["peak_rss_mb"] = _peak_rss_mb()
+    return report
+
+
+def _cpu_count() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def format_report(report: dict) -> str:
+    """The report as the table the benchmark prints."""
+    lines = [
+        f"detect() on {report['image']} (reference {report['reference']}), "
+        f"{report['frames']} frames after {report['warmup']} warm-up, "
+        f"{report['machine']['cpus']} CPUs",
+        f"{'stage':<18}{'median ms':>12}{'p95 ms':>10}",
+    ]
+    for name, figures in report["stages_ms"].items():
+        lines.append(f"{name:<18}{figures['median']:>12.2f}{figures['p95']:>10.2f}")
+    lines.append(
+        f"{'detect() total':<18}{report['detect_ms_median']:>12.2f}{report['detect_ms_p95']:>10.2f}"
+    )
+    if report.get("oracle_ms_median") is not None:
+        lines.append(
+            f"float64 per-pixel oracle (cross score only): {report['oracle_ms_median']:.1f} ms "
+            f"median over {report['oracle_frames']} frames"
+        )
+        lines.append(
+            f"speed-up of detect() over the oracle: {report['speedup_vs_oracle']:.1f}x "
+            f"(cross-score stage alone: {report['score_speedup_vs_oracle']:.1f}x); "
+            f"max |fast - oracle| = {report['oracle_max_abs_error']:.2e} "
+            f"({report['oracle_max_rel_error']:.1e} of the largest score)"
+        )
+    else:
+        lines.append("oracle: not measured (test/mrad_oracle.py not found)")
+    lines.append(f"peak resident memory: {report['peak_rss_mb']:.0f} MB")
+    lines.append(f"frame decision: anomalous={report['anomalous']} area={report['area']} px")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", type=int, default=30, help="timed frames (>= 20)")
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--oracle-frames", type=int, default=5)
+    parser.add_argument("--ref-scale", type=float, default=0.25, help="reference render scale")
+    parser.add_argument("--out", type=Path, default=Path("reports/bench_detector.json"))
+    args = parser.parse_args(argv)
+    if args.frames < 20:
+        parser.error("--frames must be at least 20")
+    report = run(args.frames, args.warmup, args.oracle_frames, args.ref_scale)
+    print(format_report(report))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"written: {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
