@@ -313,10 +313,19 @@ class StationEphemeris:
     moon_distance_m, earth_distance_m, sun_distance_m : float
         Scaled distances at which the bodies are placed, positive.
 
+    Attributes
+    ----------
+    orbit : LunarOrbit
+        As given.
+    distances_m : dict of str to float
+        Scaled distance per body (``sun``, ``earth``, ``moon``).
+    station_from_icrf : numpy.ndarray
+        3x3 rotation taking ICRF vectors into the station frame (fixed in time).
+
     Notes
     -----
-    Positions are geometric (no light-time or aberration: both are below 30 arcsec, far
-    under a pixel of the 1920x1080 camera's ~0.043 deg pixels).
+    Positions are geometric (no light-time or aberration): the difference is below
+    30 arcsec, under a quarter of one of ALLO's 1920x1080 camera pixels (0.037 deg).
     """
 
     def __init__(

@@ -163,7 +163,11 @@ class SequenceWriter:
 
     @property
     def frames(self) -> tuple[Frame, ...]:
-        """The frames added so far, as a reader would return them."""
+        """The frames added so far, as a reader would return them.
+
+        Their ``extra`` holds only the columns given for that frame; once read back, every
+        frame has every extra column (empty where not given).
+        """
         return tuple(self._frames)
 
     def _require_open(self) -> None:
