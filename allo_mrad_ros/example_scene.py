@@ -68,12 +68,21 @@ def station_view(height: int, width: int, seed: int = 0) -> np.ndarray:
     return image
 
 
-def paste_object(image: np.ndarray, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Paste a loose gold-foil blanket in the dark sky; return the image and its mask."""
+def paste_object(
+    image: np.ndarray,
+    seed: int = 1,
+    centre: tuple[float, float] = (0.5, 0.17),
+    size: float = 0.1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Paste a loose gold-foil blanket; return the image and its mask.
+
+    ``centre`` is (x, y) as fractions of the width and height (default: in the dark sky
+    above the station); ``size`` is the blanket's radius as a fraction of the short side.
+    """
     rng = np.random.default_rng(seed)
     height, width = image.shape[:2]
-    centre = np.array([0.5 * width, 0.17 * height])
-    radius = 0.06 * min(height, width) * 1.6
+    centre = np.array([centre[0] * width, centre[1] * height])
+    radius = size * min(height, width)
     angles = np.sort(rng.uniform(0, 2 * np.pi, 9))
     radii = radius * rng.uniform(0.6, 1.0, 9)
     polygon = centre + np.column_stack([np.cos(angles), np.sin(angles)]) * radii[:, None]

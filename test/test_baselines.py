@@ -35,6 +35,6 @@ def test_pad_is_the_single_cell_cross_score_thresholded():
     result = detect_pad(query, reference, params)
     raw = cross_score(query, reference, 1, params.abs_floor, params.rel_floor)
     expected = np.clip(255 * np.maximum(raw, 0) / 500.0, 0, 255)
-    expected[expected < 30.0] = 0
     np.testing.assert_allclose(result.score, expected, rtol=1e-6)
+    np.testing.assert_array_equal(result.mask > 0, expected >= 30.0)
     assert result.anomalous and result.mask[20:30, 30:40].all()

@@ -26,6 +26,9 @@ def assert_well_formed(result, shape):
     assert result.score.min() >= 0 and result.score.max() <= 255
     assert set(np.unique(result.mask)) <= {0, 255}
     assert result.area == np.count_nonzero(result.mask)
+
+
+def assert_score_confined_to_mask(result):
     assert not result.score[result.mask == 0].any()
 
 
@@ -42,6 +45,7 @@ def test_pasted_object_is_found_and_clean_frame_is_not(pair):
     reference = cv2.resize(pair.reference, (240, 135), interpolation=cv2.INTER_AREA)
     found = detect(pair.query, reference)
     assert_well_formed(found, pair.query.shape[:2])
+    assert_score_confined_to_mask(found)
     assert found.anomalous
     assert iou(found.mask > 0, pair.object_mask > 0) >= 0.5
     clean = detect(pair.clean_query, reference)

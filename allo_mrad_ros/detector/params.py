@@ -74,7 +74,7 @@ class MradParams:
     noise_removal: NoiseRemoval = "local_std"
     std_thresh: float = 10.0
     large_anomaly_fraction: float = 0.90
-    abs_floor: float = 4.0
+    abs_floor: float = 16.0
     rel_floor: float = 1e-3
     connectivity: int = 8
     area_threshold: float = 0.001

@@ -145,7 +145,11 @@ def detect(
 def detect_pad(
     query: np.ndarray, reference: np.ndarray | None, params: MradParams | None = None
 ) -> DetectionResult:
-    """PAD baseline: the cross score with one cell and only a threshold after scaling."""
+    """PAD baseline: the cross score with one cell and only a threshold after scaling.
+
+    The result's ``score`` is the scaled cross score; ``mask`` is where it reaches
+    ``params.min_score``.
+    """
     params = params or MradParams()
     if reference is None:
         raise ValueError("reference is required for PAD (got None)")
@@ -163,7 +167,8 @@ def detect_rxd(
 ) -> DetectionResult:
     """RXD baseline: each pixel against the whole query's mean and covariance.
 
-    ``reference`` is accepted for a uniform interface and ignored.
+    ``reference`` is accepted for a uniform interface and ignored. Scores and mask as in
+    :func:`detect_pad`.
     """
     params = params or MradParams()
     query = check_image(query, "query")
@@ -174,11 +179,10 @@ def detect_rxd(
 
 
 def _threshold_only(raw: np.ndarray, params: MradParams, timer: _StageTimer) -> DetectionResult:
+    # The baselines rank pixels by their scaled score; the threshold only makes the mask.
     with timer.stage("scale_threshold"):
-        score = threshold_scores(
-            scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
-        )
-        mask = cv2.compare(score, 0.0, cv2.CMP_GT)
+        score = scale_scores(raw, params.score_scaling, params.score_ref)
+        mask = cv2.compare(threshold_scores(score.copy(), params.min_score), 0.0, cv2.CMP_GT)
     with timer.stage("decision"):
         area, anomalous = decide(mask, params.area_threshold)
     return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
