@@ -134,6 +134,16 @@ class Sky:
                 )
             object.__setattr__(self, body, value)
 
+    def bodies(self) -> list[tuple[str, tuple[float, float, float], float]]:
+        """Return ``(name, centre, radius)`` for the Sun, Earth and Moon.
+
+        These are the tuples the reference renderer's ``bodies`` argument accepts.
+        """
+        return [
+            (body, tuple(float(v) for v in getattr(self, body)[:3]), float(getattr(self, body)[3]))
+            for body in ("sun", "earth", "moon")
+        ]
+
     def angular_radius(self, body: str) -> float:
         """Apparent angular radius of ``sun``, ``earth`` or ``moon`` in radians."""
         if body not in ("sun", "earth", "moon"):

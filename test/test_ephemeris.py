@@ -72,6 +72,9 @@ def test_sun_direction_is_unit(skies: list[Sky]) -> None:
 
 
 def test_bodies_at_scaled_distances(skies: list[Sky]) -> None:
+    names = [name for name, _, _ in skies[0].bodies()]
+    assert names == ["sun", "earth", "moon"]
+    assert skies[0].bodies()[1][2] == skies[0].earth[3]
     for sky in skies:
         for body, distance in (
             ("sun", SUN_DISTANCE_M),
