@@ -18,6 +18,9 @@ DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
     "moon": (0.42, 0.41, 0.39),
 }
 _FALLBACK_COLOUR = (0.5, 0.5, 0.5)
+# Bodies are pulled inside the far plane on a log scale that saturates at this distance
+# (about 70 astronomical units).
+FARTHEST_BODY_M = 1.0e13
 
 
 @dataclass(frozen=True)
@@ -119,8 +122,9 @@ def pull_within(
 ) -> tuple[np.ndarray, float]:
     """Move a sphere towards ``eye`` so it sits within ``limit``, keeping its apparent size.
 
-    Distances beyond ``limit / 2`` are compressed monotonically into ``[limit / 2, limit)``, so
-    the depth order of several far bodies is kept.
+    Distances beyond ``limit / 2`` are compressed logarithmically into ``[limit / 2, 0.95
+    limit)`` (saturating at :data:`FARTHEST_BODY_M`), so the depth order of bodies as far
+    apart as the Moon and the Sun is kept, with room between them.
 
     Returns
     -------
@@ -132,7 +136,8 @@ def pull_within(
     if distance + radius <= limit or distance == 0.0:
         return centre, radius
     half = limit / 2.0
-    target = half + 0.9 * half * (1.0 - math.exp(-max(distance - half, 0.0) / half))
+    fraction = math.log(max(distance, half) / half) / math.log(FARTHEST_BODY_M / half)
+    target = half + 0.9 * half * min(fraction, 1.0)
     scale = min(target / distance, 0.99 * limit / (distance + radius))
     return eye + offset * scale, radius * scale
 
