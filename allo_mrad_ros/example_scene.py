@@ -59,7 +59,7 @@ def station_view(height: int, width: int, seed: int = 0) -> np.ndarray:
         image,
         (int(0.42 * width), int(0.75 * height)),
         (int(0.58 * width), int(0.92 * height)),
-        (60, 160, 210),
+        (210, 160, 60),
         -1,
     )
     cv2.circle(
@@ -90,7 +90,7 @@ def paste_object(
     cv2.fillPoly(mask, [polygon.astype(np.int32)], 255)
     texture = rng.normal(0, 18, (height, width)).astype(np.float32)
     texture = cv2.GaussianBlur(texture, (0, 0), 2.0)
-    foil = np.stack([40 + 0.5 * texture, 150 + texture, 200 + texture], axis=-1)
+    foil = np.stack([200 + texture, 150 + texture, 40 + 0.5 * texture], axis=-1)
     out = image.copy()
     out[mask > 0] = np.clip(foil[mask > 0], 0, 255).astype(np.uint8)
     return out, mask

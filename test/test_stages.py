@@ -62,6 +62,21 @@ def test_local_std_rule_zeroes_flat_interiors_and_keeps_varying_scores():
     np.testing.assert_array_equal(cleaned[45:75, 45:75], scores[45:75, 45:75])
 
 
+def test_local_std_rule_keeps_saturated_interiors():
+    scores = np.zeros((80, 80), np.float32)
+    scores[5:35, 5:35] = 255.0  # a confidently anomalous blob, clipped flat by scaling
+    cleaned = remove_noise(
+        scores,
+        2,
+        min_score=25,
+        kernel_fraction=0.2,
+        std_thresh=10,
+        large_anomaly_fraction=0.9,
+        variant="local_std",
+    )
+    np.testing.assert_array_equal(cleaned, scores)
+
+
 def test_large_anomaly_cell_is_kept_whole():
     scores = np.zeros((80, 80), np.float32)
     scores[:40, :40] = 120.0  # the whole cell is above min_score

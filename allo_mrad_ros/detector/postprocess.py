@@ -90,7 +90,8 @@ def remove_noise(
 
     A cell with more than ``large_anomaly_fraction`` of its scores above ``min_score`` is a
     large anomaly and is kept whole. Elsewhere ``local_std`` zeroes pixels whose local
-    standard deviation (window ``kernel_fraction`` of the cell) is below ``std_thresh``;
+    standard deviation (window ``kernel_fraction`` of the cell) is below ``std_thresh``,
+    except saturated (255) scores, which clipping flattened;
     ``cell_spread`` zeroes a whole cell when the spread (max - min) of its local standard
     deviations is below ``std_thresh``; ``none`` keeps the map.
 
@@ -113,7 +114,10 @@ def remove_noise(
         # The window stays inside the cell (reflected at its edges): cells are independent.
         spread = local_std(cell_scores, std_window(*cell_scores.shape, 1, kernel_fraction))
         if variant == "local_std":
-            cleaned[cell][spread < std_thresh] = 0.0
+            # Saturated scores are flat because scaling clipped them, not because they are
+            # noise: keep them, or a confident object loses its interior.
+            flat_noise = (spread < std_thresh) & (cell_scores < SCORE_RANGE)
+            cleaned[cell][flat_noise] = 0.0
         elif float(np.ptp(spread)) < std_thresh:
             cleaned[cell] = 0.0
     return cleaned
