@@ -1,0 +1,66 @@
+"""Render-then-detect on real renders of the station model, with an object the model lacks."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.processing import FrameProcessor, ProcessingError
+from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
+
+INTRINSICS = CameraIntrinsics(640, 360, 444.4, 444.4, 320.0, 180.0)
+SUN = (0.3, -0.5, 0.8)
+
+
+@pytest.fixture(scope="module")
+def renderers():
+    camera = ReferenceRenderer(None, INTRINSICS, scale=1.0, shadows=False)
+    reference = ReferenceRenderer(None, INTRINSICS, scale=0.5, shadows=False)
+    yield camera, reference
+    camera.close()
+    reference.close()
+
+
+@pytest.fixture(scope="module")
+def pose():
+    return look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])
+
+
+def test_object_absent_from_the_model_is_detected(renderers, pose):
+    camera, reference_renderer = renderers
+    # A 1.2 m gold-coloured box floating 8 m in front of the camera, seen against the sky.
+    box = trimesh.creation.box((1.2, 1.2, 1.2))
+    box.visual.face_colors = (230, 180, 40, 255)
+    object_pose = pose.copy()
+    object_pose[:3, 3] = pose[:3, 3] + 8.0 * pose[:3, 2] + 0.8 * pose[:3, 0] - 2.5 * pose[:3, 1]
+    frame = camera.render(pose, SUN, extra_objects=[ExtraObject(box, object_pose)], labels=True)
+    clean = camera.render(pose, SUN)
+    processor = FrameProcessor(reference_renderer, methods=("MRAD", "PAD", "RXD"))
+    found = processor.process(frame.rgb, pose, SUN)
+    assert set(found.results) == {"MRAD", "PAD", "RXD"}
+    assert found.reference.shape == (180, 320, 3)
+    mrad = found.primary
+    truth = frame.labels == 2
+    assert mrad.anomalous
+    hits = np.count_nonzero((mrad.mask > 0) & truth)
+    assert hits >= 0.5 * np.count_nonzero(truth) and hits >= 0.9 * mrad.area
+    assert not processor.process(clean.rgb, pose, SUN).primary.anomalous
+    assert found.timings_ms["render"] > 0 and found.timings_ms["total"] >= found.timings_ms["MRAD"]
+
+
+def test_supplied_reference_skips_rendering(renderers, pose):
+    camera, reference_renderer = renderers
+    image = camera.render(pose, SUN).rgb
+    processor = FrameProcessor(reference_renderer)
+    given = processor.render_reference(pose, SUN)
+    out = processor.process(image, pose, SUN, reference=given)
+    assert out.timings_ms["render"] == 0.0 and out.reference is given
+
+
+def test_wrong_image_size_and_unknown_method_are_named(renderers, pose):
+    _, reference_renderer = renderers
+    with pytest.raises(ProcessingError, match="differs from the camera's 640x360"):
+        FrameProcessor(reference_renderer).process(np.zeros((10, 10, 3), np.uint8), pose, SUN)
+    with pytest.raises(ProcessingError, match="unknown detection method"):
+        FrameProcessor(reference_renderer, methods=("MRAD", "YOLO"))
