@@ -1,0 +1,178 @@
+"""Benchmark of :class:`allo_mrad_ros.render.ReferenceRenderer` on the committed station model.
+
+Times colour renders at the default reference scale (0.25: 480x270) and at 1920x1080, each
+with directional shadows on and off, plus the generator's mode (colour, depth and labels),
+over a fixed set of viewpoints with the Sun, Earth and Moon in the scene. Prints median and
+p95 per configuration and writes them to a JSON report.
+
+Usage: ``python -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json``
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from allo_mrad_ros.camera import ALLO_INTRINSICS
+from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
+from allo_mrad_ros.resources import share_path
+
+# Reference render at the default scale must stay at or under this median (issue 3).
+TARGET_REF_MS = 40.0
+# ALLO's ephemeris table, day 5 (Blender units = metres, scaled with apparent size kept).
+SUN_CENTRE = (713.4, -3611.3, -1565.0)
+BODIES = (
+    CelestialBody("sun", SUN_CENTRE, 18.97),
+    CelestialBody("earth", (1069.0, 1517.1, 745.3), 35.28),
+    CelestialBody("moon", (0.0, -411.5, -284.0), 212.3),
+)
+
+
+def viewpoints() -> list[np.ndarray]:
+    """Twelve arm-camera-like poses: 8 to 40 m from the station, looking at its parts."""
+    targets = [(-6.0, 0.0, 0.0), (0.0, 0.0, 0.0), (7.5, 0.0, 0.0), (13.0, 0.0, 1.0)]
+    poses = []
+    for i in range(12):
+        azimuth = 2.0 * np.pi * i / 12.0
+        distance = 8.0 + 32.0 * ((i * 5) % 12) / 11.0
+        elevation = np.radians(-30.0 + 60.0 * ((i * 7) % 12) / 11.0)
+        target = np.array(targets[i % len(targets)])
+        offset = distance * np.array(
+            [
+                np.cos(elevation) * np.cos(azimuth),
+                np.cos(elevation) * np.sin(azimuth),
+                np.sin(elevation),
+            ]
+        )
+        poses.append(look_at(target + offset, target))
+    return poses
+
+
+def _summary(samples: list[float]) -> dict[str, float]:
+    ms = np.asarray(samples) * 1000.0
+    return {
+        "ms_median": float(np.median(ms)),
+        "ms_p95": float(np.percentile(ms, 95)),
+        "frames": len(samples),
+    }
+
+
+def time_config(
+    scale: float,
+    shadows: bool,
+    frames: int,
+    warmup: int,
+    backend: str | None,
+    depth: bool = False,
+    labels: bool = False,
+) -> dict:
+    """Build one renderer and time ``frames`` renders cycling over :func:`viewpoints`."""
+    poses = viewpoints()
+    start = time.perf_counter()
+    with ReferenceRenderer(
+        None, ALLO_INTRINSICS, scale=scale, shadows=shadows, backend=backend
+    ) as renderer:
+        init_s = time.perf_counter() - start
+        for i in range(warmup):
+            renderer.render(poses[i % len(poses)], SUN_CENTRE, bodies=BODIES)
+        samples = []
+        for i in range(frames):
+            t0 = time.perf_counter()
+            renderer.render(
+                poses[i % len(poses)], SUN_CENTRE, bodies=BODIES, depth=depth, labels=labels
+            )
+            samples.append(time.perf_counter() - t0)
+        k = renderer.output_intrinsics
+        info = {
+            "size": [k.width, k.height],
+            "shadows": shadows,
+            "depth": depth,
+            "labels": labels,
+            "init_ms": init_s * 1000.0,
+            "triangles": renderer.triangle_count,
+            "backend": renderer.backend,
+        }
+    return {**info, **_summary(samples)}
+
+
+def run(frames: int, full_frames: int, warmup: int, ref_scale: float, backend: str | None) -> dict:
+    """Time every configuration and return the report."""
+    configs = {
+        "ref_shadows": time_config(ref_scale, True, frames, warmup, backend),
+        "ref_no_shadows": time_config(ref_scale, False, frames, warmup, backend),
+        "ref_shadows_depth_labels": time_config(
+            ref_scale, True, frames, warmup, backend, depth=True, labels=True
+        ),
+        "full_shadows": time_config(1.0, True, full_frames, warmup, backend),
+        "full_no_shadows": time_config(1.0, False, full_frames, warmup, backend),
+    }
+    model = share_path("meshes", "station.glb")
+    # The headline figures are those of the renderer's default shadow setting.
+    default_shadows = inspect.signature(ReferenceRenderer).parameters["shadows"].default
+    default = "shadows" if default_shadows else "no_shadows"
+    ref, full = configs[f"ref_{default}"], configs[f"full_{default}"]
+    return {
+        "ref_scale": ref_scale,
+        "ref_size": ref["size"],
+        "full_size": full["size"],
+        "default_shadows": default_shadows,
+        "ref_ms_median": ref["ms_median"],
+        "ref_ms_p95": ref["ms_p95"],
+        "full_ms_median": full["ms_median"],
+        "full_ms_p95": full["ms_p95"],
+        "target_ref_ms_median": TARGET_REF_MS,
+        "ref_meets_target": ref["ms_median"] <= TARGET_REF_MS,
+        "configs": configs,
+        "model": "meshes/station.glb",
+        "model_bytes": model.stat().st_size,
+        "triangles": ref["triangles"],
+        "backend": ref["backend"],
+        "cpu_count": os.cpu_count(),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark, print a table and write the JSON report."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("reports/bench_render.json"))
+    parser.add_argument("--frames", type=int, default=60, help="timed frames per reference config")
+    parser.add_argument("--full-frames", type=int, default=24, help="timed frames at 1920x1080")
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE)
+    parser.add_argument("--backend", choices=("osmesa", "egl"), default=None)
+    args = parser.parse_args(argv)
+    if min(args.frames, args.full_frames) < 1 or args.warmup < 0:
+        parser.error("--frames and --full-frames must be >= 1, --warmup >= 0")
+    report = run(args.frames, args.full_frames, args.warmup, args.ref_scale, args.backend)
+    print(
+        f"station model: {report['triangles']} triangles, {report['model_bytes']} bytes; "
+        f"backend {report['backend']}, {report['cpu_count']} CPUs"
+    )
+    print(f"{'configuration':<28}{'size':>11}{'median ms':>11}{'p95 ms':>9}{'init ms':>9}")
+    for name, c in report["configs"].items():
+        size = f"{c['size'][0]}x{c['size'][1]}"
+        print(f"{name:<28}{size:>11}{c['ms_median']:>11.1f}{c['ms_p95']:>9.1f}{c['init_ms']:>9.0f}")
+    verdict = "meets" if report["ref_meets_target"] else "MISSES"
+    shadows = "shadows" if report["default_shadows"] else "no shadows"
+    print(
+        f"reference render (scale {report['ref_scale']}, {shadows}): median "
+        f"{report['ref_ms_median']:.1f} ms, {verdict} the {TARGET_REF_MS:.0f} ms target"
+    )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
