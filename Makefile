@@ -5,8 +5,14 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export PYOPENGL_PLATFORM ?= osmesa
+# ROS traffic of tests and the demo stays on this machine (see config/fastdds_loopback.xml).
+export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/config/fastdds_loopback.xml
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+# A private network namespace with only loopback, where the machine allows one (root).
+ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test lint bench-detector clean
+.PHONY: setup demo test lint bench-detector bench-render param-study clean
 
 setup: $(STAMP)
 
@@ -27,10 +33,16 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 test: lint
-	$(PY) -m pytest -q --timeout=600
+	$(ISOLATED) $(PY) -m pytest -q --timeout=600
 
 bench-detector: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json
+
+bench-render: $(STAMP)
+	$(PY) -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json
+
+param-study: $(STAMP)
+	$(PY) -m allo_mrad_ros.benchmarks.param_study --out reports/param_study.json
 
 clean:
 	rm -rf build install log *.egg-info .pytest_cache .ruff_cache
