@@ -240,6 +240,14 @@ def test_extra_objects_are_labelled_and_removed(box_renderer, camera_pose):
     assert box_renderer.node_count == nodes
     after = box_renderer.render(camera_pose, SUN, labels=True)
     assert not np.any(after.labels >= LABEL_ANOMALY)
+    # Back again (re-uploaded after pyrender freed it): the same image.
+    again = box_renderer.render(camera_pose, SUN, extra_objects=extras, labels=True, depth=True)
+    np.testing.assert_array_equal(again.rgb, result.rgb)
+    np.testing.assert_array_equal(again.instances, result.instances)
+    # A mesh edited in place is not served stale from the cache.
+    cube.apply_translation(0.3 * camera_pose[:3, 0])
+    shifted = box_renderer.render(camera_pose, SUN, extra_objects=extras, labels=True)
+    assert not np.array_equal(shifted.instances == 2, result.instances == 2)
 
 
 def test_directional_shadows_fall_on_the_station_only():

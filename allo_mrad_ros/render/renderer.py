@@ -88,6 +88,7 @@ class RenderResult:
         (h, w, 3) uint8 image.
     depth : numpy.ndarray or None
         (h, w) float32 distance along the optical axis in metres, 0 where nothing was hit.
+        Bodies pulled inside the far plane report their pulled distance.
     labels : numpy.ndarray or None
         (h, w) uint8 class per pixel: 0 space, 1 station and celestial bodies, extra objects
         their ``label`` (2 by default).
@@ -187,6 +188,11 @@ class ReferenceRenderer:
     ------
     RendererError
         If no OpenGL backend starts, the model is missing or empty, or a parameter is invalid.
+
+    Notes
+    -----
+    Not thread-safe: render from one thread per renderer. The backend is fixed per process
+    (PyOpenGL binds it at first import), so every renderer in a process uses the same one.
     """
 
     def __init__(
