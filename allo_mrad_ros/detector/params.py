@@ -81,21 +81,8 @@ class MradParams:
     process_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        _check_int(self.grid, "grid", 1, 64)
-        _check_range(self.tolerance, "tolerance", 0.0, SCORE_RANGE)
-        _check_range(self.kernel_fraction, "kernel_fraction", 0.0, 1.0, low_open=True)
-        _check_range(self.blur_sigma, "blur_sigma", 0.0, 100.0)
-        _check_choice(self.score_scaling, "score_scaling", ("fixed", "per_image"))
-        _check_range(self.score_ref, "score_ref", 0.0, 1e12, low_open=True)
-        _check_range(self.min_score, "min_score", 0.0, SCORE_RANGE)
-        _check_choice(self.noise_removal, "noise_removal", ("local_std", "cell_spread", "none"))
-        _check_range(self.std_thresh, "std_thresh", 0.0, SCORE_RANGE)
-        _check_range(self.large_anomaly_fraction, "large_anomaly_fraction", 0.0, 1.0, low_open=True)
-        _check_range(self.abs_floor, "abs_floor", 0.0, 1e6, low_open=True)
-        _check_range(self.rel_floor, "rel_floor", 0.0, 1.0)
-        _check_choice(self.connectivity, "connectivity", (4, 8))
-        _check_range(self.area_threshold, "area_threshold", 0.0, 1.0, high_open=True)
-        _check_range(self.process_scale, "process_scale", 0.0, 1.0, low_open=True)
+        for name, spec in PARAMETER_SPECS.items():
+            spec.check(name, getattr(self, name))
 
     def replace(self, **changes: Any) -> MradParams:
         """Return a copy with ``changes`` applied (validated)."""
@@ -109,33 +96,98 @@ class MradParams:
         return asdict(self)
 
 
-def _check_int(value: object, name: str, low: int, high: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+@dataclass(frozen=True)
+class ParameterSpec:
+    """Type, valid values and description of one parameter (also used by the ROS node).
+
+    Numbers must lie in ``[low, high]`` (ends excluded where ``low_open``/``high_open``);
+    ``choices``, when given, lists the only valid values.
+    """
+
+    kind: type
+    description: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[Any, ...] = ()
+
+    def check(self, name: str, value: object) -> None:
+        """Raise ValueError naming ``name`` and ``value`` if the value is invalid."""
+        if self.choices:
+            if value not in self.choices:
+                raise ValueError(f"{name} must be one of {list(self.choices)}, got {value!r}")
+            return
+        if self.kind is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"{name} must be an integer in {self.interval()}, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{name} must be finite, got {value!r}")
+        too_low = value <= self.low if self.low_open else value < self.low
+        too_high = value >= self.high if self.high_open else value > self.high
+        if too_low or too_high:
+            what = "an integer in" if self.kind is int else "in"
+            raise ValueError(f"{name} must be {what} {self.interval()}, got {value!r}")
+
+    def interval(self) -> str:
+        """The valid range in interval notation, e.g. ``(0, 1]``."""
+        lo, hi = ("(" if self.low_open else "["), (")" if self.high_open else "]")
+        return f"{lo}{self.low:g}, {self.high:g}{hi}"
 
 
-def _check_range(
-    value: object,
-    name: str,
-    low: float,
-    high: float,
-    low_open: bool = False,
-    high_open: bool = False,
-) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{name} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    too_low = value <= low if low_open else value < low
-    too_high = value >= high if high_open else value > high
-    if too_low or too_high:
-        lo, hi = ("(" if low_open else "["), (")" if high_open else "]")
-        raise ValueError(f"{name} must be in {lo}{low:g}, {high:g}{hi}, got {value!r}")
-
-
-def _check_choice(value: object, name: str, choices: tuple[object, ...]) -> None:
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+PARAMETER_SPECS: dict[str, ParameterSpec] = {
+    "grid": ParameterSpec(int, "cells per side of the statistics grid (1 = no grid)", 1, 64),
+    "tolerance": ParameterSpec(
+        float, "region-growing range around a seed's blurred score (0..255 scale)", 0, SCORE_RANGE
+    ),
+    "kernel_fraction": ParameterSpec(
+        float, "local-std window as a fraction of the cell's height and width", 0, 1, low_open=True
+    ),
+    "blur_sigma": ParameterSpec(
+        float, "Gaussian blur SD in pixels at full resolution (0 = no blur)", 0, 100
+    ),
+    "score_scaling": ParameterSpec(
+        str,
+        "fixed: score_ref maps to 255; per_image: the frame maximum maps to 255",
+        choices=("fixed", "per_image"),
+    ),
+    "score_ref": ParameterSpec(
+        float, "raw cross score mapped to 255 by fixed scaling", 0, 1e12, low_open=True
+    ),
+    "min_score": ParameterSpec(
+        float, "scaled scores below this are zeroed; lowest seed and grown value", 0, SCORE_RANGE
+    ),
+    "noise_removal": ParameterSpec(
+        str,
+        "local_std: per-region flatness rule; cell_spread: per-cell rule; none",
+        choices=("local_std", "cell_spread", "none"),
+    ),
+    "std_thresh": ParameterSpec(
+        float, "local standard deviation below which scores are flat noise (0..255)", 0, SCORE_RANGE
+    ),
+    "large_anomaly_fraction": ParameterSpec(
+        float, "a cell with more of its scores above min_score is kept whole", 0, 1, low_open=True
+    ),
+    "abs_floor": ParameterSpec(
+        float, "absolute covariance regularisation (8-bit units squared)", 0, 1e6, low_open=True
+    ),
+    "rel_floor": ParameterSpec(float, "covariance regularisation relative to trace(S)/3", 0, 1),
+    "connectivity": ParameterSpec(
+        int, "region-growing neighbourhood: 8 (3x3 square) or 4", choices=(4, 8)
+    ),
+    "area_threshold": ParameterSpec(
+        float,
+        "mask fraction of the image above which the frame is anomalous",
+        0,
+        1,
+        high_open=True,
+    ),
+    "process_scale": ParameterSpec(
+        float, "linear scale at which the query is processed", 0, 1, low_open=True
+    ),
+}
 
 
 PROFILES: dict[str, MradParams] = {
