@@ -34,7 +34,7 @@ setup(
     entry_points={
         "console_scripts": [
             "mrad_demo = allo_mrad_ros.demo:main",
-            "mrad_detector = allo_mrad_ros.node:main",
+            "mrad_detector = allo_mrad_ros.ros.node:main",
             "allo-synth = allo_mrad_ros.synth.cli:main",
             "allo-bag = rosbag_tools.cli:main",
         ],

@@ -1,0 +1,187 @@
+"""Conversions between ROS messages and the arrays and poses the detector uses.
+
+Functions here take and return message *objects* duck-typed on their fields, so they work
+with rclpy messages and with ``rosbags`` messages alike, and are testable without DDS.
+"""
+
+from __future__ import annotations
+
+import array
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.geometry import PoseError, pose_matrix
+from allo_mrad_ros.render import CelestialBody, RendererError
+
+# Encodings the node accepts for the camera image: name -> (channels, dtype, to-RGB order).
+_COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, tuple[int, ...] | None]] = {
+    "rgb8": (3, np.dtype(np.uint8), None),
+    "bgr8": (3, np.dtype(np.uint8), (2, 1, 0)),
+    "rgba8": (4, np.dtype(np.uint8), (0, 1, 2)),
+    "bgra8": (4, np.dtype(np.uint8), (2, 1, 0)),
+    "mono8": (1, np.dtype(np.uint8), None),
+    "rgb16": (3, np.dtype(">u2"), None),
+    "mono16": (1, np.dtype(">u2"), None),
+}
+
+
+class MessageError(ValueError):
+    """A message cannot be converted; ``cause`` groups errors for once-per-cause logging."""
+
+    def __init__(self, cause: str, message: str) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode a ``sensor_msgs/Image`` into an H x W x 3 RGB array (uint8 or uint16).
+
+    Parameters
+    ----------
+    msg : sensor_msgs/Image
+        The camera image.
+    expected_size : (width, height), optional
+        The size announced by ``camera_info``; a different size is an error.
+
+    Raises
+    ------
+    MessageError
+        With ``cause`` ``encoding``, ``size``, ``step`` or ``data`` and a message that
+        names the field and the values.
+    """
+    encoding = str(msg.encoding).lower()
+    if encoding not in _COLOUR_ENCODINGS:
+        raise MessageError(
+            "encoding",
+            f"image encoding {msg.encoding!r} is not supported; "
+            f"use one of {sorted(_COLOUR_ENCODINGS)}",
+        )
+    channels, dtype, order = _COLOUR_ENCODINGS[encoding]
+    width, height = int(msg.width), int(msg.height)
+    if width <= 0 or height <= 0:
+        raise MessageError("size", f"image size {width}x{height} is empty")
+    if expected_size is not None and (width, height) != tuple(expected_size):
+        raise MessageError(
+            "size",
+            f"image size {width}x{height} differs from camera_info "
+            f"{expected_size[0]}x{expected_size[1]}",
+        )
+    row_bytes = width * channels * dtype.itemsize
+    step = int(msg.step)
+    if step < row_bytes:
+        raise MessageError(
+            "step", f"image step {step} is smaller than width x pixel size = {row_bytes} bytes"
+        )
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if data.size != step * height:
+        raise MessageError(
+            "data", f"image data has {data.size} bytes, expected step x height = {step * height}"
+        )
+    if dtype.itemsize == 2 and not msg.is_bigendian:
+        dtype = dtype.newbyteorder("<")
+    rows = data.reshape(height, step)[:, :row_bytes]
+    pixels = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
+    if channels == 1:
+        pixels = np.repeat(pixels, 3, axis=2)
+    elif order is not None:
+        pixels = pixels[..., list(order)]
+    if pixels.dtype.byteorder not in ("=", "|"):
+        pixels = pixels.astype(pixels.dtype.newbyteorder("="))
+    return np.ascontiguousarray(pixels)
+
+
+def fill_image(msg: Any, header: Any, pixels: np.ndarray, encoding: str) -> Any:
+    """Fill a ``sensor_msgs/Image`` with an array (uint8 mono/rgb, or float32 32FC1).
+
+    ``header`` is copied into the message unless it is None.
+    """
+    pixels = np.ascontiguousarray(pixels)
+    if header is not None:
+        msg.header = header
+    msg.height, msg.width = int(pixels.shape[0]), int(pixels.shape[1])
+    msg.encoding = encoding
+    msg.is_bigendian = 0
+    msg.step = int(pixels.strides[0])
+    buffer = array.array("B")
+    # frombytes on a memoryview is a memcpy; assigning bytes makes rclpy convert per element.
+    buffer.frombytes(memoryview(pixels).cast("B"))
+    msg.data = buffer
+    return msg
+
+
+def intrinsics_from_camera_info(msg: Any) -> CameraIntrinsics:
+    """The pinhole intrinsics of a ``sensor_msgs/CameraInfo`` (``k``; distortion ignored).
+
+    Raises
+    ------
+    MessageError
+        With cause ``camera_info`` for a zero size or a non-positive focal length.
+    """
+    k = np.asarray(msg.k, dtype=np.float64)
+    try:
+        return CameraIntrinsics(
+            width=int(msg.width),
+            height=int(msg.height),
+            fx=float(k[0]),
+            fy=float(k[4]),
+            cx=float(k[2]),
+            cy=float(k[5]),
+        )
+    except (ValueError, IndexError) as error:
+        raise MessageError("camera_info", f"camera_info is unusable: {error}") from error
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Nanoseconds of a ``builtin_interfaces/Time``."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def pose_to_matrix(pose: Any) -> np.ndarray:
+    """The 4x4 transform of a ``geometry_msgs/Pose`` (raises MessageError ``pose``)."""
+    p, q = pose.position, pose.orientation
+    try:
+        return pose_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+    except PoseError as error:
+        raise MessageError("pose", f"pose is invalid: {error}") from error
+
+
+def transform_to_matrix(transform: Any) -> np.ndarray:
+    """The 4x4 transform of a ``geometry_msgs/Transform``."""
+    t, q = transform.translation, transform.rotation
+    try:
+        return pose_matrix([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
+    except PoseError as error:
+        raise MessageError("pose", f"transform is invalid: {error}") from error
+
+
+def vector_to_direction(vector: Any) -> np.ndarray:
+    """A unit vector from a ``geometry_msgs/Vector3`` (raises MessageError ``sun``)."""
+    v = np.array([vector.x, vector.y, vector.z], dtype=np.float64)
+    norm = float(np.linalg.norm(v))
+    if not np.isfinite(v).all() or norm < 1e-9:
+        raise MessageError("sun", f"sun direction {v.tolist()} is not a finite non-zero vector")
+    return v / norm
+
+
+def markers_to_bodies(markers: Sequence[Any]) -> list[CelestialBody]:
+    """Celestial bodies from SPHERE markers (``ns`` = body name, scale.x = diameter).
+
+    Markers of other types, or with action DELETE, are ignored.
+    """
+    bodies = []
+    for marker in markers:
+        if int(marker.type) != 2 or int(marker.action) not in (0, 1):  # SPHERE, ADD/MODIFY
+            continue
+        p = marker.pose.position
+        try:
+            bodies.append(
+                CelestialBody(
+                    name=str(marker.ns), centre=(p.x, p.y, p.z), radius=marker.scale.x / 2
+                )
+            )
+        except (ValueError, RendererError) as error:
+            raise MessageError("bodies", f"celestial body {marker.ns!r}: {error}") from error
+    return bodies

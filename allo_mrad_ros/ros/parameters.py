@@ -1,0 +1,142 @@
+"""The node's parameters: declared up front with descriptions and ranges, validated alike
+at start and on every change.
+
+Detector parameters are ``mrad.<field>`` and take their types, ranges and descriptions
+from :data:`allo_mrad_ros.detector.params.PARAMETER_SPECS`, so the node and the library
+validate with one rule set.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
+
+DETECTOR_PREFIX = "mrad."
+
+
+@dataclass(frozen=True)
+class NodeParameter:
+    """One node parameter: default, description, validation and whether it may change."""
+
+    default: Any
+    spec: ParameterSpec
+    read_only: bool = False
+
+
+def _choice(description: str, *choices: str) -> ParameterSpec:
+    return ParameterSpec(str, description, choices=choices)
+
+
+def _number(description: str, low: float, high: float, **kw: bool) -> ParameterSpec:
+    return ParameterSpec(float, description, low, high, **kw)
+
+
+def _flag(description: str) -> ParameterSpec:
+    return ParameterSpec(bool, description, choices=(True, False))
+
+
+def _text(description: str) -> ParameterSpec:
+    return ParameterSpec(str, description)
+
+
+def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
+    """The node's own (non-detector) parameters; ``pose_source`` defaults to ``tf`` only
+    where tf2_ros can be imported."""
+    return {
+        "pose_source": NodeParameter(
+            "tf" if tf_available else "topic",
+            _choice(
+                "where the camera pose comes from: tf (tf2_ros) or topic (PoseStamped)",
+                "tf",
+                "topic",
+            ),
+            read_only=True,
+        ),
+        "station_frame": NodeParameter("station", _text("TF frame of the station model"), True),
+        "camera_frame": NodeParameter(
+            "", _text("TF frame of the camera optical frame; empty: the image's frame_id"), True
+        ),
+        "pose_tolerance_s": NodeParameter(
+            0.05,
+            _number("largest |pose stamp - image stamp| accepted (topic) or TF wait", 0.0, 10.0),
+        ),
+        "mesh": NodeParameter(
+            "",
+            _text("station CAD model (trimesh-loadable, metres); empty: package station.glb"),
+            True,
+        ),
+        "reference_scale": NodeParameter(
+            0.25, _number("linear scale of the rendered reference", 0.05, 1.0), True
+        ),
+        "render_backend": NodeParameter(
+            "",
+            _choice("OpenGL backend: osmesa, egl, or empty to choose", "", "osmesa", "egl"),
+            True,
+        ),
+        "shadows": NodeParameter(True, _flag("render directional shadows from the Sun"), True),
+        "sun_direction": NodeParameter(
+            [1.0, 0.0, 0.0],
+            ParameterSpec(list, "station-frame vector towards the Sun until a sun topic arrives"),
+        ),
+        "sun_strength": NodeParameter(
+            1.0, _number("relative Sun intensity until a sun_strength topic arrives", 0.0, 100.0)
+        ),
+        "publish_reference": NodeParameter(False, _flag("publish the rendered reference")),
+        "publish_overlay": NodeParameter(True, _flag("publish the image with the mask outlined")),
+        "diagnostics_period_s": NodeParameter(
+            1.0, _number("period of /diagnostics messages", 0.1, 60.0), True
+        ),
+    }
+
+
+def detector_parameters() -> dict[str, NodeParameter]:
+    """``mrad.<field>`` parameters with the library's defaults and specs."""
+    defaults = MradParams()
+    return {
+        DETECTOR_PREFIX + name: NodeParameter(getattr(defaults, name), spec)
+        for name, spec in PARAMETER_SPECS.items()
+    }
+
+
+def validate(name: str, parameter: NodeParameter, value: Any) -> Any:
+    """Check one value; return it normalised (int to float for float parameters).
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter and the value.
+    """
+    spec = parameter.spec
+    if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if spec.kind is list:
+        vector = list(value) if isinstance(value, list | tuple) else None
+        if (
+            vector is None
+            or len(vector) != 3
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in vector)
+        ):
+            raise ValueError(f"{name} must be a list of 3 numbers, got {value!r}")
+        if sum(float(v) ** 2 for v in vector) < 1e-18:
+            raise ValueError(f"{name} must not be the zero vector")
+        return [float(v) for v in vector]
+    if spec.kind is str and not spec.choices:
+        if not isinstance(value, str):
+            raise ValueError(f"{name} must be a string, got {value!r}")
+        return value
+    if spec.kind is bool and not isinstance(value, bool):
+        raise ValueError(f"{name} must be true or false, got {value!r}")
+    spec.check(name, value)
+    return value
+
+
+def detector_params_from(values: dict[str, Any]) -> MradParams:
+    """Build validated :class:`MradParams` from ``mrad.*`` parameter values."""
+    fields = {
+        name[len(DETECTOR_PREFIX) :]: value
+        for name, value in values.items()
+        if name.startswith(DETECTOR_PREFIX)
+    }
+    return MradParams(**fields)

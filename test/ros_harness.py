@@ -1,0 +1,139 @@
+"""A test-side ROS peer for the node: publishes camera inputs, collects the node's outputs.
+
+The node under test runs as its own process (``python -m allo_mrad_ros.ros.node``); this
+peer lives in the pytest process. conftest.py keeps all traffic on loopback.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, Vector3Stamped
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Bool
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.geometry import matrix_to_quaternion
+from allo_mrad_ros.ros.messages import fill_image, stamp_to_ns
+
+
+def start_node(log_path: Path, *parameters: str) -> subprocess.Popen:
+    """Start the node as a separate process with ``name:=value`` parameters."""
+    arguments = [sys.executable, "-m", "allo_mrad_ros.ros.node", "--ros-args"]
+    for parameter in ("pose_source:=topic", *parameters):
+        arguments += ["-p", parameter]
+    log = log_path.open("w")
+    return subprocess.Popen(arguments, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ))
+
+
+def stop_node(process: subprocess.Popen) -> None:
+    process.terminate()
+    try:
+        process.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
+class Peer:
+    """Publishes images, camera_info, poses and the sun; records the node's outputs."""
+
+    def __init__(self, intrinsics: CameraIntrinsics, frame_id: str = "arm_camera_optical") -> None:
+        self.node = rclpy.create_node("mrad_test_peer")
+        self.intrinsics = intrinsics
+        self.frame_id = frame_id
+        sensor = qos_profile_sensor_data
+        self.pub_image = self.node.create_publisher(Image, "/arm_camera/image_raw", sensor)
+        self.pub_info = self.node.create_publisher(CameraInfo, "/arm_camera/camera_info", sensor)
+        self.pub_pose = self.node.create_publisher(PoseStamped, "/arm_camera/pose", 50)
+        self.pub_sun = self.node.create_publisher(Vector3Stamped, "/allo/sun_direction", 10)
+        self.received: dict[str, dict[int, object]] = defaultdict(dict)
+        self.diagnostics: list[DiagnosticArray] = []
+        self.anomaly_flags: list[bool] = []
+        for topic in ("mask", "score", "overlay"):
+            self.node.create_subscription(
+                Image, f"/mrad_detector/{topic}", self._recorder(topic), 10
+            )
+        self.node.create_subscription(
+            Bool, "/mrad_detector/anomaly", lambda m: self.anomaly_flags.append(m.data), 10
+        )
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, 10)
+
+    def _recorder(self, topic: str):
+        def record(msg: Image) -> None:
+            self.received[topic][stamp_to_ns(msg.header.stamp)] = msg
+
+        return record
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(self.node, timeout_sec=0.02)
+
+    def wait_for(self, condition, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if condition():
+                return True
+            rclpy.spin_once(self.node, timeout_sec=0.05)
+        return condition()
+
+    def wait_for_node(self, timeout: float = 30.0) -> bool:
+        return self.wait_for(lambda: self.pub_image.get_subscription_count() > 0, timeout)
+
+    def camera_info(self) -> CameraInfo:
+        k = self.intrinsics
+        msg = CameraInfo(width=k.width, height=k.height, distortion_model="plumb_bob")
+        msg.k = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
+        msg.p = [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        msg.d = [0.0] * 5
+        msg.header.frame_id = self.frame_id
+        return msg
+
+    def publish_frame(
+        self,
+        stamp_ns: int,
+        rgb: np.ndarray | None,
+        pose: np.ndarray | None,
+        sun: tuple[float, float, float] = (0.3, -0.5, 0.8),
+        image: Image | None = None,
+    ) -> None:
+        """Publish pose (unless None), sun, camera_info and the image with one stamp."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        info = self.camera_info()
+        info.header.stamp.sec, info.header.stamp.nanosec = sec, nanosec
+        if pose is not None:
+            msg = PoseStamped()
+            msg.header.stamp = info.header.stamp
+            msg.header.frame_id = "station"
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = pose[:3, 3].tolist()
+            q = matrix_to_quaternion(pose[:3, :3])
+            o = msg.pose.orientation
+            o.x, o.y, o.z, o.w = q.tolist()
+            self.pub_pose.publish(msg)
+        sun_msg = Vector3Stamped()
+        sun_msg.header.stamp = info.header.stamp
+        sun_msg.vector.x, sun_msg.vector.y, sun_msg.vector.z = sun
+        self.pub_sun.publish(sun_msg)
+        self.pub_info.publish(info)
+        if image is None:
+            image = fill_image(Image(), info.header, rgb, "rgb8")
+            image.header.frame_id = self.frame_id
+        else:
+            image.header.stamp = info.header.stamp
+        self.pub_image.publish(image)
+
+    def diagnostic_values(self) -> dict[str, str]:
+        if not self.diagnostics:
+            return {}
+        status = self.diagnostics[-1].status[0]
+        return {kv.key: kv.value for kv in status.values}

@@ -1,0 +1,182 @@
+"""The mrad_detector node as its own process, driven over DDS (loopback only) by a peer.
+
+Frames are real renders of the station model; anomalies are objects the model lacks.
+"""
+
+import time
+
+import numpy as np
+import psutil
+import pytest
+import rclpy
+import trimesh
+from ros_harness import Peer, start_node, stop_node
+from sensor_msgs.msg import Image
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
+from allo_mrad_ros.ros.messages import fill_image
+
+pytestmark = pytest.mark.ros
+
+INTRINSICS = CameraIntrinsics(640, 360, 444.4, 444.4, 320.0, 180.0)
+SUN = (0.3, -0.5, 0.8)
+T0 = 1_900_000_000 * 10**9  # stamps in 2030
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    """A pose, the clean view, the view with a floating box, and the box's pixels."""
+    pose = look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])
+    box = trimesh.creation.box((1.2, 1.2, 1.2))
+    box.visual.face_colors = (230, 180, 40, 255)
+    box_pose = pose.copy()
+    box_pose[:3, 3] = pose[:3, 3] + 8.0 * pose[:3, 2] + 0.8 * pose[:3, 0] - 2.5 * pose[:3, 1]
+    with ReferenceRenderer(None, INTRINSICS, scale=1.0) as camera:
+        clean = camera.render(pose, SUN).rgb
+        anomalous = camera.render(
+            pose, SUN, extra_objects=[ExtraObject(box, box_pose)], labels=True
+        )
+    return pose, clean, anomalous.rgb, anomalous.labels == 2
+
+
+@pytest.fixture(scope="module")
+def ros_peer():
+    rclpy.init()
+    peer = Peer(INTRINSICS)
+    yield peer
+    peer.node.destroy_node()
+    rclpy.shutdown()
+
+
+@pytest.fixture(scope="module")
+def node_process(tmp_path_factory, ros_peer):
+    log = tmp_path_factory.mktemp("node") / "node.log"
+    process = start_node(log, "reference_scale:=0.5", "diagnostics_period_s:=0.5")
+    assert ros_peer.wait_for_node(60.0), log.read_text()
+    yield process, log
+    stop_node(process)
+
+
+def publish_until_output(peer, stamp, rgb, pose, timeout=30.0):
+    """Publish one frame (again, for discovery) until the node's mask for it arrives."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and stamp not in peer.received["mask"]:
+        peer.publish_frame(stamp, rgb, pose, SUN)
+        peer.spin(0.5)
+    return peer.received["mask"].get(stamp)
+
+
+def test_object_absent_from_the_model_is_masked_and_flagged(node_process, ros_peer, scenes):
+    pose, _, anomalous, truth = scenes
+    mask_msg = publish_until_output(ros_peer, T0 + 1, anomalous, pose)
+    assert mask_msg is not None, node_process[1].read_text()
+    assert ros_peer.wait_for(lambda: T0 + 1 in ros_peer.received["score"], 5.0)
+    mask = np.frombuffer(mask_msg.data, np.uint8).reshape(360, 640)
+    hits = np.count_nonzero((mask > 0) & truth)
+    assert hits >= 0.5 * np.count_nonzero(truth) and hits >= 0.9 * np.count_nonzero(mask)
+    assert mask_msg.header.frame_id == "arm_camera_optical"
+    assert mask_msg.encoding == "mono8" and set(np.unique(mask)) <= {0, 255}
+    score_msg = ros_peer.received["score"][T0 + 1]
+    assert score_msg.encoding == "32FC1" and score_msg.header.frame_id == "arm_camera_optical"
+    assert ros_peer.anomaly_flags and ros_peer.anomaly_flags[-1] is True
+
+
+def test_clean_frame_is_not_flagged(node_process, ros_peer, scenes):
+    pose, clean, _, _ = scenes
+    mask_msg = publish_until_output(ros_peer, T0 + 2, clean, pose)
+    assert mask_msg is not None, node_process[1].read_text()
+    assert not np.frombuffer(mask_msg.data, np.uint8).any()
+    assert ros_peer.wait_for(
+        lambda: ros_peer.anomaly_flags and ros_peer.anomaly_flags[-1] is False, 5
+    )
+
+
+def test_missing_pose_gives_no_output_and_a_diagnostic(node_process, ros_peer, scenes):
+    pose, clean, _, _ = scenes
+    stamp = T0 + 3 * 10**9  # seconds away from any pose
+    for _ in range(3):
+        ros_peer.publish_frame(stamp, clean, None, SUN)
+        ros_peer.spin(0.5)
+    assert stamp not in ros_peer.received["mask"]
+    assert ros_peer.wait_for(
+        lambda: int(ros_peer.diagnostic_values().get("pose_lookup_failures", 0)) >= 1, 5.0
+    )
+    assert node_process[0].poll() is None
+    assert publish_until_output(ros_peer, T0 + 4, clean, pose) is not None  # still working
+
+
+def malformed_images(clean):
+    wrong_step = fill_image(Image(), None, clean, "rgb8")
+    wrong_step.step = 100
+    unknown = fill_image(Image(), None, clean, "rgb8")
+    unknown.encoding = "yuv422_weird"
+    small = fill_image(Image(), None, clean[:180, :320], "rgb8")
+    for msg in (wrong_step, unknown, small):
+        msg.header.frame_id = "arm_camera_optical"
+    return {"step": wrong_step, "encoding": unknown, "size": small}
+
+
+def test_malformed_images_log_one_error_per_cause_and_the_node_survives(
+    node_process, ros_peer, scenes
+):
+    process, log = node_process
+    pose, clean, _, _ = scenes
+    bad = malformed_images(clean)
+    stamp = T0 + 10
+    for _ in range(2):  # twice each: still one log line per cause
+        for msg in bad.values():
+            stamp += 1
+            ros_peer.publish_frame(stamp, None, pose, SUN, image=msg)
+            ros_peer.spin(0.4)
+    assert publish_until_output(ros_peer, T0 + 100, clean, pose) is not None
+    assert process.poll() is None
+    text = log.read_text()
+    assert text.count("image step 100 is smaller than") == 1, text
+    assert text.count("image encoding 'yuv422_weird' is not supported") == 1, text
+    assert text.count("image size 320x180 differs from camera_info 640x360") == 1, text
+    values = ros_peer.diagnostic_values()
+    assert ros_peer.wait_for(
+        lambda: all(int(ros_peer.diagnostic_values().get(f"errors_{c}", 0)) >= 2 for c in bad), 5
+    ), values
+
+
+FULL_HD = CameraIntrinsics(1920, 1080, 1333.33, 1333.33, 960.0, 540.0)
+
+
+def test_burst_of_100_full_hd_frames_at_30_hz_drops_stale_frames_without_growing(
+    node_process, ros_peer, scenes
+):
+    process, log = node_process
+    pose = scenes[0]
+    with ReferenceRenderer(None, FULL_HD, scale=1.0) as camera:
+        clean = camera.render(pose, SUN).rgb
+    anomalous = clean.copy()
+    anomalous[100:300, 800:1100] = (230, 180, 40)
+    node = psutil.Process(process.pid)
+    ros_peer.intrinsics = FULL_HD  # the node rebuilds its renderer for the new camera_info
+
+    def burst(first_stamp):
+        for index in range(100):
+            started = time.monotonic()
+            ros_peer.publish_frame(
+                first_stamp + index, anomalous if index % 2 else clean, pose, SUN
+            )
+            rclpy.spin_once(ros_peer.node, timeout_sec=0.0)
+            time.sleep(max(0.0, 1 / 30 - (time.monotonic() - started)))
+        ros_peer.spin(2.0)
+
+    burst(T0 + 1000)
+    rss_first = node.memory_info().rss
+    burst(T0 + 2000)
+    rss_second = node.memory_info().rss
+    assert process.poll() is None, log.read_text()
+    values = ros_peer.diagnostic_values()
+    processed = sum(1 for s in ros_peer.received["mask"] if T0 + 1000 <= s < T0 + 2100)
+    assert processed >= 10
+    assert ros_peer.wait_for(
+        lambda: int(ros_peer.diagnostic_values().get("frames_dropped_stale", 0)) > 0, 5.0
+    ), values
+    assert rss_second <= 1.10 * rss_first, (rss_first, rss_second)
+    ros_peer.intrinsics = INTRINSICS
