@@ -1,0 +1,73 @@
+"""The node's parameters: declared with ranges, validated at start and on every change."""
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from allo_mrad_ros.ros.node import MradDetectorNode
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def node():
+    rclpy.init()
+    created = MradDetectorNode(
+        parameter_overrides=[
+            Parameter("mrad.grid", value=6),
+            Parameter("pose_source", value="topic"),
+        ]
+    )
+    yield created
+    created.destroy_node()
+    rclpy.shutdown()
+
+
+def test_overrides_reach_the_detector(node):
+    assert node.get_parameter("mrad.grid").value == 6
+    assert node._detector_params.grid == 6
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "reason"),
+    [
+        ("mrad.grid", 0, "grid"),
+        ("mrad.tolerance", 300.0, "tolerance"),
+        ("mrad.kernel_fraction", 0.0, "kernel_fraction must be in (0, 1]"),
+        ("mrad.score_scaling", "log", "score_scaling must be one of"),
+        ("sun_direction", [0.0, 0.0, 0.0], "sun_direction must not be the zero vector"),
+        ("sun_strength", -1.0, "sun_strength"),
+        ("reference_scale", 0.5, "read-only"),
+    ],
+)
+def test_invalid_changes_are_rejected_with_the_reason_and_the_old_value_stays(
+    node, name, value, reason
+):
+    before = node.get_parameter(name).value
+    (result,) = node.set_parameters([Parameter(name, value=value)])
+    assert not result.successful
+    assert reason in result.reason
+    assert node.get_parameter(name).value == before
+
+
+def test_valid_change_is_applied(node):
+    (result,) = node.set_parameters([Parameter("mrad.tolerance", value=75.0)])
+    assert result.successful
+    assert node._detector_params.tolerance == 75.0
+
+
+def test_tf_requested_without_tf2_falls_back_to_topic():
+    pytest.importorskip("rclpy")
+    try:
+        import tf2_ros  # noqa: F401
+
+        pytest.skip("tf2_ros is installed here")
+    except ImportError:
+        pass
+    rclpy.init()
+    try:
+        created = MradDetectorNode(parameter_overrides=[Parameter("pose_source", value="tf")])
+        assert created._pose_source == "topic"
+        created.destroy_node()
+    finally:
+        rclpy.shutdown()
