@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test lint bench-detector bench-render param-study clean
+.PHONY: setup demo test lint bench-detector bench-render bench-node param-study station-model clean
 
 setup: $(STAMP)
 
@@ -40,6 +40,12 @@ bench-detector: $(STAMP)
 
 bench-render: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json
+
+bench-node: $(STAMP)
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
+
+station-model: $(STAMP)
+	$(PY) -m allo_mrad_ros.render.station_model --out meshes/station.glb
 
 param-study: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.param_study --out reports/param_study.json

@@ -10,12 +10,12 @@ import psutil
 import pytest
 import rclpy
 import trimesh
-from ros_harness import Peer, start_node, stop_node
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
+from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
 from allo_mrad_ros.ros.messages import fill_image
 
 pytestmark = pytest.mark.ros
@@ -44,7 +44,7 @@ def scenes():
 @pytest.fixture(scope="module")
 def ros_peer():
     rclpy.init()
-    peer = Peer(INTRINSICS)
+    peer = CameraFeed(INTRINSICS)
     yield peer
     peer.node.destroy_node()
     rclpy.shutdown()

@@ -1,7 +1,8 @@
-"""A test-side ROS peer for the node: publishes camera inputs, collects the node's outputs.
+"""A ROS peer for the node: publishes camera inputs and collects the node's outputs.
 
-The node under test runs as its own process (``python -m allo_mrad_ros.ros.node``); this
-peer lives in the pytest process. conftest.py keeps all traffic on loopback.
+The integration tests and ``make bench-node`` run the node as its own process
+(:func:`start_node`) and drive it with a :class:`CameraFeed` in theirs. Keep DDS on loopback
+(``config/fastdds_loopback.xml``) when using it.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +29,10 @@ from allo_mrad_ros.ros.messages import fill_image, stamp_to_ns
 
 
 def start_node(log_path: Path, *parameters: str) -> subprocess.Popen:
-    """Start the node as a separate process with ``name:=value`` parameters."""
+    """Start the node as a separate process with ``name:=value`` parameters.
+
+    ``pose_source:=topic`` comes first (it can be overridden); output goes to ``log_path``.
+    """
     arguments = [sys.executable, "-m", "allo_mrad_ros.ros.node", "--ros-args"]
     for parameter in ("pose_source:=topic", *parameters):
         arguments += ["-p", parameter]
@@ -36,6 +41,7 @@ def start_node(log_path: Path, *parameters: str) -> subprocess.Popen:
 
 
 def stop_node(process: subprocess.Popen) -> None:
+    """Terminate the node process (kill it if it does not stop within 10 s)."""
     process.terminate()
     try:
         process.wait(timeout=10)
@@ -44,11 +50,17 @@ def stop_node(process: subprocess.Popen) -> None:
         process.wait()
 
 
-class Peer:
+class CameraFeed:
     """Publishes images, camera_info, poses and the sun; records the node's outputs."""
 
-    def __init__(self, intrinsics: CameraIntrinsics, frame_id: str = "arm_camera_optical") -> None:
-        self.node = rclpy.create_node("mrad_test_peer")
+    def __init__(
+        self,
+        intrinsics: CameraIntrinsics,
+        frame_id: str = "arm_camera_optical",
+        keep_messages: bool = True,
+    ) -> None:
+        self.node = rclpy.create_node("mrad_camera_feed")
+        self.keep_messages = keep_messages
         self.intrinsics = intrinsics
         self.frame_id = frame_id
         sensor = qos_profile_sensor_data
@@ -57,6 +69,7 @@ class Peer:
         self.pub_pose = self.node.create_publisher(PoseStamped, "/arm_camera/pose", 50)
         self.pub_sun = self.node.create_publisher(Vector3Stamped, "/allo/sun_direction", 10)
         self.received: dict[str, dict[int, object]] = defaultdict(dict)
+        self.arrival: dict[str, dict[int, float]] = defaultdict(dict)
         self.diagnostics: list[DiagnosticArray] = []
         self.anomaly_flags: list[bool] = []
         for topic in ("mask", "score", "overlay"):
@@ -68,18 +81,23 @@ class Peer:
         )
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, 10)
 
-    def _recorder(self, topic: str):
+    def _recorder(self, topic: str) -> Callable[[Image], None]:
         def record(msg: Image) -> None:
-            self.received[topic][stamp_to_ns(msg.header.stamp)] = msg
+            stamp = stamp_to_ns(msg.header.stamp)
+            self.arrival[topic][stamp] = time.time()
+            if self.keep_messages:
+                self.received[topic][stamp] = msg
 
         return record
 
     def spin(self, seconds: float) -> None:
+        """Process callbacks for ``seconds``."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             rclpy.spin_once(self.node, timeout_sec=0.02)
 
-    def wait_for(self, condition, timeout: float) -> bool:
+    def wait_for(self, condition: Callable[[], bool], timeout: float) -> bool:
+        """Spin until ``condition()`` holds or ``timeout`` seconds pass; return it."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             if condition():
@@ -88,9 +106,11 @@ class Peer:
         return condition()
 
     def wait_for_node(self, timeout: float = 30.0) -> bool:
+        """Wait until the node subscribes to the image topic."""
         return self.wait_for(lambda: self.pub_image.get_subscription_count() > 0, timeout)
 
     def camera_info(self) -> CameraInfo:
+        """CameraInfo of the current intrinsics (no distortion)."""
         k = self.intrinsics
         msg = CameraInfo(width=k.width, height=k.height, distortion_model="plumb_bob")
         msg.k = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
@@ -133,6 +153,7 @@ class Peer:
         self.pub_image.publish(image)
 
     def diagnostic_values(self) -> dict[str, str]:
+        """Key/values of the latest /diagnostics status."""
         if not self.diagnostics:
             return {}
         status = self.diagnostics[-1].status[0]

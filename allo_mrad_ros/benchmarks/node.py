@@ -1,0 +1,141 @@
+"""Benchmark of the running ``mrad_detector`` node at 1920x1080 (``make bench-node``).
+
+The node runs as its own process with its default parameters (reference scale 1/4); a
+camera feed in this process publishes rendered full-HD frames, poses and the sun at
+``--rate`` Hz with wall-clock stamps, and records when each mask arrives. Reports the
+sustained output rate, the latency from image stamp to received mask, and the node's
+resident memory after 100 and after 1,000 processed frames. ROS traffic stays on loopback
+(``config/fastdds_loopback.xml``).
+
+Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import rclpy
+
+from allo_mrad_ros.camera import ALLO_INTRINSICS
+from allo_mrad_ros.example_scene import paste_object
+from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.render import ReferenceRenderer
+from allo_mrad_ros.resources import share_path
+from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
+
+SUN = (0.3, -0.5, 0.8)
+
+
+def _frames() -> tuple[np.ndarray, list[np.ndarray]]:
+    pose = look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])
+    with ReferenceRenderer(None, ALLO_INTRINSICS, scale=1.0) as camera:
+        clean = camera.render(pose, SUN).rgb
+    with_object, _ = paste_object(clean, seed=1, centre=(0.5, 0.15), size=0.08)
+    return pose, [clean, with_object]
+
+
+def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
+    """Drive the node and measure; returns the report dictionary."""
+    os.environ.setdefault(
+        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
+    )
+    pose, images = _frames()
+    rclpy.init()
+    feed = CameraFeed(ALLO_INTRINSICS, keep_messages=False)
+    process = start_node(log_path)
+    try:
+        if not feed.wait_for_node(60.0):
+            raise RuntimeError(f"node did not subscribe; see {log_path}")
+        node = psutil.Process(process.pid)
+        warm = time.time_ns()
+        while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
+            feed.publish_frame(time.time_ns(), images[0], pose, SUN)
+            feed.spin(0.5)
+        feed.arrival["mask"].clear()
+        published: list[int] = []
+        rss_mb: dict[int, float] = {}
+        period = 1.0 / rate_hz
+        start = time.monotonic()
+        next_time = start
+        while len(feed.arrival["mask"]) < frames and time.monotonic() - start < timeout_s:
+            if time.monotonic() >= next_time:
+                stamp = time.time_ns()
+                feed.publish_frame(stamp, images[len(published) % 2], pose, SUN)
+                published.append(stamp)
+                next_time += period
+            rclpy.spin_once(feed.node, timeout_sec=0.002)
+            done = len(feed.arrival["mask"])
+            for mark in (100, frames):
+                if done >= mark and mark not in rss_mb:
+                    rss_mb[mark] = node.memory_info().rss / 2**20
+        feed.spin(1.0)
+        if process.poll() is not None:
+            raise RuntimeError(f"node exited with {process.returncode}; see {log_path}")
+    finally:
+        stop_node(process)
+        feed.node.destroy_node()
+        rclpy.shutdown()
+    arrivals = feed.arrival["mask"]
+    stamps = sorted(arrivals)
+    latencies = np.array([1e3 * (arrivals[s] - s / 1e9) for s in stamps])
+    times = sorted(arrivals.values())
+    fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
+    return {
+        "image": f"{ALLO_INTRINSICS.width}x{ALLO_INTRINSICS.height}",
+        "input_rate_hz": rate_hz,
+        "frames_published": len(published),
+        "frames_processed": len(stamps),
+        "frames_dropped": len(published) - len(stamps),
+        "fps": fps,
+        "latency_ms_p50": float(np.median(latencies)),
+        "latency_ms_p95": float(np.percentile(latencies, 95)),
+        "latency_ms_max": float(latencies.max()),
+        "rss_mb_after_100": rss_mb.get(100),
+        "rss_mb_after_1000": rss_mb.get(frames),
+        "rss_frames_mark": frames,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", type=int, default=1000, help="processed frames to measure")
+    parser.add_argument("--rate", type=float, default=10.0, help="input frame rate, Hz")
+    parser.add_argument("--timeout", type=float, default=600.0, help="seconds")
+    parser.add_argument("--out", type=Path, default=Path("reports/bench_node.json"))
+    args = parser.parse_args(argv)
+    log = Path(tempfile.mkdtemp(prefix="bench_node_")) / "node.log"
+    report = run(args.frames, args.rate, log, args.timeout)
+    growth = (
+        100 * (report["rss_mb_after_1000"] / report["rss_mb_after_100"] - 1)
+        if report["rss_mb_after_1000"] and report["rss_mb_after_100"]
+        else float("nan")
+    )
+    report["rss_growth_percent"] = growth
+    print(
+        f"mrad_detector at {report['image']}, input {args.rate:g} Hz, default parameters\n"
+        f"frames published {report['frames_published']}, processed {report['frames_processed']}, "
+        f"dropped as stale {report['frames_dropped']}\n"
+        f"sustained output rate: {report['fps']:.2f} frames/s\n"
+        f"latency image stamp -> mask received: p50 {report['latency_ms_p50']:.0f} ms, "
+        f"p95 {report['latency_ms_p95']:.0f} ms, max {report['latency_ms_max']:.0f} ms\n"
+        f"node resident memory: {report['rss_mb_after_100']:.0f} MB after 100 frames, "
+        f"{report['rss_mb_after_1000']:.0f} MB after {args.frames} ({growth:+.1f} %)\n"
+        f"node log: {log}"
+    )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"written: {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
