@@ -1,0 +1,25 @@
+"""ALLO sequences as rosbag2 bags, bag replay without ROS, and offline evaluation.
+
+One console script, ``allo-bag``, with five subcommands:
+
+``write``
+    A sequence folder (ALLO sequence format v1) becomes a rosbag2 bag (MCAP or SQLite3)
+    with the message definitions of ROS 2 Humble, Jazzy or Kilted (:mod:`.writer`).
+``info``
+    Topics, types, message counts, duration and image sizes of a bag (:mod:`.info`).
+``play``
+    Publishes a bag over DDS with rclpy at its recorded rate (:mod:`.play`).
+``evaluate``
+    Runs MRAD and the PAD and RXD baselines on every frame of a bag or a sequence through
+    :class:`allo_mrad_ros.processing.FrameProcessor` and writes a report (:mod:`.evaluate`).
+``ablate``
+    The paper's Table II parameter sweeps of MRAD as one table (:mod:`.ablate`).
+
+The topic names and message layouts (:mod:`.topics`) are also what the detector node
+subscribes to. Nothing here needs a ROS installation except ``play``, which needs rclpy and
+the message packages of the bag's topics.
+"""
+
+from rosbag_tools.topics import DEFAULT_TOPICS, DISTROS, TopicNames
+
+__all__ = ["DEFAULT_TOPICS", "DISTROS", "TopicNames"]

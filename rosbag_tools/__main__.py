@@ -1,0 +1,7 @@
+"""``python -m rosbag_tools`` runs the ``allo-bag`` command."""
+
+import sys
+
+from rosbag_tools.cli import main
+
+sys.exit(main())

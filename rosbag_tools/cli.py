@@ -1,0 +1,315 @@
+"""The ``allo-bag`` command: write, info, play, evaluate, ablate.
+
+Exit status 0 on success, 1 when the work fails (the message names the file, row, topic or
+frame), 2 for a usage error, 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from allo_mrad_ros.detector import PROFILES, MradParams, profile
+from allo_mrad_ros.render import DEFAULT_SCALE
+from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
+from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
+
+PROG = "allo-bag"
+
+
+class CliError(RuntimeError):
+    """A command-line value is invalid (reported as a usage error)."""
+
+
+def parse_params(profile_name: str, assignments: Sequence[str]) -> MradParams:
+    """Detector parameters from a profile name and ``key=value`` overrides.
+
+    Values take the type of the field's default (int, float or text).
+
+    Raises
+    ------
+    CliError
+        For an unknown profile or key, or a value of the wrong type or range.
+    """
+    if profile_name not in PROFILES:
+        raise CliError(f"unknown profile {profile_name!r}; choose from {sorted(PROFILES)}")
+    base = profile(profile_name)
+    kinds = {f.name: type(getattr(base, f.name)) for f in dataclasses.fields(base)}
+    changes: dict[str, object] = {}
+    for text in assignments:
+        key, sep, value = text.partition("=")
+        key = key.strip()
+        if not sep or key not in kinds:
+            raise CliError(f"--set expects KEY=VALUE with KEY one of {sorted(kinds)}; got {text!r}")
+        try:
+            changes[key] = kinds[key](value.strip())
+        except ValueError:
+            raise CliError(f"--set {key}: {value!r} is not a valid {kinds[key].__name__}") from None
+    try:
+        return base.replace(**changes) if changes else base
+    except ValueError as error:
+        raise CliError(f"--set: {error}") from None
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="ALLO sequences as rosbag2 bags: write, inspect, replay, evaluate, ablate.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    write = commands.add_parser("write", help="write a sequence folder as a rosbag2 bag")
+    write.add_argument("sequence", type=Path, help="sequence folder (sequence.yaml, frames.csv)")
+    write.add_argument("out", type=Path, help="bag folder to create")
+    write.add_argument("--storage", choices=sorted(STORAGES), default=DEFAULT_STORAGE)
+    write.add_argument(
+        "--distro",
+        choices=sorted(DISTROS),
+        default=DEFAULT_DISTRO,
+        help="ROS 2 distribution whose message definitions the bag embeds",
+    )
+    write.add_argument(
+        "--split",
+        action="append",
+        choices=("train", "val", "test"),
+        help="write only this split (repeatable; default: all frames)",
+    )
+    write.add_argument(
+        "--topic",
+        action="append",
+        default=[],
+        metavar="ROLE=NAME",
+        help=f"rename a topic; roles: {', '.join(TopicNames.roles())}",
+    )
+    write.add_argument(
+        "--tf-static-parent",
+        metavar="FRAME",
+        help="also write /tf_static: identity from FRAME (e.g. world) to the station frame",
+    )
+    write.add_argument("--overwrite", action="store_true", help="replace an existing bag")
+    write.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    info = commands.add_parser("info", help="topics, types, counts, duration, image sizes")
+    info.add_argument("bag", type=Path)
+    info.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    play = commands.add_parser("play", help="publish a bag with rclpy at its recorded rate")
+    play.add_argument("bag", type=Path)
+    play.add_argument("--rate", type=float, default=1.0, help="speed multiple (default 1)")
+    play.add_argument("--loop", action="store_true", help="start over at the end")
+    play.add_argument("--topics", nargs="+", metavar="TOPIC", help="publish only these topics")
+    play.add_argument(
+        "--delay",
+        type=float,
+        default=1.0,
+        help="seconds between creating publishers and the first message (discovery)",
+    )
+    play.add_argument("--clock", action="store_true", help="publish the bag time on /clock")
+
+    for name, text in (
+        ("evaluate", "run MRAD, PAD and RXD on a split and write the metrics report"),
+        ("ablate", "the paper's Table II sweeps of MRAD as one table"),
+    ):
+        sub = commands.add_parser(name, help=text)
+        sub.add_argument("input", type=Path, help="sequence folder or bag")
+        sub.add_argument("--out", type=Path, required=True, help="report folder")
+        sub.add_argument("--split", choices=("train", "val", "test"), help="default: test, or all")
+        sub.add_argument("--limit", type=int, help="at most this many frames")
+        sub.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+        sub.add_argument("--profile", default="default", help=f"one of {sorted(PROFILES)}")
+        sub.add_argument(
+            "--set", action="append", default=[], metavar="KEY=VALUE", help="MRAD parameter"
+        )
+        sub.add_argument(
+            "--ref-scale",
+            type=float,
+            default=DEFAULT_SCALE,
+            help=f"reference render scale (default {DEFAULT_SCALE})",
+        )
+        sub.add_argument(
+            "--use-sequence-references",
+            action="store_true",
+            help="use the sequence's pre-rendered references instead of rendering",
+        )
+        sub.add_argument("--mesh", type=Path, help="station model instead of the input's own")
+        sub.add_argument("--no-shadows", action="store_true", help="render without Sun shadows")
+        sub.add_argument("--quiet", action="store_true", help="no progress bar")
+        if name == "evaluate":
+            sub.add_argument(
+                "--methods",
+                default="MRAD,PAD,RXD",
+                help="comma-separated methods (default MRAD,PAD,RXD)",
+            )
+            sub.add_argument("--overlays", type=int, default=8, help="example frames (default 8)")
+    return parser
+
+
+def _write(args: argparse.Namespace) -> int:
+    from rosbag_tools.writer import write_bag
+
+    topics = TopicNames.from_assignments(args.topic)
+    summary = write_bag(
+        args.sequence,
+        args.out,
+        storage=args.storage,
+        distro=args.distro,
+        topics=topics,
+        splits=args.split,
+        static_parent=args.tf_static_parent,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+    )
+    total = sum(summary.messages.values())
+    print(
+        f"wrote {summary.path}: {summary.frames} frames, {total} messages on "
+        f"{len(summary.messages)} topics ({summary.storage}, {summary.distro} definitions)"
+    )
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    from rosbag_tools.info import bag_info, format_info
+
+    info = bag_info(args.bag)
+    print(json.dumps(info.as_dict(), indent=2) if args.json else format_info(info))
+    return 0
+
+
+def _play(args: argparse.Namespace) -> int:
+    from rosbag_tools.play import play_bag
+
+    summary = play_bag(
+        args.bag,
+        rate=args.rate,
+        loop=args.loop,
+        topics=args.topics,
+        delay=args.delay,
+        clock=args.clock,
+    )
+    total = sum(summary.published.values())
+    print(
+        f"published {total} messages on {len(summary.published)} topics in "
+        f"{summary.wall_s:.2f} s ({summary.passes} pass(es)); skipped {len(summary.skipped)}"
+    )
+    return 0
+
+
+def _source(args: argparse.Namespace) -> object:
+    from rosbag_tools.frames import open_source
+
+    return open_source(args.input, mesh=args.mesh, use_references=args.use_sequence_references)
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from rosbag_tools.evaluate import EvaluationConfig, evaluate
+    from rosbag_tools.report import evaluation_markdown, write_evaluation_report
+
+    params = parse_params(args.profile, args.set)
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    config = EvaluationConfig(
+        methods=methods,
+        params=params,
+        ref_scale=args.ref_scale,
+        shadows=not args.no_shadows,
+        split=args.split,
+        limit=args.limit,
+        jobs=args.jobs,
+        overlays=args.overlays,
+        progress=not args.quiet,
+    )
+    result = evaluate(_source(args), config)
+    write_evaluation_report(result, args.out)
+    table = evaluation_markdown(result).split("\n## ")[0]
+    print(table.rstrip())
+    print(
+        f"\n{result.frames_per_second:.2f} frames/s with {config.jobs} job(s); report in {args.out}"
+    )
+    return 0
+
+
+def _ablate(args: argparse.Namespace) -> int:
+    from rosbag_tools.ablate import ablate
+    from rosbag_tools.report import ablation_markdown, write_ablation_report
+
+    result = ablate(
+        _source(args),
+        base=parse_params(args.profile, args.set),
+        ref_scale=args.ref_scale,
+        shadows=not args.no_shadows,
+        split=args.split,
+        limit=args.limit,
+        jobs=args.jobs,
+        progress=not args.quiet,
+    )
+    write_ablation_report(result, args.out)
+    print(ablation_markdown(result).rstrip())
+    print(f"\nreport in {args.out}")
+    return 0
+
+
+_COMMANDS = {
+    "write": _write,
+    "info": _info,
+    "play": _play,
+    "evaluate": _evaluate,
+    "ablate": _ablate,
+}
+
+
+def _known_errors() -> tuple[type[BaseException], ...]:
+    from rosbag_tools.ablate import AblationError
+    from rosbag_tools.bagio import BagReadError
+    from rosbag_tools.evaluate import EvaluationError
+    from rosbag_tools.frames import FrameSourceError
+    from rosbag_tools.info import InfoError
+    from rosbag_tools.parallel import ParallelError
+    from rosbag_tools.play import PlayError
+    from rosbag_tools.report import ReportError
+    from rosbag_tools.writer import BagWriteError
+
+    return (
+        AblationError,
+        BagReadError,
+        BagWriteError,
+        EvaluationError,
+        FrameSourceError,
+        InfoError,
+        ParallelError,
+        PlayError,
+        ReportError,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``allo-bag`` with ``argv`` (default: the process arguments).
+
+    Returns
+    -------
+    int
+        Exit status.
+    """
+    parser = _parser()
+    args = parser.parse_args(argv)
+    # Our own warnings (skipped topics) at INFO and up; other libraries' chatter stays out.
+    logging.basicConfig(level=logging.WARNING, format=f"{PROG} {args.command}: %(message)s")
+    logging.getLogger("allo_bag").setLevel(logging.INFO)
+    try:
+        return _COMMANDS[args.command](args)
+    except (CliError, TopicError) as error:
+        parser.error(str(error))
+    except _known_errors() as error:
+        print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
