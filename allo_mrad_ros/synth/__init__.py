@@ -1,0 +1,1 @@
+"""ALLO-like sequence generator: ``allo-synth generate`` and ``allo-synth import-allo``."""

@@ -1,0 +1,177 @@
+"""The ``allo-synth`` command: ``generate`` an ALLO-like sequence, or ``import-allo`` one.
+
+Examples
+--------
+::
+
+    allo-synth generate --preset demo --seed 0 --out data/demo
+    allo-synth generate --preset bench --seed 0 --out data/bench --jobs 2
+    allo-synth generate --preset smoke --frames 20 --width 480 --height 270 --out /tmp/s
+    allo-synth import-allo ALLO/test --out data/allo_test
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from allo_mrad_ros.allo_import import add_import_parser
+from allo_mrad_ros.sequence import SequenceError
+from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
+from allo_mrad_ros.synth.objects import ANOMALY_TYPES
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def _types(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in ANOMALY_TYPES]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown object types {unknown}; choose from {', '.join(ANOMALY_TYPES)}"
+        )
+    return names
+
+
+def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``generate`` sub-command; its ``func`` default runs it and returns a status."""
+    parser = subparsers.add_parser(
+        "generate",
+        help="generate an ALLO-like sequence",
+        description="Render an ALLO-like sequence of the station: camera base poses around "
+        "it (disjoint per split), ALLO's per-frame perturbation, Sun, Earth and Moon of 2030, "
+        "procedural anomaly objects placed by ALLO's rules, 3-class masks and camera "
+        "realism. The same seed gives identical files.",
+    )
+    parser.add_argument("--preset", choices=tuple(PRESETS), default="demo", help="(default demo)")
+    parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default data/<preset>)"
+    )
+    parser.add_argument(
+        "--mesh", type=Path, default=None, help="station model (default the package's)"
+    )
+    parser.add_argument(
+        "--frames",
+        type=_positive_int,
+        default=None,
+        help="scale the preset to about this many frames",
+    )
+    parser.add_argument("--width", type=_positive_int, default=None, help="image width")
+    parser.add_argument("--height", type=_positive_int, default=None, help="image height")
+    parser.add_argument(
+        "--jobs", type=_positive_int, default=1, help="worker processes (default 1)"
+    )
+    parser.add_argument(
+        "--references",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="also write pre-rendered references (reported pose, nominal model and light)",
+    )
+    parser.add_argument("--types", type=_types, default=None, help="comma-separated object types")
+    parser.add_argument(
+        "--position-sigma", type=_non_negative, default=None, help="base-pose perturbation, m (1)"
+    )
+    parser.add_argument(
+        "--rotation-sigma",
+        type=_non_negative,
+        default=None,
+        help="base-pose perturbation, rad (0.2)",
+    )
+    parser.add_argument(
+        "--pose-error-m", type=_non_negative, default=None, help="reported pose error, m (0.02)"
+    )
+    parser.add_argument(
+        "--pose-error-deg", type=_non_negative, default=None, help="reported pose error, deg (0.2)"
+    )
+    parser.add_argument(
+        "--clean", action="store_true", help="no camera effects or material variation (debugging)"
+    )
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing sequence")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(func=_run_generate)
+    return parser
+
+
+def _run_generate(args: argparse.Namespace) -> int:
+    from allo_mrad_ros.synth.generator import generate
+
+    try:
+        config = preset(args.preset)
+        if args.frames is not None:
+            config = config.with_frames(args.frames)
+        pose_error_rad = None if args.pose_error_deg is None else math.radians(args.pose_error_deg)
+        config = config.with_overrides(
+            width=args.width,
+            height=args.height,
+            references=args.references,
+            anomaly_types=args.types,
+            position_sigma_m=args.position_sigma,
+            rotation_sigma_rad=args.rotation_sigma,
+            pose_error_m=args.pose_error_m,
+            pose_error_rad=pose_error_rad,
+        )
+        if args.clean:
+            from dataclasses import replace
+
+            config = config.with_overrides(realism=replace(config.realism, enabled=False))
+        out = args.out if args.out is not None else Path("data") / args.preset
+        report = generate(
+            config,
+            out,
+            args.seed,
+            mesh=args.mesh,
+            jobs=args.jobs,
+            overwrite=args.overwrite,
+            progress=not args.quiet,
+        )
+    except (SynthError, SequenceError) as error:
+        print(f"allo-synth generate: error: {error}", file=sys.stderr)
+        return 1
+    print(
+        f"wrote {report.root}: {report.frames} frames in {report.seconds:.1f} s "
+        f"({report.frames_per_minute:.1f} frames/min at {config.width}x{config.height})"
+    )
+    for split, row in report.composition.items():
+        types = ", ".join(f"{k} {v}" for k, v in row["per_type"].items())
+        print(
+            f"  {split}: {row['frames']} frames ({row['normal']} normal, {row['anomalous']} "
+            f"anomalous, {row['cameras']} cameras)" + (f"; {types}" if types else "")
+        )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``allo-synth`` argument parser with its sub-commands."""
+    parser = argparse.ArgumentParser(
+        prog="allo-synth", description="ALLO-like sequences: generate them, or import ALLO."
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    add_generate_parser(subparsers)
+    add_import_parser(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``allo-synth``; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

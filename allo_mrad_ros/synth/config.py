@@ -1,0 +1,386 @@
+"""Generator settings: :class:`SynthConfig`, its parts, the presets and :class:`SynthError`.
+
+Every number that shapes a generated sequence lives here, validated once, so the generator
+itself can trust its inputs. Defaults follow ALLO's pipeline where it states a value (see the
+project's ALLO notes): 1 m / 0.2 rad pose perturbation, a 1.2 m half-width placement box 4 m
+in front of the camera, depths 0, +-1, +-2 m, up to 10 retries, relative Sun strengths 0.1,
+0.5 and 1 (ALLO's 1, 5 and 10).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from types import MappingProxyType
+
+from allo_mrad_ros.sequence import SPLITS
+
+
+class SynthError(ValueError):
+    """An invalid generator setting, or a scene in which the rules cannot be met."""
+
+
+def _finite(value: object, name: str, low: float | None = None, high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SynthError(f"{name} must be a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise SynthError(f"{name} must be finite, got {value!r}")
+    if low is not None and number < low:
+        raise SynthError(f"{name} must be >= {low}, got {value!r}")
+    if high is not None and number > high:
+        raise SynthError(f"{name} must be <= {high}, got {value!r}")
+    return number
+
+
+def _count(value: object, name: str, low: int = 0) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise SynthError(f"{name} must be an integer >= {low}, got {value!r}")
+    return value
+
+
+def _pair(value: object, name: str, low: float) -> tuple[float, float]:
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise SynthError(f"{name} must be a (min, max) pair, got {value!r}")
+    a, b = (_finite(v, name, low) for v in value)
+    if a > b:
+        raise SynthError(f"{name} must have min <= max, got {value!r}")
+    return a, b
+
+
+@dataclass(frozen=True)
+class SplitSpec:
+    """Frames and camera base poses of one split.
+
+    Parameters
+    ----------
+    normal, anomalous : int
+        Number of normal and anomalous frames (ALLO's train split is normal only).
+    cameras : int
+        Number of camera base poses (``Camera<N>`` folders); at least one.
+    """
+
+    normal: int
+    anomalous: int
+    cameras: int
+
+    def __post_init__(self) -> None:
+        _count(self.normal, "normal")
+        _count(self.anomalous, "anomalous")
+        _count(self.cameras, "cameras", 1)
+        if self.normal + self.anomalous == 0:
+            raise SynthError("a split needs at least one frame")
+
+    @property
+    def frames(self) -> int:
+        """Total number of frames."""
+        return self.normal + self.anomalous
+
+
+@dataclass(frozen=True)
+class RealismConfig:
+    """How the query image departs from a clean render of the CAD model.
+
+    The reference MRAD renders is a clean image of the nominal model; the query stands for a
+    real camera image. These effects model the gap; their defaults are plain camera physics,
+    not tuned for any detector.
+
+    Parameters
+    ----------
+    enabled : bool
+        False writes the clean render as the query (for debugging only).
+    exposure_sigma : float
+        Standard deviation of the log exposure gain per frame (auto-exposure, Sun angle).
+    read_noise_dn : float
+        Read noise in 8-bit digital numbers (DN).
+    shot_noise_dn : float
+        Shot-noise standard deviation at full scale (255 DN); it scales with sqrt(signal).
+    noise_gain : tuple of float
+        Range of the per-frame multiplier on both noise terms (sensor gain).
+    blur_sigma : float
+        Optical blur (Gaussian sigma) in pixels at 1920 pixels of width.
+    vignetting : float
+        Relative brightness loss in the image corners.
+    bloom : float
+        Weight of the halo around saturated highlights.
+    glare : float
+        Weight of the Sun's glare (halo, diffraction spikes, ghosts) when the Sun is in view.
+    material_variation : float
+        Relative spread of the as-built station's colours and roughness around the CAD
+        model's (one draw per sequence: the real station is one object).
+    """
+
+    enabled: bool = True
+    exposure_sigma: float = 0.12
+    read_noise_dn: float = 1.2
+    shot_noise_dn: float = 3.0
+    noise_gain: tuple[float, float] = (0.8, 1.5)
+    blur_sigma: float = 0.6
+    vignetting: float = 0.12
+    bloom: float = 0.06
+    glare: float = 1.0
+    material_variation: float = 0.08
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, bool):
+            raise SynthError(f"realism enabled must be a bool, got {self.enabled!r}")
+        _finite(self.exposure_sigma, "exposure_sigma", 0.0, 1.0)
+        _finite(self.read_noise_dn, "read_noise_dn", 0.0, 50.0)
+        _finite(self.shot_noise_dn, "shot_noise_dn", 0.0, 50.0)
+        object.__setattr__(self, "noise_gain", _pair(self.noise_gain, "noise_gain", 0.0))
+        _finite(self.blur_sigma, "blur_sigma", 0.0, 10.0)
+        _finite(self.vignetting, "vignetting", 0.0, 0.9)
+        _finite(self.bloom, "bloom", 0.0, 1.0)
+        _finite(self.glare, "glare", 0.0, 10.0)
+        _finite(self.material_variation, "material_variation", 0.0, 0.5)
+
+
+DEFAULT_DEPTHS_M = (0.0, -1.0, 1.0, -2.0, 2.0)
+DEFAULT_SUN_STRENGTHS = (0.1, 0.5, 1.0)
+DEFAULT_SUN_WEIGHTS = (0.2, 0.3, 0.5)
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """Everything that defines a generated sequence, apart from the seed and the mesh.
+
+    Parameters
+    ----------
+    name : str
+        Sequence name (``sequence.yaml``) and preset name.
+    splits : Mapping[str, SplitSpec]
+        Frames per split (``train``, ``val``, ``test``); written in that order.
+    width, height : int
+        Image size. The camera keeps ALLO's field of view (25 mm lens, 36 mm sensor).
+    position_sigma_m, rotation_sigma_rad : float
+        Per-frame Gaussian perturbation of the base pose (position per axis, and each of
+        ALLO's Blender XYZ Euler angles).
+    pose_error_m, pose_error_rad : float
+        Standard deviation of the error of the pose written to ``frames.csv`` (the pose the
+        robot reports) against the pose the query was rendered from (kept in the ``true_*``
+        columns); per axis. 0 writes exact poses.
+    object_distance_m, box_half_width_m : float
+        ALLO's placement box: half-width around a point this far in front of the camera.
+    depths_m : tuple of float
+        Offsets along the viewing axis; anomalous frames cycle through them.
+    max_retries : int
+        Placement tries per camera pose before the camera pose is drawn again.
+    camera_attempts : int
+        Camera poses drawn per depth before falling back to the next nearer depth.
+    min_anomaly_fraction : float
+        Smallest visible anomaly, as a fraction of the image (ALLO: 0.1 %).
+    max_occluded_fraction : float
+        Largest fraction of the anomaly's surface samples hidden by the station.
+    sun_strengths, sun_weights : tuple of float
+        Relative Sun strengths and their probabilities.
+    colour_probability : float
+        Probability that an anomalous frame recolours its object (ALLO's colour variant).
+    anomaly_types : tuple of str or None
+        Object types to use; None for all (:data:`~.objects.ANOMALY_TYPES`).
+    camera_distance_m : tuple of float
+        Range of base-pose distances from the point of the station looked at.
+    min_camera_clearance_m : float
+        Smallest distance of a base pose from the station's surface.
+    days : tuple of int
+        First and last day of 2030 to draw from.
+    references : bool
+        Also write pre-rendered references (nominal model, reported pose, nominal light).
+    reference_scale : float
+        Render scale of the references; they are resized to the image size to be written.
+    shadows : bool
+        Directional shadows from the Sun in the query.
+    realism : RealismConfig
+        The query's departures from the model.
+    rate_hz : float
+        Nominal frame rate for the stamps.
+    png_compression : int
+        zlib level of the written PNGs.
+    """
+
+    name: str
+    splits: Mapping[str, SplitSpec]
+    width: int = 1920
+    height: int = 1080
+    position_sigma_m: float = 1.0
+    rotation_sigma_rad: float = 0.2
+    pose_error_m: float = 0.02
+    pose_error_rad: float = math.radians(0.2)
+    object_distance_m: float = 4.0
+    box_half_width_m: float = 1.2
+    depths_m: tuple[float, ...] = DEFAULT_DEPTHS_M
+    max_retries: int = 10
+    camera_attempts: int = 5
+    min_anomaly_fraction: float = 0.001
+    max_occluded_fraction: float = 0.5
+    sun_strengths: tuple[float, ...] = DEFAULT_SUN_STRENGTHS
+    sun_weights: tuple[float, ...] = DEFAULT_SUN_WEIGHTS
+    colour_probability: float = 0.2
+    anomaly_types: tuple[str, ...] | None = None
+    camera_distance_m: tuple[float, float] = (12.0, 30.0)
+    min_camera_clearance_m: float = 7.0
+    days: tuple[int, int] = (1, 365)
+    references: bool = False
+    reference_scale: float = 0.25
+    shadows: bool = True
+    realism: RealismConfig = field(default_factory=RealismConfig)
+    rate_hz: float = 10.0
+    png_compression: int = 3
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise SynthError(f"name must be non-empty text, got {self.name!r}")
+        if not isinstance(self.splits, Mapping) or not self.splits:
+            raise SynthError("splits must map at least one split name to a SplitSpec")
+        for split, spec in self.splits.items():
+            if split not in SPLITS:
+                raise SynthError(f"unknown split {split!r}; use {', '.join(SPLITS)}")
+            if not isinstance(spec, SplitSpec):
+                raise SynthError(f"split {split!r} must be a SplitSpec, got {spec!r}")
+        ordered = {s: self.splits[s] for s in SPLITS if s in self.splits}
+        object.__setattr__(self, "splits", MappingProxyType(ordered))
+        _count(self.width, "width", 16)
+        _count(self.height, "height", 16)
+        if self.width > 8192 or self.height > 8192:
+            raise SynthError(f"image size {self.width}x{self.height} is above 8192")
+        _finite(self.position_sigma_m, "position_sigma_m", 0.0, 10.0)
+        _finite(self.rotation_sigma_rad, "rotation_sigma_rad", 0.0, math.pi)
+        _finite(self.pose_error_m, "pose_error_m", 0.0, 1.0)
+        _finite(self.pose_error_rad, "pose_error_rad", 0.0, 0.2)
+        _finite(self.object_distance_m, "object_distance_m", 0.5, 100.0)
+        _finite(self.box_half_width_m, "box_half_width_m", 0.0, 10.0)
+        if not isinstance(self.depths_m, tuple) or not self.depths_m:
+            raise SynthError(f"depths_m must be a non-empty tuple, got {self.depths_m!r}")
+        for depth in self.depths_m:
+            _finite(depth, "depths_m", -self.object_distance_m + 0.5)
+        _count(self.max_retries, "max_retries", 1)
+        _count(self.camera_attempts, "camera_attempts", 1)
+        _finite(self.min_anomaly_fraction, "min_anomaly_fraction", 0.0, 0.5)
+        _finite(self.max_occluded_fraction, "max_occluded_fraction", 0.0, 1.0)
+        self._check_sun()
+        _finite(self.colour_probability, "colour_probability", 0.0, 1.0)
+        if self.anomaly_types is not None:
+            from allo_mrad_ros.synth.objects import ANOMALY_TYPES
+
+            if not isinstance(self.anomaly_types, tuple) or not self.anomaly_types:
+                raise SynthError("anomaly_types must be a non-empty tuple or None")
+            unknown = [t for t in self.anomaly_types if t not in ANOMALY_TYPES]
+            if unknown:
+                raise SynthError(
+                    f"unknown anomaly types {unknown}; known: {', '.join(ANOMALY_TYPES)}"
+                )
+        object.__setattr__(
+            self, "camera_distance_m", _pair(self.camera_distance_m, "camera_distance_m", 1.0)
+        )
+        _finite(self.min_camera_clearance_m, "min_camera_clearance_m", 0.5, 100.0)
+        if (
+            not isinstance(self.days, tuple)
+            or len(self.days) != 2
+            or not all(isinstance(d, int) and not isinstance(d, bool) for d in self.days)
+            or not 1 <= self.days[0] <= self.days[1] <= 365
+        ):
+            raise SynthError(f"days must be (first, last) within 1..365, got {self.days!r}")
+        if not isinstance(self.references, bool) or not isinstance(self.shadows, bool):
+            raise SynthError("references and shadows must be bools")
+        _finite(self.reference_scale, "reference_scale", 0.05, 1.0)
+        if not isinstance(self.realism, RealismConfig):
+            raise SynthError(f"realism must be a RealismConfig, got {self.realism!r}")
+        _finite(self.rate_hz, "rate_hz", 1e-3, 1e4)
+        if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
+            raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
+
+    def _check_sun(self) -> None:
+        strengths, weights = self.sun_strengths, self.sun_weights
+        if not isinstance(strengths, tuple) or not strengths:
+            raise SynthError("sun_strengths must be a non-empty tuple")
+        if not isinstance(weights, tuple) or len(weights) != len(strengths):
+            raise SynthError("sun_weights must be a tuple as long as sun_strengths")
+        for value in strengths:
+            _finite(value, "sun_strengths", 0.0, 100.0)
+        for value in weights:
+            _finite(value, "sun_weights", 0.0)
+        if sum(weights) <= 0:
+            raise SynthError("sun_weights must not all be zero")
+
+    @property
+    def frames(self) -> int:
+        """Total number of frames over all splits."""
+        return sum(spec.frames for spec in self.splits.values())
+
+    def with_overrides(self, **changes: object) -> SynthConfig:
+        """Return a copy with some fields replaced (validated again); None values are ignored."""
+        known = {f.name for f in fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise SynthError(f"unknown settings {unknown}")
+        return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+    def with_frames(self, frames: int) -> SynthConfig:
+        """Return a copy whose splits are scaled to about ``frames`` frames in total.
+
+        Every split keeps its share and its normal/anomalous ratio, with at least one frame.
+        """
+        _count(frames, "frames", 1)
+        total = self.frames
+        splits = {}
+        for split, spec in self.splits.items():
+            share = max(1, round(frames * spec.frames / total))
+            anomalous = round(share * spec.anomalous / spec.frames)
+            splits[split] = SplitSpec(share - anomalous, anomalous, spec.cameras)
+        return replace(self, splits=splits)
+
+
+def _smoke() -> SynthConfig:
+    return SynthConfig(
+        name="smoke",
+        splits={"train": SplitSpec(2, 0, 2), "test": SplitSpec(2, 4, 2)},
+        width=240,
+        height=135,
+        references=True,
+        reference_scale=0.5,
+        shadows=False,
+    )
+
+
+def _demo() -> SynthConfig:
+    return SynthConfig(name="demo", splits={"test": SplitSpec(14, 26, 4)})
+
+
+def _bench() -> SynthConfig:
+    # ALLO's ratio: about two anomalous test frames per normal one; train is normal only.
+    return SynthConfig(
+        name="bench",
+        splits={
+            "train": SplitSpec(120, 0, 40),
+            "val": SplitSpec(20, 40, 10),
+            "test": SplitSpec(110, 220, 10),
+        },
+    )
+
+
+PRESETS = MappingProxyType({"smoke": _smoke, "demo": _demo, "bench": _bench})
+"""Preset name to a function returning its :class:`SynthConfig`."""
+
+
+def preset(name: str) -> SynthConfig:
+    """Return the configuration of a preset.
+
+    Parameters
+    ----------
+    name : str
+        ``smoke`` (tiny images, 10 frames: for tests), ``demo`` (40 frames at 1920x1080,
+        test split) or ``bench`` (train 120, val 60, test 330 at 1920x1080).
+
+    Returns
+    -------
+    SynthConfig
+        A fresh configuration.
+
+    Raises
+    ------
+    SynthError
+        For an unknown name.
+    """
+    if name not in PRESETS:
+        raise SynthError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+    return PRESETS[name]()

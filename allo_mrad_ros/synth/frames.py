@@ -1,0 +1,283 @@
+"""Rendering one planned frame: camera pose, anomaly placement, query, mask and reference.
+
+One :class:`FrameSynthesizer` per process holds the renderers (built once: the OpenGL
+context and the station upload are reused across frames), the station's voxel model, the
+base poses and the ephemeris.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.ephemeris import Sky, StationEphemeris
+from allo_mrad_ros.geometry import pose_components
+from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer, RenderResult
+from allo_mrad_ros.synth import placement
+from allo_mrad_ros.synth.config import SynthConfig, SynthError
+from allo_mrad_ros.synth.objects import AnomalyObject, build_anomaly
+from allo_mrad_ros.synth.occupancy import StationOccupancy
+from allo_mrad_ros.synth.planning import (
+    STREAM_FRAME,
+    STREAM_MATERIALS,
+    STREAM_POSES,
+    FramePlan,
+    stream,
+)
+from allo_mrad_ros.synth.poses import BasePose, clear_camera, make_base_poses, perturb, pose_error
+from allo_mrad_ros.synth.realism import apply_camera, as_built_station, find_sun, resize_to
+
+# The low-resolution pre-check of an object's visible area accepts down to this share of
+# the threshold; the full-resolution render decides.
+_CHECK_MARGIN = 0.7
+_CHECK_SCALE = 0.25
+# Perturbed camera poses tried per draw before giving up on a frame (cameras in the hull).
+_CLEAR_ATTEMPTS = 50
+
+
+def camera_intrinsics(config: SynthConfig) -> CameraIntrinsics:
+    """ALLO's camera (25 mm lens on a 36 mm sensor) at the configured image size."""
+    return CameraIntrinsics.from_fov(
+        config.width, config.height, focal_mm=25.0, sensor_width_mm=36.0
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class FrameOutput:
+    """Everything the writer needs for one frame.
+
+    Attributes
+    ----------
+    plan : FramePlan
+        What was asked for.
+    image, mask : numpy.ndarray
+        Query (h, w, 3) and classes (h, w), uint8.
+    reference : numpy.ndarray or None
+        Pre-rendered reference at full size, if configured.
+    T_true, T_reported : numpy.ndarray
+        (4, 4) pose the query was rendered from, and the pose written as the frame's pose.
+    sky : Sky
+        Sun, Earth and Moon of the frame's day.
+    extra : dict
+        Extra ``frames.csv`` columns.
+    """
+
+    plan: FramePlan
+    image: np.ndarray
+    mask: np.ndarray
+    reference: np.ndarray | None
+    T_true: np.ndarray
+    T_reported: np.ndarray
+    sky: Sky
+    extra: dict = field(default_factory=dict)
+
+
+def _pose_columns(prefix: str, T: np.ndarray) -> dict[str, float]:
+    position, quaternion = pose_components(T)
+    names = ("tx", "ty", "tz", "qx", "qy", "qz", "qw")
+    return {f"{prefix}_{n}": float(v) for n, v in zip(names, (*position, *quaternion), strict=True)}
+
+
+class FrameSynthesizer:
+    """Renders planned frames of one sequence.
+
+    Parameters
+    ----------
+    config : SynthConfig
+        Sequence settings.
+    seed : int
+        Sequence seed (base poses and the as-built station's materials derive from it).
+    mesh : path-like
+        The station model file.
+    backend : str or None
+        OpenGL backend for the renderers (None chooses).
+    """
+
+    def __init__(
+        self,
+        config: SynthConfig,
+        seed: int,
+        mesh: str | PathLike[str],
+        backend: str | None = None,
+    ) -> None:
+        self.config = config
+        self.seed = seed
+        self.mesh = Path(mesh)
+        self.intrinsics = camera_intrinsics(config)
+        self.occupancy = StationOccupancy.from_model(self.mesh)
+        self.base_poses: dict[str, list[BasePose]] = make_base_poses(
+            self.occupancy,
+            {split: spec.cameras for split, spec in config.splits.items()},
+            stream(seed, STREAM_POSES),
+            config.camera_distance_m,
+            config.min_camera_clearance_m,
+        )
+        self.ephemeris = StationEphemeris()
+        realism = config.realism
+        amount = realism.material_variation if realism.enabled else 0.0
+        station = as_built_station(self.mesh, stream(seed, STREAM_MATERIALS), amount)
+        self._query = ReferenceRenderer(
+            station, self.intrinsics, scale=1.0, backend=backend, shadows=config.shadows
+        )
+        self._low: ReferenceRenderer | None = None
+        pixels = config.width * config.height
+        low_scale = config.reference_scale if config.references else _CHECK_SCALE
+        if config.references or pixels * low_scale**2 >= 256 * 144:
+            # One reduced-scale renderer of the nominal model serves both the references
+            # and the quick visibility pre-check (labels do not depend on materials).
+            self._low = ReferenceRenderer(
+                self.mesh, self.intrinsics, scale=low_scale, backend=backend
+            )
+        self._check = self._low is not None and low_scale <= 0.5
+        self._sky = lru_cache(maxsize=512)(self.ephemeris.sky_on_day)
+
+    def close(self) -> None:
+        """Free the renderers."""
+        self._query.close()
+        if self._low is not None:
+            self._low.close()
+
+    # ------------------------------------------------------------------ one frame
+    def synthesize(self, plan: FramePlan) -> FrameOutput:
+        """Render one planned frame.
+
+        Raises
+        ------
+        SynthError
+            If no placement meets the rules after all retries and depth fallbacks.
+        """
+        rng = stream(plan.seed, STREAM_FRAME, plan.index)
+        base = self.base_poses[plan.split][plan.camera]
+        sky = self._sky(plan.day)
+        bodies = sky.bodies()
+        extra: dict[str, object] = {"day": plan.day, "pose_id": base.pose_id}
+        if plan.is_anomalous:
+            T_true, result, anomaly_extra = self._place(plan, base, sky, rng)
+            extra.update(anomaly_extra)
+        else:
+            T_true = self._camera(base, rng)
+            result = self._query.render(
+                T_true, sky.sun_direction, plan.sun_strength, bodies, labels=True
+            )
+        sun = find_sun(result, sky.sun[:3], T_true, float(sky.sun[3]))
+        image, effects = apply_camera(result.rgb, rng, self.config.realism, sun, plan.sun_strength)
+        T_reported = pose_error(T_true, rng, self.config.pose_error_m, self.config.pose_error_rad)
+        reference = None
+        if self.config.references:
+            low = self._low.render(T_reported, sky.sun_direction, plan.sun_strength, bodies)
+            reference = resize_to(low.rgb, self.intrinsics)
+        extra.update(_pose_columns("true", T_true))
+        extra.update(
+            {
+                "exposure": round(effects.exposure, 6),
+                "noise_gain": round(effects.noise_gain, 6),
+                "sun_in_view": 0.0 if sun is None else round(sun.visible, 4),
+            }
+        )
+        return FrameOutput(plan, image, result.labels, reference, T_true, T_reported, sky, extra)
+
+    def _camera(self, base: BasePose, rng: np.random.Generator) -> np.ndarray:
+        """A perturbed camera pose that is clear of the station."""
+        for _ in range(_CLEAR_ATTEMPTS):
+            T = perturb(
+                base.T_station_camera,
+                rng,
+                self.config.position_sigma_m,
+                self.config.rotation_sigma_rad,
+            )
+            if clear_camera(self.occupancy, T):
+                return T
+        raise SynthError(f"base pose {base.pose_id}: every perturbed camera is in the station")
+
+    def _depth_order(self, requested: float) -> list[float]:
+        # The requested depth first, then the others by distance from it, nearer first:
+        # a small object too small at +2 m is re-placed at +1 m, not at -2 m.
+        return sorted(self.config.depths_m, key=lambda d: (abs(d - requested), d))
+
+    def _place(
+        self, plan: FramePlan, base: BasePose, sky: Sky, rng: np.random.Generator
+    ) -> tuple[np.ndarray, RenderResult, dict[str, object]]:
+        config = self.config
+        obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour)
+        need = math.ceil(config.min_anomaly_fraction * config.width * config.height)
+        bodies = sky.bodies()
+        tries = 0
+        reasons: dict[str, int] = {}
+        for depth in self._depth_order(plan.depth_m):
+            for _ in range(config.camera_attempts):
+                T = self._camera(base, rng)
+                for _ in range(config.max_retries):
+                    tries += 1
+                    pose = placement.propose(
+                        T, rng, config.object_distance_m, config.box_half_width_m, depth
+                    )
+                    candidate = placement.check(
+                        obj,
+                        pose,
+                        T,
+                        self.intrinsics,
+                        self.occupancy,
+                        config.max_occluded_fraction,
+                        depth,
+                    )
+                    reason = candidate.rejected or self._too_small(obj, pose, T, sky, need)
+                    if not reason:
+                        extras = [ExtraObject(obj.scene, pose, LABEL_ANOMALY, plan.anomaly)]
+                        result = self._query.render(
+                            T, sky.sun_direction, plan.sun_strength, bodies, extras, labels=True
+                        )
+                        pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
+                        if pixels >= need:
+                            return (
+                                T,
+                                result,
+                                self._anomaly_extra(plan, obj, candidate, pixels, tries),
+                            )
+                        reason = "small"
+                    reasons[reason] = reasons.get(reason, 0) + 1
+        raise SynthError(
+            f"frame {plan.index} ({plan.anomaly}, camera {plan.split}/{plan.camera}): no "
+            f"placement met the rules in {tries} tries ({reasons})"
+        )
+
+    def _too_small(
+        self, obj: AnomalyObject, pose: np.ndarray, T: np.ndarray, sky: Sky, need: int
+    ) -> str:
+        """Quick low-resolution estimate of the visible area; '' if it may be enough."""
+        if not self._check:
+            return ""
+        low = self._low
+        result = low.render(
+            T, sky.sun_direction, 1.0, (), [ExtraObject(obj.scene, pose)], labels=True
+        )
+        scale2 = (low.output_intrinsics.width * low.output_intrinsics.height) / (
+            self.intrinsics.width * self.intrinsics.height
+        )
+        pixels = np.count_nonzero(result.labels == LABEL_ANOMALY)
+        return "" if pixels >= _CHECK_MARGIN * need * scale2 else "small"
+
+    @staticmethod
+    def _anomaly_extra(
+        plan: FramePlan,
+        obj: AnomalyObject,
+        candidate: placement.Candidate,
+        pixels: int,
+        tries: int,
+    ) -> dict[str, object]:
+        extra: dict[str, object] = {
+            "object_seed": obj.seed,
+            "colour": obj.colour,
+            "depth_m": candidate.depth_m,
+            "requested_depth_m": plan.depth_m,
+            "anomaly_pixels": pixels,
+            "occluded_fraction": round(candidate.occluded_fraction, 4),
+            "placement_tries": tries,
+        }
+        extra.update(_pose_columns("obj", candidate.pose))
+        return extra

@@ -1,0 +1,112 @@
+"""Procedural anomaly objects, built deterministically from trimesh primitives and a seed.
+
+Sixteen types cover the families of ALLO's test set: thermal blankets, cables, tools lost
+during EVAs, an astronaut glove, CubeSats and small satellites, debris. Each builder draws
+its dimensions from a seeded NumPy generator, so ``build_anomaly(kind, seed)`` always gives
+the same object; sizes are those of the real things (a 1U CubeSat is 10 cm).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from types import MappingProxyType
+
+import numpy as np
+
+from .base import (
+    COLOURS,
+    DEFAULT_COLOUR,
+    MATERIALS,
+    AnomalyObject,
+    Part,
+    sample_surface,
+    sample_triangles,
+)
+from .cables import cable, handrail, tether_hook
+from .satellites import cubesat_1u, cubesat_3u, cubesat_6u, helicopter, smallsat
+from .sheets import blanket_crumpled, blanket_curved, debris_panel, mli_strip
+from .tools import drill, glove, pistol_grip_tool, wrench
+
+Builder = Callable[[np.random.Generator], list[Part]]
+
+ANOMALY_TYPES: MappingProxyType[str, Builder] = MappingProxyType(
+    {
+        "blanket_crumpled": blanket_crumpled,
+        "blanket_curved": blanket_curved,
+        "mli_strip": mli_strip,
+        "cable": cable,
+        "tether_hook": tether_hook,
+        "handrail": handrail,
+        "drill": drill,
+        "pistol_grip_tool": pistol_grip_tool,
+        "wrench": wrench,
+        "glove": glove,
+        "cubesat_1u": cubesat_1u,
+        "cubesat_3u": cubesat_3u,
+        "cubesat_6u": cubesat_6u,
+        "smallsat": smallsat,
+        "helicopter": helicopter,
+        "debris_panel": debris_panel,
+    }
+)
+"""Object type name to builder, in a fixed order."""
+
+SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip"})
+"""Types made of open sheets (zero thickness); all others are closed solids."""
+
+
+class ObjectError(ValueError):
+    """An unknown object type or colour, or a bad seed."""
+
+
+def build_anomaly(kind: str, seed: int, colour: str = DEFAULT_COLOUR) -> AnomalyObject:
+    """Build one anomaly object.
+
+    Parameters
+    ----------
+    kind : str
+        A key of :data:`ANOMALY_TYPES`.
+    seed : int
+        Non-negative seed of the object's own random generator.
+    colour : str
+        ``default`` for the object's own materials, or a key of :data:`COLOURS` to recolour
+        its main part (ALLO's colour variant).
+
+    Returns
+    -------
+    AnomalyObject
+        The object, centred on its bounding box, in metres.
+
+    Raises
+    ------
+    ObjectError
+        For an unknown kind or colour, or a negative seed.
+    """
+    if kind not in ANOMALY_TYPES:
+        raise ObjectError(f"unknown anomaly type {kind!r}; known: {', '.join(ANOMALY_TYPES)}")
+    if colour != DEFAULT_COLOUR and colour not in COLOURS:
+        raise ObjectError(f"unknown colour {colour!r}; known: default, {', '.join(COLOURS)}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ObjectError(f"seed must be a non-negative integer, got {seed!r}")
+    parts = ANOMALY_TYPES[kind](np.random.default_rng(int(seed)))
+    low = np.min([p.mesh.bounds[0] for p in parts], axis=0)
+    high = np.max([p.mesh.bounds[1] for p in parts], axis=0)
+    centre = (low + high) / 2.0
+    for part in parts:
+        part.mesh.apply_translation(-centre)
+    return AnomalyObject(kind=kind, seed=int(seed), colour=colour, parts=tuple(parts))
+
+
+__all__ = [
+    "ANOMALY_TYPES",
+    "COLOURS",
+    "DEFAULT_COLOUR",
+    "MATERIALS",
+    "SHEET_TYPES",
+    "AnomalyObject",
+    "ObjectError",
+    "Part",
+    "build_anomaly",
+    "sample_surface",
+    "sample_triangles",
+]
