@@ -237,8 +237,9 @@ class SynthConfig:
                 raise SynthError(f"unknown split {split!r}; use {', '.join(SPLITS)}")
             if not isinstance(spec, SplitSpec):
                 raise SynthError(f"split {split!r} must be a SplitSpec, got {spec!r}")
+        # A plain dict (in split order) keeps the settings picklable for worker processes.
         ordered = {s: self.splits[s] for s in SPLITS if s in self.splits}
-        object.__setattr__(self, "splits", MappingProxyType(ordered))
+        object.__setattr__(self, "splits", ordered)
         _count(self.width, "width", 16)
         _count(self.height, "height", 16)
         if self.width > 8192 or self.height > 8192:

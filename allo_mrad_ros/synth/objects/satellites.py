@@ -63,7 +63,7 @@ def smallsat(rng: np.random.Generator) -> list[Part]:
     """A small satellite: gold-wrapped bus, two solar wings on booms, a dish antenna."""
     bus = rng.uniform(0.4, 0.7, 3)
     parts = [Part(slab((0, 0, 0), bus), "gold_foil")]
-    wing_len = rng.uniform(0.7, 1.2)
+    wing_len = rng.uniform(0.6, 1.0)
     wing_w = rng.uniform(0.35, 0.5)
     tilt = rng.uniform(-0.6, 0.6)
     for side in (-1, 1):
