@@ -110,6 +110,19 @@ def _parser() -> argparse.ArgumentParser:
         help="seconds between creating publishers and the first message (discovery)",
     )
     play.add_argument("--clock", action="store_true", help="publish the bag time on /clock")
+    play.add_argument(
+        "--wait-for",
+        nargs="+",
+        default=[],
+        metavar="TOPIC",
+        help="start only once these topics have a subscriber (e.g. the detector's image topic)",
+    )
+    play.add_argument(
+        "--wait-timeout",
+        type=float,
+        default=30.0,
+        help="seconds to wait for those subscribers (default 30)",
+    )
 
     for name, text in (
         ("evaluate", "run MRAD, PAD and RXD on a split and write the metrics report"),
@@ -190,6 +203,8 @@ def _play(args: argparse.Namespace) -> int:
         topics=args.topics,
         delay=args.delay,
         clock=args.clock,
+        wait_for=args.wait_for,
+        wait_timeout=args.wait_timeout,
     )
     total = sum(summary.published.values())
     print(

@@ -29,6 +29,7 @@ from rosbag_tools.bagio import BagReadError, open_bag
 LOG = logging.getLogger("allo_bag.play")
 
 DEFAULT_DELAY_S = 1.0
+DEFAULT_WAIT_TIMEOUT_S = 30.0
 ACK_TIMEOUT_S = 2.0
 
 
@@ -106,6 +107,8 @@ def play_bag(
     stop: threading.Event | None = None,
     passes: int | None = None,
     on_publish: Callable[[str, int], None] | None = None,
+    wait_for: Iterable[str] = (),
+    wait_timeout: float = DEFAULT_WAIT_TIMEOUT_S,
 ) -> PlaySummary:
     """Publish the messages of a bag with rclpy at the recorded pace.
 
@@ -131,6 +134,11 @@ def play_bag(
         Number of passes with ``loop`` (default: until stopped).
     on_publish : callable, optional
         Called with (topic, bag time) after every publish.
+    wait_for : iterable of str
+        Before the delay, wait until each of these topics has a matched subscriber (e.g.
+        the detector's image topic), so nothing is published into the void.
+    wait_timeout : float
+        Seconds to wait for those subscribers before giving up with :class:`PlayError`.
 
     Returns
     -------
@@ -145,6 +153,8 @@ def play_bag(
         raise PlayError(f"rate must be positive and finite, got {rate!r}")
     if not (math.isfinite(delay) and delay >= 0):
         raise PlayError(f"delay must be >= 0 seconds, got {delay!r}")
+    if not (math.isfinite(wait_timeout) and wait_timeout >= 0):
+        raise PlayError(f"wait_timeout must be >= 0 seconds, got {wait_timeout!r}")
     if passes is not None and passes < 1:
         raise PlayError(f"passes must be at least 1, got {passes!r}")
     try:
@@ -179,6 +189,8 @@ def play_bag(
                     stop=stop,
                     summary=summary,
                     on_publish=on_publish,
+                    wait_for=tuple(wait_for),
+                    wait_timeout=wait_timeout,
                 )
         finally:
             node.destroy_node()
@@ -204,6 +216,8 @@ def _play(
     stop: threading.Event,
     summary: PlaySummary,
     on_publish: Callable[[str, int], None] | None,
+    wait_for: tuple[str, ...],
+    wait_timeout: float,
 ) -> None:
     if wanted is not None:
         missing = sorted(wanted - {c.topic for c in reader.connections})
@@ -243,6 +257,7 @@ def _play(
     connections = [c for c in reader.connections if c.id in publishers]
     if not connections:
         raise PlayError(f"{path}: nothing to play, every topic was skipped")
+    _wait_for_subscribers(by_topic, wait_for, wait_timeout, stop, path)
     if stop.wait(delay):
         return
     checked: set[int] = set()
@@ -279,7 +294,29 @@ def _play(
     summary.wall_s = time.monotonic() - start_wall
     for publisher in by_topic.values():
         # Reliable samples still in flight would be lost when the node goes away.
-        _wait_acked(publisher)
+        if publisher.get_subscription_count():
+            _wait_acked(publisher)
+
+
+def _wait_for_subscribers(
+    publishers: dict[str, Any],
+    topics: tuple[str, ...],
+    timeout: float,
+    stop: threading.Event,
+    path: Path,
+) -> None:
+    unknown = sorted(t for t in topics if t not in publishers)
+    if unknown:
+        raise PlayError(f"{path}: cannot wait for {unknown}: not published from this bag")
+    deadline = time.monotonic() + timeout
+    waiting = list(topics)
+    while waiting and not stop.is_set():
+        waiting = [t for t in waiting if publishers[t].get_subscription_count() == 0]
+        if not waiting:
+            return
+        if time.monotonic() > deadline:
+            raise PlayError(f"no subscriber on {waiting} within {timeout:g} s")
+        stop.wait(0.02)
 
 
 def _wait_acked(publisher: Any) -> None:

@@ -365,7 +365,10 @@ def test_play_publishes_the_bag_into_an_rclpy_subscriber(tmp_path, sequence):
         os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])
     )
     player = subprocess.Popen(
-        [sys.executable, "-m", "rosbag_tools", "play", str(out), "--rate", "4", "--delay", "1.5"],
+        [
+            *(sys.executable, "-m", "rosbag_tools", "play", str(out), "--rate", "4"),
+            *("--delay", "0", "--wait-for", T.image, T.label, T.bodies, "--wait-timeout", "30"),
+        ],
         cwd=REPO,
         env=env,
         stdout=subprocess.PIPE,
