@@ -193,7 +193,7 @@ def ablate(
     split : str, optional
         Split to use; None means ``test`` if present, else every frame.
     limit : int, optional
-        Use at most this many frames.
+        Use at most this many frames, evenly spread over the split.
     jobs : int
         Worker processes.
     progress : bool

@@ -132,7 +132,9 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument("input", type=Path, help="sequence folder or bag")
         sub.add_argument("--out", type=Path, required=True, help="report folder")
         sub.add_argument("--split", choices=("train", "val", "test"), help="default: test, or all")
-        sub.add_argument("--limit", type=int, help="at most this many frames")
+        sub.add_argument(
+            "--limit", type=int, help="at most this many frames, evenly spread over the split"
+        )
         sub.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
         sub.add_argument("--profile", default="default", help=f"one of {sorted(PROFILES)}")
         sub.add_argument(

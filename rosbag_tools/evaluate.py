@@ -64,7 +64,7 @@ class EvaluationConfig:
     split : str or None
         Split to evaluate; None means ``test`` if present, else every frame.
     limit : int or None
-        Evaluate at most this many frames (the first ones of the split).
+        Evaluate at most this many frames, evenly spread over the split.
     jobs : int
         Worker processes.
     overlays : int

@@ -163,6 +163,9 @@ class FrameSource:
     def select(self, split: str | None, limit: int | None = None) -> list[int]:
         """Indices of the frames of ``split`` (None: all), at most ``limit`` of them.
 
+        A limit keeps frames evenly spread over the split (see :func:`spread`), so a quick
+        run still sees every part of a sequence whatever its order (cameras, anomaly types).
+
         Raises
         ------
         FrameSourceError
@@ -177,11 +180,21 @@ class FrameSource:
             raise FrameSourceError(
                 f"{self.path}: no frames in split {split!r} (splits present: {list(self.splits)})"
             )
-        return indices[:limit] if limit is not None else indices
+        return spread(indices, limit) if limit is not None else indices
 
     def frames(self, indices: list[int]) -> Iterator[EvalFrame]:
         """Yield the frames of ``indices`` (ascending) in order."""
         raise NotImplementedError
+
+
+def spread(indices: list[int], limit: int) -> list[int]:
+    """At most ``limit`` items of ``indices``, evenly spaced, first and last included."""
+    if limit >= len(indices):
+        return list(indices)
+    if limit == 1:
+        return [indices[0]]
+    positions = np.floor(np.linspace(0, len(indices) - 1, limit) + 0.5).astype(int)
+    return [indices[i] for i in positions]
 
 
 def _bodies_from_frame(earth: Any, moon: Any) -> tuple[CelestialBody, ...]:

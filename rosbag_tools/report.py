@@ -114,10 +114,13 @@ def evaluation_json(result: EvaluationResult) -> dict[str, Any]:
     }
 
 
-def _latency_rows(latency: Mapping[str, Mapping[str, float]]) -> list[str]:
+def _latency_rows(
+    latency: Mapping[str, Mapping[str, float]], methods: tuple[str, ...]
+) -> list[str]:
     rows = ["| stage | median | p95 | mean |", "|---|---:|---:|---:|"]
-    # Pipeline-level stages first, then each method's inner stages.
-    order = sorted(latency, key=lambda s: ("/" in s, s))
+    # The pipeline in processing order, then each method's inner stages.
+    first = [s for s in ("render", *methods, "total") if s in latency]
+    order = first + sorted(s for s in latency if s not in first)
     for stage in order:
         s = latency[stage]
         rows.append(f"| {stage} | {s['median']:.1f} | {s['p95']:.1f} | {s['mean']:.1f} |")
@@ -171,7 +174,7 @@ def evaluation_markdown(result: EvaluationResult) -> str:
         "method's row its detection, `total` all methods together; `METHOD/stage` rows are "
         "the detector's inner stages.",
         "",
-        *_latency_rows(result.latency_ms),
+        *_latency_rows(result.latency_ms, tuple(config.methods)),
         "",
         f"Throughput: {result.frames_per_second:.2f} frames/s with {config.jobs} job(s) "
         f"({result.frames} frames in {result.wall_s:.1f} s, all methods).",

@@ -19,7 +19,7 @@ from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.sequence import SequenceWriter, read_sequence
 from rosbag_tools.ablate import ablate, sweep_points
 from rosbag_tools.cli import main, parse_params
-from rosbag_tools.frames import FrameSourceError, open_source
+from rosbag_tools.frames import FrameSourceError, open_source, spread
 from rosbag_tools.writer import write_bag
 
 METHODS = ("MRAD", "PAD", "RXD")
@@ -144,7 +144,8 @@ def test_options_split_limit_methods_and_parameters(data):
     report = json.loads((out / "metrics.json").read_text())
     params = MradParams(grid=2, tolerance=30.0)
     assert report["params"] == params.to_dict() and list(report["methods"]) == ["MRAD"]
-    frames = read_sequence(data / "seq").split("test")[:3]
+    test = read_sequence(data / "seq").split("test")
+    frames = [test[i] for i in spread(list(range(len(test))), 3)]
     overall, _ = _direct(data / "seq", params, ("MRAD",), frames)
     _same(report["methods"], overall)
 
@@ -199,7 +200,8 @@ def test_ablation_table_rows_and_baseline(data, capsys):
     assert table["frames"] == 3 and len(table["rows"]) == len(points)
     baselines = [row for row in table["rows"] if row["baseline"]]
     keys = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
-    frames = read_sequence(data / "seq").split("test")[:3]
+    test = read_sequence(data / "seq").split("test")
+    frames = [test[i] for i in spread(list(range(len(test))), 3)]
     overall, _ = _direct(data / "seq", MradParams(), ("MRAD",), frames)
     for row in baselines:
         _same({k: row[k] for k in keys}, overall["MRAD"])
@@ -232,6 +234,12 @@ def test_bag_without_its_mesh_needs_mesh_option(data, tmp_path, capsys):
         next(open_source(data / "seq", use_references=True).frames([2]))
     assert main(["evaluate", str(tmp_path / "none"), "--out", str(tmp_path / "r")]) == 1
     assert "input not found" in capsys.readouterr().err
+
+
+def test_limit_spreads_frames_over_the_split():
+    assert spread(list(range(10)), 4) == [0, 3, 6, 9]
+    assert spread(list(range(6)), 3) == [0, 3, 5]
+    assert spread([7, 8], 5) == [7, 8] and spread([4, 5, 6], 1) == [4]
 
 
 def test_parameter_parsing_errors_are_usage_errors(data, capsys):
