@@ -27,7 +27,7 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py
 	@touch $@
 
 demo: $(STAMP)
-	$(PY) -m allo_mrad_ros.demo
+	$(ISOLATED) $(PY) -m allo_mrad_ros.demo
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -264,13 +264,22 @@ class MradDetectorNode(Node):
         built_for: CameraIntrinsics | None = None
         while self._running:
             item = self._image_slot.take(timeout=0.2)
-            if item is None:
-                continue
-            msg, received = item
             with self._lock:
                 intrinsics, params = self._intrinsics, self._detector_params
                 sun, strength, bodies = self._sun_direction, self._sun_strength, list(self._bodies)
-            if intrinsics is None:
+            if intrinsics is not None and (processor is None or built_for != intrinsics):
+                # Build (or rebuild) as soon as camera_info is known, not when a frame waits.
+                try:
+                    processor = self._build_processor(intrinsics, params)
+                    built_for = intrinsics
+                except RendererError as error:
+                    self._report(MessageError("renderer", f"cannot build the renderer: {error}"))
+                    processor = None
+                    continue
+            if item is None:
+                continue
+            msg, received = item
+            if processor is None:
                 self._report(
                     MessageError(
                         "camera_info", f"no camera_info on {CAMERA_INFO_TOPIC} yet; frame skipped"
@@ -278,11 +287,8 @@ class MradDetectorNode(Node):
                 )
                 continue
             try:
-                if processor is None or built_for != intrinsics:
-                    processor = self._build_processor(intrinsics, params)
-                    built_for = intrinsics
                 processor.params = params
-                image = messages.image_to_rgb(msg, (intrinsics.width, intrinsics.height))
+                image = messages.image_to_rgb(msg, (built_for.width, built_for.height))
                 pose = self._lookup_pose(msg)
                 if pose is None:
                     continue

@@ -1,0 +1,98 @@
+"""Record the running node's outputs and pair them with their input frames by stamp.
+
+Used by ``make demo`` (live evaluation of a played bag): every time both the score and the
+mask of a stamp have arrived, ``on_frame`` gets them as arrays and the messages are dropped,
+so memory stays flat over long bags. The arrival of the input image on the same topic the
+node reads gives the end-to-end latency (input published to output received).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+from std_msgs.msg import Bool
+
+from allo_mrad_ros.ros.messages import stamp_to_ns
+
+
+@dataclass(frozen=True)
+class RecordedFrame:
+    """The node's outputs for one input frame."""
+
+    stamp_ns: int
+    score: np.ndarray
+    mask: np.ndarray
+    latency_ms: float | None
+
+
+class OutputRecorder:
+    """Subscribe to the node's ``score`` and ``mask`` (and the input image for latency).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node to create subscriptions on.
+    on_frame : callable
+        Called with a :class:`RecordedFrame` once both outputs of a stamp have arrived.
+    node_name : str
+        Fully qualified name of the detector node (its private topics are recorded).
+    image_topic : str
+        The input image topic, for end-to-end latency (empty to skip).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        on_frame: Callable[[RecordedFrame], None],
+        node_name: str = "/mrad_detector",
+        image_topic: str = "/arm_camera/image_raw",
+    ) -> None:
+        self._on_frame = on_frame
+        self._pending: dict[int, dict[str, Image]] = {}
+        self._input_arrival: dict[int, float] = {}
+        self._lock = threading.Lock()
+        self.anomaly_flags = 0
+        self.frames = 0
+        node.create_subscription(Image, f"{node_name}/score", self._store("score"), 10)
+        node.create_subscription(Image, f"{node_name}/mask", self._store("mask"), 10)
+        node.create_subscription(Bool, f"{node_name}/anomaly", self._on_anomaly, 10)
+        if image_topic:
+            node.create_subscription(Image, image_topic, self._on_input, qos_profile_sensor_data)
+
+    def _on_input(self, msg: Image) -> None:
+        with self._lock:
+            self._input_arrival[stamp_to_ns(msg.header.stamp)] = time.monotonic()
+
+    def _on_anomaly(self, msg: Bool) -> None:
+        self.anomaly_flags += int(msg.data)
+
+    def _store(self, kind: str) -> Callable[[Image], None]:
+        def store(msg: Image) -> None:
+            stamp = stamp_to_ns(msg.header.stamp)
+            with self._lock:
+                entry = self._pending.setdefault(stamp, {})
+                entry[kind] = msg
+                if len(entry) < 2:
+                    return
+                del self._pending[stamp]
+                sent = self._input_arrival.pop(stamp, None)
+            latency = None if sent is None else 1e3 * (time.monotonic() - sent)
+            score, mask = entry["score"], entry["mask"]
+            self.frames += 1
+            self._on_frame(
+                RecordedFrame(
+                    stamp,
+                    np.frombuffer(score.data, np.float32).reshape(score.height, score.width),
+                    np.frombuffer(mask.data, np.uint8).reshape(mask.height, mask.width),
+                    latency,
+                )
+            )
+
+        return store
