@@ -110,6 +110,7 @@ class MradDetectorNode(Node):
         self._sun_direction = np.asarray(values["sun_direction"], dtype=np.float64)
         self._sun_strength = float(values["sun_strength"])
         self._sun_from_topic = False
+        self._sun_directions: StampedBuffer[np.ndarray] = StampedBuffer(512)
         self._bodies: list = []
         self._counters: Counter[str] = Counter()
         self._logged_causes: set[str] = set()
@@ -238,6 +239,7 @@ class MradDetectorNode(Node):
         except MessageError as error:
             self._report(error)
             return
+        self._sun_directions.add(messages.stamp_to_ns(msg.header.stamp), direction)
         with self._lock:
             self._sun_direction, self._sun_from_topic = direction, True
 
@@ -292,6 +294,7 @@ class MradDetectorNode(Node):
                 pose = self._lookup_pose(msg)
                 if pose is None:
                     continue
+                sun = self._sun_at(msg, sun)
                 frame = processor.process(image, pose, sun, strength, bodies)
             except MessageError as error:
                 self._report(error)
@@ -328,13 +331,25 @@ class MradDetectorNode(Node):
         )
         return FrameProcessor(renderer, params)
 
+    def _sun_at(self, msg: Image, latest: np.ndarray) -> np.ndarray:
+        """The sun direction stamped nearest the image, else the latest known one."""
+        tolerance_ns = int(float(self._settings["pose_tolerance_s"]) * 1e9)
+        stamped = self._sun_directions.nearest(messages.stamp_to_ns(msg.header.stamp), tolerance_ns)
+        return latest if stamped is None else stamped
+
     def _lookup_pose(self, msg: Image) -> np.ndarray | None:
         stamp_ns = messages.stamp_to_ns(msg.header.stamp)
         tolerance_s = float(self._settings["pose_tolerance_s"])
         if self._tf_buffer is not None:
             pose = self._lookup_tf(msg, tolerance_s)
         else:
+            # Topics arrive in no guaranteed order: give the pose of this stamp a moment,
+            # as tf2's lookup with a timeout does.
+            deadline = time.monotonic() + tolerance_s
             pose = self._poses.nearest(stamp_ns, int(tolerance_s * 1e9))
+            while pose is None and time.monotonic() < deadline:
+                time.sleep(0.002)
+                pose = self._poses.nearest(stamp_ns, int(tolerance_s * 1e9))
         if pose is None:
             self._count("pose_lookup_failures")
             self.get_logger().warning(
