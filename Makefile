@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test lint bench-detector bench-render bench-node param-study station-model clean
+.PHONY: setup demo test lint bench bench-detector bench-render bench-node bench-generate synth-demo synth-bench param-study station-model clean
 
 setup: $(STAMP)
 
@@ -43,6 +43,22 @@ bench-render: $(STAMP)
 
 bench-node: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
+
+# Speed against error on the ALLO-like bench sequence (generated first if missing, ~6 min).
+bench: $(STAMP) data/bench/frames.csv
+	$(PY) -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench --out reports
+
+data/bench/frames.csv:
+	$(MAKE) synth-bench
+
+synth-bench: $(STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench --seed 0 --out data/bench --overwrite
+
+synth-demo: $(STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset demo --seed 0 --out data/demo/sequence --overwrite
+
+bench-generate: $(STAMP)
+	$(PY) -m allo_mrad_ros.benchmarks.generate --out reports/bench_generate.json
 
 station-model: $(STAMP)
 	$(PY) -m allo_mrad_ros.render.station_model --out meshes/station.glb

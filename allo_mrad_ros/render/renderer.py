@@ -183,6 +183,9 @@ class ReferenceRenderer:
         with distance squared) and the uniform ambient term.
     spot_cone_deg : float
         Full cone angle of the spotlight at the camera.
+    cull_bodies : bool
+        Add celestial bodies only when they intersect the view frustum (default). False
+        adds every body to every frame; it exists to measure what culling saves.
 
     Raises
     ------
@@ -208,6 +211,7 @@ class ReferenceRenderer:
         spot_intensity: float = SPOT_INTENSITY,
         ambient: float = AMBIENT,
         spot_cone_deg: float = SPOT_CONE_DEG,
+        cull_bodies: bool = True,
     ) -> None:
         if not isinstance(intrinsics, CameraIntrinsics):
             raise RendererError(f"intrinsics must be a CameraIntrinsics, got {type(intrinsics)}")
@@ -226,6 +230,7 @@ class ReferenceRenderer:
         self.output_intrinsics = intrinsics.scaled(scale)
         self.scale = scale
         self.shadows = bool(shadows)
+        self.cull_bodies = bool(cull_bodies)
         if model is None:
             from allo_mrad_ros.resources import share_path
 
@@ -387,7 +392,8 @@ class ReferenceRenderer:
         for body in as_bodies(bodies):
             centre, radius = pull_within(body.centre_array, body.radius, eye, self._zfar)
             optical = world_to_camera @ (centre - eye)
-            if sphere_in_view(optical, radius, self._planes, self._znear, self._zfar):
+            in_view = sphere_in_view(optical, radius, self._planes, self._znear, self._zfar)
+            if in_view or not self.cull_bodies:
                 result.append((body, centre, radius))
         return result
 

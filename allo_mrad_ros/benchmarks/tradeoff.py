@@ -1,0 +1,443 @@
+"""Speed against error (``make bench``): the knobs that trade time for accuracy.
+
+On an ALLO-like sequence (``allo-synth generate --preset bench``):
+
+1. **Sweep on the validation split**: reference render scale (1, 1/2, 1/4, 1/8), query
+   processing scale (1, 1/2), directional shadows on/off, celestial bodies always vs only in
+   view, grid 4 vs 6, the two noise-removal variants, the two score scalings. Latency per
+   frame is render plus detect, measured interleaved frame by frame so every setting sees
+   the same machine load.
+2. **Choose the default on validation only**: among the settings on the Pareto front (no
+   other setting is both faster and more accurate), the fastest whose P.AP is within
+   ``--ap-margin`` points of the best validation P.AP.
+3. **Report on the test split**: every setting again, plus PAD and RXD on the default's
+   references, so the chosen default can be compared with the most accurate setting and
+   with the paper-faithful profile.
+4. **Robustness to pose error** (test split): P.AP of the default when the reference is
+   rendered from the true pose moved by a fixed rotation or translation.
+
+Writes ``speed_vs_error.json``, ``speed_vs_error.png`` and ``pose_robustness.png``.
+
+Usage: ``python -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench --out reports``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from allo_mrad_ros.detector import METHODS, MradParams, profile
+from allo_mrad_ros.geometry import pose_matrix
+from allo_mrad_ros.metrics import MetricsAccumulator
+from allo_mrad_ros.render import CelestialBody, ReferenceRenderer
+from allo_mrad_ros.sequence import Frame, read_sequence
+from allo_mrad_ros.sequence import Sequence as AlloSequence
+
+
+@dataclass(frozen=True)
+class RenderKey:
+    """What makes two references differ: the renderer's settings."""
+
+    scale: float = 0.25
+    shadows: bool = True
+    cull_bodies: bool = True
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One point of the sweep: how the reference is rendered and how MRAD runs."""
+
+    name: str
+    render: RenderKey = RenderKey()
+    params: MradParams = field(default_factory=MradParams)
+    method: str = "MRAD"
+
+
+def sweep_settings(base: MradParams) -> list[Setting]:
+    """The swept settings: one knob at a time around ``base``, plus fast combinations."""
+    r = RenderKey()
+    half = base.replace(process_scale=0.5)
+    return [
+        Setting("baseline", r, base),
+        Setting("ref scale 1", RenderKey(1.0), base),
+        Setting("ref scale 1/2", RenderKey(0.5), base),
+        Setting("ref scale 1/8", RenderKey(0.125), base),
+        Setting("query scale 1/2", r, half),
+        Setting("no shadows", RenderKey(0.25, False), base),
+        Setting("bodies always", RenderKey(0.25, True, False), base),
+        Setting("grid 6", r, base.replace(grid=6)),
+        Setting("cell_spread", r, base.replace(noise_removal="cell_spread")),
+        Setting("per_image scaling", r, base.replace(score_scaling="per_image")),
+        Setting("ref 1/8, no shadows", RenderKey(0.125, False), base),
+        Setting("query 1/2, no shadows", RenderKey(0.25, False), half),
+        Setting("ref 1/8, query 1/2, no shadows", RenderKey(0.125, False), half),
+        Setting("paper-faithful", RenderKey(1.0), profile("paper")),
+    ]
+
+
+@dataclass
+class Outcome:
+    """Latencies and metrics of one setting over a split."""
+
+    setting: Setting
+    latency_ms: list[float] = field(default_factory=list)
+    render_ms: list[float] = field(default_factory=list)
+    detect_ms: list[float] = field(default_factory=list)
+    metrics: MetricsAccumulator = field(default_factory=MetricsAccumulator)
+
+    def row(self) -> dict:
+        """The report row."""
+        m = self.metrics.compute().as_dict()
+        s = self.setting
+        return {
+            "setting": s.name,
+            "method": s.method,
+            "ref_scale": s.render.scale,
+            "shadows": s.render.shadows,
+            "cull_bodies": s.render.cull_bodies,
+            "params": s.params.to_dict(),
+            "frames": len(self.latency_ms),
+            "latency_ms_median": float(np.median(self.latency_ms)),
+            "latency_ms_p95": float(np.percentile(self.latency_ms, 95)),
+            "render_ms_median": float(np.median(self.render_ms)),
+            "detect_ms_median": float(np.median(self.detect_ms)),
+            **m,
+        }
+
+
+def frame_bodies(frame: Frame) -> tuple[CelestialBody, ...]:
+    """Earth and Moon of a frame, where the sequence models them."""
+    bodies = []
+    for name, body in (("earth", frame.earth), ("moon", frame.moon)):
+        if body is not None:
+            bodies.append(CelestialBody(name, tuple(body[:3]), float(body[3])))
+    return tuple(bodies)
+
+
+def true_pose(frame: Frame) -> np.ndarray:
+    """The pose the image was rendered from (``true_*`` columns), else the reported one."""
+    keys = ("true_tx", "true_ty", "true_tz", "true_qx", "true_qy", "true_qz", "true_qw")
+    if all(frame.extra.get(k) for k in keys):
+        values = [float(frame.extra[k]) for k in keys]
+        return pose_matrix(values[:3], values[3:])
+    return frame.T_station_camera
+
+
+def perturbed(pose: np.ndarray, rotation_deg: float, translation_m: float, seed: int) -> np.ndarray:
+    """``pose`` turned by exactly ``rotation_deg`` and moved by exactly ``translation_m``,
+    about and along directions drawn from ``seed``."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    direction = rng.normal(size=3)
+    out = pose.copy()
+    turn = Rotation.from_rotvec(math.radians(rotation_deg) * axis / np.linalg.norm(axis))
+    out[:3, :3] = pose[:3, :3] @ turn.as_matrix()
+    out[:3, 3] = pose[:3, 3] + translation_m * direction / np.linalg.norm(direction)
+    return out
+
+
+class Sweep:
+    """Run settings over frames, rendering each distinct reference once per frame."""
+
+    def __init__(self, sequence: AlloSequence) -> None:
+        self.sequence = sequence
+        self._renderers: dict[RenderKey, ReferenceRenderer] = {}
+
+    def renderer(self, key: RenderKey) -> ReferenceRenderer:
+        """The (cached) renderer of a render key."""
+        if key not in self._renderers:
+            self._renderers[key] = ReferenceRenderer(
+                self.sequence.meta.mesh,
+                self.sequence.meta.camera,
+                scale=key.scale,
+                shadows=key.shadows,
+                cull_bodies=key.cull_bodies,
+            )
+        return self._renderers[key]
+
+    def run(
+        self,
+        frames: Sequence[Frame],
+        settings: Sequence[Setting],
+        pose_of: callable = lambda frame: frame.T_station_camera,
+        label: str = "",
+    ) -> list[Outcome]:
+        """Evaluate every setting on every frame; returns one outcome per setting."""
+        outcomes = [Outcome(s) for s in settings]
+        keys = list(dict.fromkeys(s.render for s in settings))
+        for frame in tqdm(frames, desc=label, unit="frame", leave=False):
+            image = self.sequence.load_image(frame)
+            truth = self.sequence.load_mask(frame)
+            pose = pose_of(frame)
+            references, render_ms = {}, {}
+            for key in keys:
+                start = time.perf_counter()
+                references[key] = (
+                    self.renderer(key)
+                    .render(pose, frame.sun_direction, frame.sun_strength, frame_bodies(frame))
+                    .rgb
+                )
+                render_ms[key] = 1e3 * (time.perf_counter() - start)
+            for outcome in outcomes:
+                s = outcome.setting
+                start = time.perf_counter()
+                result = METHODS[s.method](image, references[s.render], s.params)
+                detect = 1e3 * (time.perf_counter() - start)
+                outcome.render_ms.append(render_ms[s.render])
+                outcome.detect_ms.append(detect)
+                outcome.latency_ms.append(render_ms[s.render] + detect)
+                outcome.metrics.update(result.score, result.area, truth)
+        return outcomes
+
+    def close(self) -> None:
+        """Release the GL contexts."""
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()
+
+
+def pareto_front(rows: Iterable[dict]) -> list[dict]:
+    """Rows that no other row beats on both median latency and P.AP."""
+    rows = list(rows)
+    return [
+        r
+        for r in rows
+        if not any(
+            o["latency_ms_median"] <= r["latency_ms_median"]
+            and o["p_ap"] >= r["p_ap"]
+            and (o["latency_ms_median"] < r["latency_ms_median"] or o["p_ap"] > r["p_ap"])
+            for o in rows
+        )
+    ]
+
+
+def choose_default(rows: Sequence[dict], ap_margin: float) -> dict:
+    """The fastest Pareto-front row within ``ap_margin`` P.AP points of the best."""
+    best = max(r["p_ap"] for r in rows)
+    eligible = [r for r in pareto_front(rows) if r["p_ap"] >= best - ap_margin / 100.0]
+    return min(eligible, key=lambda r: r["latency_ms_median"])
+
+
+def format_table(rows: Sequence[dict], default: str | None = None) -> str:
+    """The printed table (metrics in percent)."""
+    lines = [
+        f"{'setting':<32}{'ms p50':>8}{'ms p95':>8}{'render':>8}{'detect':>8}"
+        f"{'P.AP':>7}{'I.AUROC':>9}{'P.FPR95':>9}{'P.AUROC':>9}"
+    ]
+    for r in rows:
+        mark = " *" if r["setting"] == default else ""
+        name = r["setting"] if r["method"] == "MRAD" else f"{r['method']} ({r['setting']})"
+        lines.append(
+            f"{name + mark:<32}{r['latency_ms_median']:>8.1f}{r['latency_ms_p95']:>8.1f}"
+            f"{r['render_ms_median']:>8.1f}{r['detect_ms_median']:>8.1f}"
+            f"{100 * r['p_ap']:>7.1f}{100 * r['i_auroc']:>9.1f}{100 * r['p_fpr95']:>9.1f}"
+            f"{100 * r['p_auroc']:>9.1f}"
+        )
+    return "\n".join(lines)
+
+
+def plot_pareto(rows: Sequence[dict], default: str, path: Path, title: str) -> None:
+    """Scatter of median latency against P.AP with the Pareto front and the default."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    front = {r["setting"] for r in pareto_front(rows)}
+    fig, ax = plt.subplots(figsize=(9, 6))
+    for r in rows:
+        chosen = r["setting"] == default
+        ax.scatter(
+            r["latency_ms_median"],
+            100 * r["p_ap"],
+            s=80 if chosen else 40,
+            c="tab:red" if chosen else ("tab:blue" if r["setting"] in front else "tab:gray"),
+            zorder=3,
+        )
+        ax.annotate(
+            r["setting"],
+            (r["latency_ms_median"], 100 * r["p_ap"]),
+            fontsize=7,
+            xytext=(4, 3),
+            textcoords="offset points",
+        )
+    ordered = sorted(
+        (r for r in rows if r["setting"] in front), key=lambda r: r["latency_ms_median"]
+    )
+    ax.plot(
+        [r["latency_ms_median"] for r in ordered],
+        [100 * r["p_ap"] for r in ordered],
+        "--",
+        c="tab:blue",
+        lw=1,
+        label="Pareto front",
+    )
+    ax.set_xscale("log")
+    ax.set_xlabel("median latency per frame, render + detect (ms, log scale)")
+    ax.set_ylabel("P.AP (%)")
+    ax.set_title(title)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_robustness(rows: Sequence[dict], path: Path) -> None:
+    """P.AP against rotation error and against translation error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    rot = [r for r in rows if r["translation_cm"] == 0]
+    trans = [r for r in rows if r["rotation_deg"] == 0]
+    left.plot([r["rotation_deg"] for r in rot], [100 * r["p_ap"] for r in rot], "o-")
+    right.plot([r["translation_cm"] for r in trans], [100 * r["p_ap"] for r in trans], "o-")
+    left.set_xlabel("reference rotation error (deg)")
+    right.set_xlabel("reference translation error (cm)")
+    left.set_ylabel("P.AP (%)")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    fig.suptitle("MRAD default: P.AP against reference pose error (test split)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _split(sequence: AlloSequence, name: str, limit: int | None) -> list[Frame]:
+    frames = list(sequence.split(name))
+    if not frames:
+        raise SystemExit(f"{sequence.root}: no {name!r} frames; generate the bench preset")
+    if limit is not None and limit < len(frames):
+        positions = np.linspace(0, len(frames) - 1, limit).round().astype(int)
+        frames = [frames[i] for i in positions]
+    return frames
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--sequence", type=Path, default=Path("data/bench"))
+    parser.add_argument("--out", type=Path, default=Path("reports"))
+    parser.add_argument("--limit", type=int, default=None, help="frames per split (quick run)")
+    parser.add_argument(
+        "--ap-margin",
+        type=float,
+        default=1.0,
+        help="P.AP points from the best within which the fastest is chosen",
+    )
+    args = parser.parse_args(argv)
+    sequence = read_sequence(args.sequence)
+    val, test = _split(sequence, "val", args.limit), _split(sequence, "test", args.limit)
+    settings = sweep_settings(MradParams())
+    sweep = Sweep(sequence)
+    try:
+        val_rows = [o.row() for o in sweep.run(val, settings, label="validation sweep")]
+        default = choose_default(val_rows, args.ap_margin)
+        chosen = next(s for s in settings if s.name == default["setting"])
+        print(f"validation split: {len(val)} frames ({sum(f.is_anomalous for f in val)} anomalous)")
+        print(format_table(val_rows, default["setting"]))
+        print(
+            f"* chosen default (fastest Pareto setting within {args.ap_margin:g} P.AP points of "
+            f"the best on validation): {default['setting']}\n"
+        )
+
+        baselines = [Setting(chosen.name, chosen.render, chosen.params, m) for m in ("PAD", "RXD")]
+        test_rows = [o.row() for o in sweep.run(test, [*settings, *baselines], label="test")]
+        mrad_test = [r for r in test_rows if r["method"] == "MRAD"]
+        best = max(mrad_test, key=lambda r: r["p_ap"])
+        on_test = next(r for r in mrad_test if r["setting"] == default["setting"])
+        print(f"test split: {len(test)} frames ({sum(f.is_anomalous for f in test)} anomalous)")
+        print(format_table(test_rows, default["setting"]))
+        gap = 100 * (best["p_ap"] - on_test["p_ap"])
+        speedup = best["latency_ms_median"] / on_test["latency_ms_median"]
+        print(
+            f"default on test: P.AP {100 * on_test['p_ap']:.1f}, {gap:.1f} points below the most "
+            f"accurate setting ({best['setting']}, {100 * best['p_ap']:.1f}), "
+            f"{speedup:.1f}x faster than it\n"
+        )
+
+        levels = [
+            (0.0, 0.0),
+            (0.5, 0.0),
+            (1.0, 0.0),
+            (2.0, 0.0),
+            (0.0, 0.02),
+            (0.0, 0.05),
+            (0.0, 0.10),
+        ]
+        robustness = []
+        for rotation, translation in levels:
+            outcome = sweep.run(
+                test,
+                [chosen],
+                pose_of=lambda f, r=rotation, t=translation: perturbed(true_pose(f), r, t, f.index),
+                label=f"pose error {rotation} deg {100 * translation:.0f} cm",
+            )[0]
+            robustness.append(
+                {
+                    "rotation_deg": rotation,
+                    "translation_cm": 100 * translation,
+                    "p_ap": outcome.metrics.compute().p_ap,
+                }
+            )
+        print("pose robustness of the default (test split, reference from the true pose + error)")
+        print(f"{'rotation deg':>13}{'translation cm':>16}{'P.AP':>8}")
+        for r in robustness:
+            print(f"{r['rotation_deg']:>13g}{r['translation_cm']:>16g}{100 * r['p_ap']:>8.1f}")
+    finally:
+        sweep.close()
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    plot_pareto(
+        val_rows,
+        default["setting"],
+        args.out / "speed_vs_error.png",
+        "MRAD speed against error, validation split",
+    )
+    plot_pareto(
+        mrad_test,
+        default["setting"],
+        args.out / "speed_vs_error_test.png",
+        "MRAD speed against error, test split",
+    )
+    plot_robustness(robustness, args.out / "pose_robustness.png")
+    report = {
+        "sequence": str(args.sequence),
+        "split": "val",
+        "rows": val_rows,
+        "default_setting": default["setting"],
+        "choice_rule": f"fastest Pareto-front setting within {args.ap_margin} P.AP points of "
+        "the best on validation",
+        "test_rows": test_rows,
+        "test_summary": {
+            "default_p_ap": on_test["p_ap"],
+            "best_setting": best["setting"],
+            "best_p_ap": best["p_ap"],
+            "ap_gap_points": gap,
+            "speedup_vs_best": speedup,
+        },
+        "pose_robustness": robustness,
+    }
+    (args.out / "speed_vs_error.json").write_text(json.dumps(report, indent=2) + "\n")
+    print(
+        f"written: {args.out / 'speed_vs_error.json'}, speed_vs_error.png, "
+        f"speed_vs_error_test.png, pose_robustness.png"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
