@@ -5,6 +5,10 @@ each worker builds its own :class:`~allo_mrad_ros.render.ReferenceRenderer` in i
 initializer. The parent reads frames and hands them out with at most two frames per worker
 in flight, so memory stays bounded however long the input is (``Pool.imap`` would read the
 whole input ahead). Results come back in input order.
+
+:class:`concurrent.futures.ProcessPoolExecutor` rather than ``multiprocessing.Pool``: when
+an initializer fails (no OpenGL in the worker, say) or a worker dies, the executor reports a
+broken pool at once, where ``Pool`` would restart the worker forever and hang.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import multiprocessing
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
@@ -89,21 +95,32 @@ def run_frames(
                 yield result
             return
         context = multiprocessing.get_context("spawn")
-        with context.Pool(jobs, initializer=initializer, initargs=initargs) as pool:
+        with ProcessPoolExecutor(
+            jobs, mp_context=context, initializer=initializer, initargs=initargs
+        ) as pool:
             pending: deque = deque()
             clock.start = time.perf_counter()
-            for item in jobs_in:
-                pending.append(pool.apply_async(work, (item,)))
-                while len(pending) >= 2 * jobs:
+            try:
+                for item in jobs_in:
+                    pending.append(pool.submit(work, item))
+                    while len(pending) >= 2 * jobs:
+                        yield _collect(pending, bar, clock)
+                while pending:
                     yield _collect(pending, bar, clock)
-            while pending:
-                yield _collect(pending, bar, clock)
+            except BrokenProcessPool as error:
+                raise ParallelError(
+                    f"a worker process failed to start or died ({error}); run with --jobs 1 "
+                    "to see the error"
+                ) from None
+            finally:
+                for future in pending:
+                    future.cancel()
     finally:
         bar.close()
 
 
 def _collect(pending: deque, bar: tqdm, clock: RunClock) -> Any:
-    result = pending.popleft().get()
+    result = pending.popleft().result()
     clock.end = time.perf_counter()
     bar.update(1)
     return result

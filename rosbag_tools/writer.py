@@ -26,7 +26,7 @@ from pathlib import Path
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
 from rosbags.interfaces import QosTime as _QosTime
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from tqdm import tqdm
 
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
@@ -335,6 +335,9 @@ def write_bag(
             (staging / out.name).rename(out)
     except (SequenceError, TopicError) as error:
         raise BagWriteError(str(error)) from error
+    except (OSError, WriterError) as error:
+        # Disk full, permissions, or rosbags refusing: name the bag, not a temporary path.
+        raise BagWriteError(f"{out}: cannot write the bag: {error}") from error
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return BagSummary(

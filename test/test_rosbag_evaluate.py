@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import operator
 import shutil
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from allo_mrad_ros.sequence import SequenceWriter, read_sequence
 from rosbag_tools.ablate import ablate, sweep_points
 from rosbag_tools.cli import main, parse_params
 from rosbag_tools.frames import FrameSourceError, open_source, spread
+from rosbag_tools.parallel import ParallelError, run_frames
 from rosbag_tools.writer import write_bag
 
 METHODS = ("MRAD", "PAD", "RXD")
@@ -234,6 +236,22 @@ def test_bag_without_its_mesh_needs_mesh_option(data, tmp_path, capsys):
         next(open_source(data / "seq", use_references=True).frames([2]))
     assert main(["evaluate", str(tmp_path / "none"), "--out", str(tmp_path / "r")]) == 1
     assert "input not found" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(120)
+def test_a_worker_that_cannot_start_fails_fast_instead_of_hanging():
+    # operator.truediv(1, 0) as the initializer: every worker dies while starting.
+    results = run_frames(
+        iter(range(4)),
+        4,
+        initializer=operator.truediv,
+        initargs=(1, 0),
+        work=abs,
+        jobs=2,
+        progress=False,
+    )
+    with pytest.raises(ParallelError, match="failed to start or died"):
+        list(results)
 
 
 def test_limit_spreads_frames_over_the_split():
