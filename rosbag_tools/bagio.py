@@ -1,9 +1,10 @@
 """Opening rosbag2 bags for reading: the reader, the metadata and the allo-bag custom data.
 
-Bags are read with ``rosbags``' :class:`~rosbags.highlevel.AnyReader`, which deserializes with
+Bags are read with ``rosbags``' rosbag2 :class:`~rosbags.rosbag2.Reader` and deserialized with
 the message definitions embedded in the bag, so bags of any distribution read the same.
 A bag is a rosbag2 folder (``metadata.yaml`` plus storage files) or a single ``.mcap`` or
-``.db3`` file.
+``.db3`` file. (``rosbags``' ``AnyReader`` is not used: it takes any path ending in ``.bag``
+for a ROS 1 bag, and ``out.bag`` is a common name for a rosbag2 folder.)
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ from typing import Any
 
 import numpy as np
 import yaml
-from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag2 import ReaderError
+from rosbags.interfaces import Connection, MessageDefinitionFormat
+from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg
+from rosbags.typesys import get_typestore as _get_typestore
+from rosbags.typesys.store import Typestore
 
 from rosbag_tools.topics import DEFAULT_TOPICS, TopicError, TopicNames
 
@@ -87,14 +91,93 @@ def bag_topics(path: str | PathLike[str]) -> TopicNames:
         raise BagReadError(f"{path}: malformed allo.topics in custom_data: {error}") from None
 
 
+class BagReader:
+    """An open rosbag2 bag with a typestore built from its embedded definitions.
+
+    Attributes
+    ----------
+    reader : rosbags.rosbag2.Reader
+        The open storage reader (topics, counts, times, raw messages).
+    typestore : Typestore
+        The bag's own message types.
+    """
+
+    def __init__(self, reader: Reader, typestore: Typestore) -> None:
+        self.reader = reader
+        self.typestore = typestore
+
+    @property
+    def connections(self) -> list[Connection]:
+        """Connections (topic, type, definition, QoS) of the bag."""
+        return self.reader.connections
+
+    @property
+    def topics(self) -> dict[str, Any]:
+        """Topic name -> rosbags ``TopicInfo`` (msgtype, msgcount, connections)."""
+        return self.reader.topics
+
+    @property
+    def start_time(self) -> int:
+        """Time of the first message, ns."""
+        return self.reader.start_time
+
+    @property
+    def end_time(self) -> int:
+        """One past the time of the last message, ns."""
+        return self.reader.end_time
+
+    @property
+    def message_count(self) -> int:
+        """Messages in the bag."""
+        return self.reader.message_count
+
+    def messages(self, connections: list[Connection] | None = None) -> Iterator[tuple]:
+        """Yield (connection, bag time, raw CDR) in time order."""
+        return self.reader.messages(connections=connections or ())
+
+    def deserialize(self, raw: bytes | memoryview, msgtype: str) -> Any:
+        """Decode CDR bytes with the bag's definition of ``msgtype``."""
+        return self.typestore.deserialize_cdr(raw, msgtype)
+
+
+def _typestore(connections: list[Connection], path: Path) -> Typestore:
+    types: dict = {}
+    for connection in connections:
+        definition = connection.msgdef
+        if definition.format == MessageDefinitionFormat.MSG:
+            types.update(get_types_from_msg(definition.data, connection.msgtype))
+        elif definition.format == MessageDefinitionFormat.IDL:
+            separator = "=" * 80 + "\n"
+            if definition.data.startswith(f"{separator}IDL: "):
+                for block in definition.data.split(separator)[1:]:
+                    types.update(get_types_from_idl(block.split("\n", 1)[1]))
+            else:
+                types.update(get_types_from_idl(definition.data))
+        else:
+            raise BagReadError(
+                f"{path}: topic {connection.topic} has no embedded message definition"
+            )
+    typestore = _get_typestore(Stores.EMPTY)
+    typestore.register(types)
+    for connection in connections:
+        # rosbag2 records the type hash: a definition that does not hash to it is corrupt.
+        digest = connection.digest
+        if digest.startswith("RIHS01_") and typestore.hash_rihs01(connection.msgtype) != digest:
+            raise BagReadError(
+                f"{path}: topic {connection.topic}: embedded definition of "
+                f"{connection.msgtype} does not match its type hash"
+            )
+    return typestore
+
+
 @contextmanager
-def open_bag(path: str | PathLike[str]) -> Iterator[AnyReader]:
-    """Open a bag for reading with the definitions it embeds.
+def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
+    """Open a rosbag2 bag for reading with the definitions it embeds.
 
     Yields
     ------
-    rosbags.highlevel.AnyReader
-        The open reader.
+    BagReader
+        The open bag.
 
     Raises
     ------
@@ -107,12 +190,16 @@ def open_bag(path: str | PathLike[str]) -> Iterator[AnyReader]:
     if path.is_file() and path.suffix == ".bag":
         raise BagReadError(f"{path}: ROS 1 bags are not supported, only rosbag2")
     try:
-        reader = AnyReader([path])
+        reader = Reader(path)
         reader.open()
-    except (AnyReaderError, ReaderError, FileNotFoundError, OSError, KeyError) as error:
+    except (ReaderError, FileNotFoundError, OSError, KeyError, ValueError) as error:
         raise BagReadError(f"{path}: cannot open bag: {error}") from None
     try:
-        yield reader
+        try:
+            typestore = _typestore(reader.connections, path)
+        except (TypesysError, KeyError, ValueError) as error:
+            raise BagReadError(f"{path}: unreadable message definitions: {error}") from None
+        yield BagReader(reader, typestore)
     finally:
         reader.close()
 

@@ -21,7 +21,7 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence import FRAMES_FILE, SequenceMeta, SequenceWriter, read_sequence
 from rosbag_tools.cli import main
-from rosbag_tools.info import bag_info, format_info
+from rosbag_tools.info import InfoError, bag_info, format_info
 from rosbag_tools.topics import (
     DISTROS,
     MARKER_ADD,
@@ -338,6 +338,17 @@ def test_info_lists_topics_counts_duration_and_image_sizes(tmp_path, sequence, c
     assert data["duration_s"] == pytest.approx(0.25)
     assert main(["info", str(tmp_path / "nothing")]) == 1
     assert "not found" in capsys.readouterr().err
+
+
+def test_rosbag2_folder_named_dot_bag_and_damaged_storage(tmp_path, sequence):
+    out = tmp_path / "run.bag"  # a common name for a rosbag2 folder, not a ROS 1 bag
+    write_bag(sequence.root, out)
+    assert {t.name: t.count for t in bag_info(out).topics}[T.image] == FRAMES
+    (storage,) = out.glob("*.mcap")
+    data = storage.read_bytes()
+    storage.write_bytes(data[: len(data) // 3])
+    with pytest.raises(InfoError, match=r"run\.bag"):
+        bag_info(out)
 
 
 @pytest.mark.timeout(120)
