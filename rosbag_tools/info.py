@@ -114,6 +114,11 @@ def bag_info(path: str | PathLike[str]) -> BagInfo:
     )
 
 
+def _seconds(ns: int) -> str:
+    # Exact: a float would print 1893456050.900000095 for a stamp of ...050.9 s.
+    return f"{ns // 10**9}.{ns % 10**9:09d}"
+
+
 def format_info(info: BagInfo) -> str:
     """Human-readable text of :func:`bag_info`'s result."""
     version = f" (rosbag2 version {info.version})" if info.version is not None else ""
@@ -121,7 +126,7 @@ def format_info(info: BagInfo) -> str:
         f"bag:       {info.path}",
         f"storage:   {info.storage}{version}",
         f"duration:  {info.duration_s:.3f} s "
-        f"(first {info.start_ns / 1e9:.9f} s, last {info.end_ns / 1e9:.9f} s)",
+        f"(first {_seconds(info.start_ns)} s, last {_seconds(info.end_ns)} s)",
         f"messages:  {info.message_count}",
     ]
     custom = info.custom_data
