@@ -136,7 +136,8 @@ def play_bag(
         Called with (topic, bag time) after every publish.
     wait_for : iterable of str
         Before the delay, wait until each of these topics has a matched subscriber (e.g.
-        the detector's image topic), so nothing is published into the void.
+        the detector's image topic), so nothing is published into the void. ``/clock``
+        may be one of them when ``clock`` is set.
     wait_timeout : float
         Seconds to wait for those subscribers before giving up with :class:`PlayError`.
 
@@ -257,7 +258,10 @@ def _play(
     connections = [c for c in reader.connections if c.id in publishers]
     if not connections:
         raise PlayError(f"{path}: nothing to play, every topic was skipped")
-    _wait_for_subscribers(by_topic, wait_for, wait_timeout, stop, path)
+    waitable = dict(by_topic)
+    if clock_publisher is not None:
+        waitable["/clock"] = clock_publisher
+    _wait_for_subscribers(waitable, wait_for, wait_timeout, stop, path)
     if stop.wait(delay):
         return
     checked: set[int] = set()

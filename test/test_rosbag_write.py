@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -422,3 +423,62 @@ def test_play_publishes_the_bag_into_an_rclpy_subscriber(tmp_path, sequence):
         sorted(n for n, v in (("earth", f.earth), ("moon", f.moon)) if v is not None)
         for f in frames
     ]
+
+
+@pytest.mark.timeout(120)
+def test_play_loops_filters_topics_and_publishes_the_clock(tmp_path, sequence):
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+
+    from rosbag_tools.play import PlayError, play_bag
+
+    out = tmp_path / "bag"
+    write_bag(sequence.root, out)
+    with pytest.raises(PlayError, match="rate must be positive"):
+        play_bag(out, rate=0.0)
+    with pytest.raises(PlayError, match="no topic"):
+        play_bag(out, topics=["/nope"], delay=0)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("allo_bag_loop_listener", context=context)
+    labels, clocks = [], []
+    node.create_subscription(String, T.label, labels.append, QoSProfile(depth=50))
+    node.create_subscription(Clock, "/clock", clocks.append, QoSProfile(depth=50))
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    result = {}
+
+    def player() -> None:
+        result["summary"] = play_bag(
+            out,
+            rate=10.0,
+            loop=True,
+            passes=2,
+            topics=[T.label],
+            clock=True,
+            delay=0.0,
+            wait_for=[T.label, "/clock"],
+            node_name="allo_bag_loop_player",
+        )
+
+    thread = threading.Thread(target=player)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and (thread.is_alive() or len(labels) < 2 * FRAMES):
+            executor.spin_once(timeout_sec=0.05)
+            if not thread.is_alive() and time.monotonic() > deadline - 50:
+                break
+    finally:
+        thread.join(timeout=30)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    summary = result["summary"]
+    assert summary.passes == 2 and summary.published == {T.label: 2 * FRAMES}
+    assert [m.data for m in labels] == ["normal", "drill"] * 6
+    stamps = [c.clock.sec * 10**9 + c.clock.nanosec for c in clocks]
+    assert stamps[:FRAMES] == [f.stamp_ns for f in sequence.frames]
