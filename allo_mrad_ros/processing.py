@@ -6,6 +6,7 @@ measured offline is what runs online.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -13,7 +14,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from allo_mrad_ros.detector import METHODS, DetectionResult, MradParams
+from allo_mrad_ros.ephemeris import SUN_DISTANCE_M, SUN_RADIUS_KM
 from allo_mrad_ros.render import CelestialBody, ReferenceRenderer
+
+# Mean apparent radius of the Sun from the Earth-Moon system (1 au): 0.2665 degrees.
+SUN_ANGULAR_RADIUS_RAD = math.asin(SUN_RADIUS_KM / 149_597_870.7)
 
 
 class ProcessingError(ValueError):
@@ -42,6 +47,23 @@ class ProcessedFrame:
     def primary(self) -> DetectionResult:
         """The first method's result (MRAD for the node)."""
         return next(iter(self.results.values()))
+
+
+def with_sun(
+    bodies: Sequence[CelestialBody | Sequence], sun_direction: Sequence[float]
+) -> list[CelestialBody | Sequence]:
+    """``bodies`` plus the Sun's disc along ``sun_direction``, unless a ``sun`` is there."""
+    bodies = list(bodies)
+    names = {b.name if isinstance(b, CelestialBody) else b[0] for b in bodies}
+    if "sun" in names:
+        return bodies
+    direction = np.asarray(sun_direction, dtype=np.float64)
+    norm = float(np.linalg.norm(direction))
+    if not np.isfinite(norm) or norm == 0.0:
+        return bodies  # the renderer reports the invalid direction itself
+    centre = tuple(SUN_DISTANCE_M * direction / norm)
+    radius = SUN_DISTANCE_M * math.tan(SUN_ANGULAR_RADIUS_RAD)
+    return [*bodies, CelestialBody("sun", centre, radius)]
 
 
 class FrameProcessor:
@@ -80,7 +102,13 @@ class FrameProcessor:
         sun_strength: float = 1.0,
         bodies: Sequence[CelestialBody | Sequence] = (),
     ) -> np.ndarray:
-        """The reference RGB image for a camera pose and lighting."""
+        """The reference RGB image for a camera pose and lighting.
+
+        The Sun's disc is in the camera image whenever the Sun is in view, so unless
+        ``bodies`` already has a ``sun``, one is added along ``sun_direction`` with its
+        true apparent size (the renderer culls it when out of view, at no cost).
+        """
+        bodies = with_sun(bodies, sun_direction)
         return self.renderer.render(T_station_camera, sun_direction, sun_strength, bodies).rgb
 
     def process(

@@ -231,3 +231,12 @@ def test_profiles():
     )
     with pytest.raises(ValueError, match="unknown MRAD profile 'best'"):
         profile("best")
+
+
+def test_blurred_pixel_score_keeps_the_mask_and_ranks_every_pixel(pair):
+    regions = detect(pair.query, pair.reference)
+    blurred = detect(pair.query, pair.reference, MradParams(pixel_score="blurred"))
+    np.testing.assert_array_equal(regions.mask, blurred.mask)
+    inside = regions.mask > 0
+    np.testing.assert_array_equal(regions.score[inside], blurred.score[inside])
+    assert blurred.score[~inside].any() and not regions.score[~inside].any()

@@ -64,3 +64,23 @@ def test_wrong_image_size_and_unknown_method_are_named(renderers, pose):
         FrameProcessor(reference_renderer).process(np.zeros((10, 10, 3), np.uint8), pose, SUN)
     with pytest.raises(ProcessingError, match="unknown detection method"):
         FrameProcessor(reference_renderer, methods=("MRAD", "YOLO"))
+
+
+def test_sun_disc_is_added_to_the_reference_only_when_in_view(renderers):
+    from allo_mrad_ros.processing import with_sun
+
+    _, reference_renderer = renderers
+    processor = FrameProcessor(reference_renderer)
+    sun = np.array([0.2, -0.3, 0.93])
+    sun /= np.linalg.norm(sun)
+    eye = 100.0 * sun  # outside the station, on its sunny side
+    towards_sun = look_at(eye, 200.0 * sun, up=(1.0, 0.0, 0.0))
+    reference = processor.render_reference(towards_sun, sun)
+    assert reference[87:93, 157:163].max() > 200  # the disc (about 1 px radius here), ahead
+    rendered = reference_renderer.render(towards_sun, sun, bodies=with_sun([], sun))
+    assert rendered.bodies_in_view == ("sun",)
+    away = look_at(eye, [0.0, 0.0, 0.0], up=(1.0, 0.0, 0.0))
+    assert reference_renderer.render(away, sun, bodies=with_sun([], sun)).bodies_in_view == ()
+    assert [b.name for b in with_sun([], sun)] == ["sun"]
+    given = [("sun", (1.0, 0.0, 0.0), 5.0)]
+    assert with_sun(given, sun) == given

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 ScoreScaling = Literal["fixed", "per_image"]
 NoiseRemoval = Literal["local_std", "cell_spread", "none"]
+PixelScore = Literal["regions", "blurred"]
 
 SCORE_RANGE = 255.0
 
@@ -62,6 +63,10 @@ class MradParams:
     process_scale : float
         Linear scale at which the query is processed, (0, 1]; outputs are returned at the
         query's resolution.
+    pixel_score : {"regions", "blurred"}
+        What ``DetectionResult.score`` holds: ``regions`` (mrad.md) keeps the blurred map
+        inside the grown regions only; ``blurred`` keeps the whole blurred map (the mask is
+        the same either way).
     """
 
     grid: int = 4
@@ -79,6 +84,7 @@ class MradParams:
     connectivity: int = 8
     area_threshold: float = 0.001
     process_scale: float = 1.0
+    pixel_score: PixelScore = "regions"
 
     def __post_init__(self) -> None:
         for name, spec in PARAMETER_SPECS.items():
@@ -186,6 +192,11 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
     ),
     "process_scale": ParameterSpec(
         float, "linear scale at which the query is processed", 0, 1, low_open=True
+    ),
+    "pixel_score": ParameterSpec(
+        str,
+        "score output: regions (blurred map inside grown regions, mrad.md) or blurred (whole map)",
+        choices=("regions", "blurred"),
     ),
 }
 

@@ -136,8 +136,8 @@ def detect(
     with timer.stage("region_growing"):
         mask = grow_regions(blurred, seeds, params.tolerance, params.min_score, params.connectivity)
     with timer.stage("decision"):
-        score = _masked(blurred, mask)
-        score, mask = _restore_resolution(score, mask, full_shape)
+        score = _masked(blurred, mask) if params.pixel_score == "regions" else blurred
+        score, mask = _restore_resolution(score, mask, full_shape, params.pixel_score)
         area, anomalous = decide(mask, params.area_threshold)
     return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
 
@@ -197,14 +197,14 @@ def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:
 
 
 def _restore_resolution(
-    score: np.ndarray, mask: np.ndarray, shape: tuple[int, int]
+    score: np.ndarray, mask: np.ndarray, shape: tuple[int, int], pixel_score: str
 ) -> tuple[np.ndarray, np.ndarray]:
     if score.shape == shape:
         return score, mask
     size = (shape[1], shape[0])
     score = cv2.resize(score, size, interpolation=cv2.INTER_LINEAR)
     mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
-    return _masked(score, mask), mask
+    return (_masked(score, mask) if pixel_score == "regions" else score), mask
 
 
 def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
