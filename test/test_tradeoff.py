@@ -1,0 +1,69 @@
+"""The speed-against-error benchmark's selection rule and pose perturbation."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from allo_mrad_ros.benchmarks.tradeoff import (
+    choose_default,
+    pareto_front,
+    perturbed,
+    sweep_settings,
+)
+from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.geometry import look_at
+
+
+def row(name, latency, p_ap, conforms=True):
+    return {
+        "setting": name,
+        "method": "MRAD",
+        "latency_ms_median": latency,
+        "p_ap": p_ap,
+        "conforms_to_mrad_md": conforms,
+    }
+
+
+ROWS = [
+    row("slow best", 200.0, 0.460),
+    row("fast close", 40.0, 0.455),
+    row("fastest poor", 15.0, 0.300),
+    row("dominated", 60.0, 0.440),
+    row("outside the spec", 10.0, 0.700, conforms=False),
+]
+
+
+def test_pareto_front_drops_dominated_rows():
+    names = {r["setting"] for r in pareto_front(ROWS[:4])}
+    assert names == {"slow best", "fast close", "fastest poor"}
+
+
+def test_default_is_the_fastest_within_the_margin_and_follows_the_spec():
+    assert choose_default(ROWS, ap_margin=1.0)["setting"] == "fast close"
+    assert choose_default(ROWS, ap_margin=0.1)["setting"] == "slow best"
+    assert choose_default(ROWS, ap_margin=20.0)["setting"] == "fastest poor"
+
+
+@pytest.mark.parametrize(("degrees", "metres"), [(0.0, 0.0), (0.5, 0.0), (2.0, 0.0), (0.0, 0.1)])
+def test_perturbation_has_exactly_the_requested_size(degrees, metres):
+    pose = look_at([10.0, -5.0, 3.0], [0.0, 0.0, 0.0])
+    moved = perturbed(pose, degrees, metres, seed=7)
+    angle = Rotation.from_matrix(pose[:3, :3].T @ moved[:3, :3]).magnitude()
+    assert math.degrees(angle) == pytest.approx(degrees, abs=1e-9)
+    assert np.linalg.norm(moved[:3, 3] - pose[:3, 3]) == pytest.approx(metres, abs=1e-12)
+    np.testing.assert_array_equal(moved, perturbed(pose, degrees, metres, seed=7))
+
+
+def test_sweep_covers_the_issue_knobs_and_names_are_unique():
+    settings = sweep_settings(MradParams())
+    names = [s.name for s in settings]
+    assert len(names) == len(set(names))
+    assert {s.render.scale for s in settings} == {1.0, 0.5, 0.25, 0.125}
+    assert {s.params.process_scale for s in settings} == {1.0, 0.5}
+    assert {s.render.shadows for s in settings} == {True, False}
+    assert {s.render.cull_bodies for s in settings} == {True, False}
+    assert {s.params.grid for s in settings} >= {4, 6}
+    assert {s.params.noise_removal for s in settings} >= {"local_std", "cell_spread"}
+    assert {s.params.score_scaling for s in settings} == {"fixed", "per_image"}
