@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test lint bench bench-detector bench-render bench-node bench-generate synth-demo synth-bench param-study station-model clean
+.PHONY: setup demo test lint bench bench-detector bench-render bench-node bench-generate eval-bench ablate-bench synth-demo synth-bench param-study station-model clean
 
 setup: $(STAMP)
 
@@ -56,6 +56,12 @@ synth-bench: $(STAMP)
 
 synth-demo: $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.cli generate --preset demo --seed 0 --out data/demo/sequence --overwrite
+
+eval-bench: $(STAMP) data/bench/frames.csv
+	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --jobs 2
+
+ablate-bench: $(STAMP) data/bench/frames.csv
+	$(PY) -m rosbag_tools ablate data/bench --out reports/ablate_bench --jobs 2
 
 bench-generate: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.generate --out reports/bench_generate.json

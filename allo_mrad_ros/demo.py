@@ -187,7 +187,8 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
         _prime_camera_info(listener, sequence.meta.camera, logs / "node.log")
         _step(4, f"playing the bag at {rate:g}x into the node and recording its outputs")
         player = subprocess.Popen(
-            [python, "-m", "rosbag_tools", "play", str(bag_dir), "--rate", str(rate)],
+            [python, "-m", "rosbag_tools", "play", str(bag_dir), "--rate", str(rate),
+             "--wait-for", "/arm_camera/image_raw"],
             stdout=(logs / "play.log").open("w"),
             stderr=subprocess.STDOUT,
         )
