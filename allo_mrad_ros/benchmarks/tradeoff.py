@@ -39,6 +39,7 @@ from tqdm import tqdm
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.geometry import pose_matrix
 from allo_mrad_ros.metrics import MetricsAccumulator
+from allo_mrad_ros.processing import with_sun
 from allo_mrad_ros.render import CelestialBody, ReferenceRenderer
 from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence
@@ -213,9 +214,11 @@ class Sweep:
             references, render_ms = {}, {}
             for key in keys:
                 start = time.perf_counter()
+                # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
+                bodies = with_sun(frame_bodies(frame), frame.sun_direction)
                 references[key] = (
                     self.renderer(key)
-                    .render(pose, frame.sun_direction, frame.sun_strength, frame_bodies(frame))
+                    .render(pose, frame.sun_direction, frame.sun_strength, bodies)
                     .rgb
                 )
                 render_ms[key] = 1e3 * (time.perf_counter() - start)
