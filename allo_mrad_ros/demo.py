@@ -31,6 +31,7 @@ import numpy as np
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.metrics import MetricsAccumulator
+from allo_mrad_ros.render import DEFAULT_SCALE
 from allo_mrad_ros.resources import share_path
 
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
@@ -187,8 +188,17 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
         _prime_camera_info(listener, sequence.meta.camera, logs / "node.log")
         _step(4, f"playing the bag at {rate:g}x into the node and recording its outputs")
         player = subprocess.Popen(
-            [python, "-m", "rosbag_tools", "play", str(bag_dir), "--rate", str(rate),
-             "--wait-for", "/arm_camera/image_raw"],
+            [
+                python,
+                "-m",
+                "rosbag_tools",
+                "play",
+                str(bag_dir),
+                "--rate",
+                str(rate),
+                "--wait-for",
+                "/arm_camera/image_raw",
+            ],
             stdout=(logs / "play.log").open("w"),
             stderr=subprocess.STDOUT,
         )
@@ -299,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=0.5, help="bag playback speed multiple")
     parser.add_argument("--builtin", action="store_true", help="built-in example, no ROS")
     parser.add_argument("--profile", default="default", help="detector profile (--builtin)")
-    parser.add_argument("--ref-scale", type=float, default=0.25, help="(--builtin)")
+    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE, help="(--builtin)")
     args = parser.parse_args(argv)
     if args.builtin:
         return run_builtin(args.out, args.profile, args.ref_scale)

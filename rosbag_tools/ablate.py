@@ -26,7 +26,7 @@ import numpy as np
 from allo_mrad_ros.detector import MradParams
 from allo_mrad_ros.metrics import AlloMetrics, MetricsAccumulator
 from allo_mrad_ros.processing import FrameProcessor
-from allo_mrad_ros.render import DEFAULT_SCALE
+from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from rosbag_tools.evaluate import (
     MethodOutcome,
     RendererSetup,
@@ -174,7 +174,7 @@ def ablate(
     *,
     base: MradParams | None = None,
     ref_scale: float = DEFAULT_SCALE,
-    shadows: bool = True,
+    shadows: bool = DEFAULT_SHADOWS,
     split: str | None = None,
     limit: int | None = None,
     jobs: int = 1,

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from allo_mrad_ros.detector import PROFILES, MradParams, profile
-from allo_mrad_ros.render import DEFAULT_SCALE
+from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
 
@@ -152,7 +152,12 @@ def _parser() -> argparse.ArgumentParser:
             help="use the sequence's pre-rendered references instead of rendering",
         )
         sub.add_argument("--mesh", type=Path, help="station model instead of the input's own")
-        sub.add_argument("--no-shadows", action="store_true", help="render without Sun shadows")
+        sub.add_argument(
+            "--shadows",
+            action=argparse.BooleanOptionalAction,
+            default=DEFAULT_SHADOWS,
+            help=f"render Sun shadows in the reference (default {DEFAULT_SHADOWS})",
+        )
         sub.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "evaluate":
             sub.add_argument(
@@ -232,7 +237,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         methods=methods,
         params=params,
         ref_scale=args.ref_scale,
-        shadows=not args.no_shadows,
+        shadows=args.shadows,
         split=args.split,
         limit=args.limit,
         jobs=args.jobs,
@@ -257,7 +262,7 @@ def _ablate(args: argparse.Namespace) -> int:
         _source(args),
         base=parse_params(args.profile, args.set),
         ref_scale=args.ref_scale,
-        shadows=not args.no_shadows,
+        shadows=args.shadows,
         split=args.split,
         limit=args.limit,
         jobs=args.jobs,

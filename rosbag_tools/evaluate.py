@@ -33,7 +33,7 @@ from allo_mrad_ros.metrics import (
     PixelScoreHistogram,
 )
 from allo_mrad_ros.processing import FrameProcessor
-from allo_mrad_ros.render import DEFAULT_SCALE, ReferenceRenderer
+from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
 from rosbag_tools.frames import EvalFrame, FrameSource, open_source
 from rosbag_tools.parallel import RunClock, run_frames
 
@@ -76,7 +76,7 @@ class EvaluationConfig:
     methods: tuple[str, ...] = ALL_METHODS
     params: MradParams = field(default_factory=MradParams)
     ref_scale: float = DEFAULT_SCALE
-    shadows: bool = True
+    shadows: bool = DEFAULT_SHADOWS
     split: str | None = None
     limit: int | None = None
     jobs: int = 1

@@ -64,7 +64,9 @@ def test_full_hd_example_meets_iou():
 def test_identical_query_and_reference_are_not_anomalous(pair):
     result = detect(pair.reference, pair.reference)
     assert not result.anomalous and result.area == 0
-    assert np.abs(result.raw_score).max() < 1e-3
+    # At full resolution the query is the reference pixel for pixel: the score cancels.
+    exact = detect(pair.reference, pair.reference, MradParams(process_scale=1.0))
+    assert not exact.anomalous and np.abs(exact.raw_score).max() < 1e-3
 
 
 def test_repeat_runs_are_bit_identical(pair):
@@ -98,7 +100,7 @@ def test_degenerate_cells(fill):
 def test_single_pixel_cells():
     rng = np.random.default_rng(1)
     image = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
-    result = detect(image, image.copy(), MradParams(grid=16))
+    result = detect(image, image.copy(), MradParams(grid=16, process_scale=1.0))
     assert_well_formed(result, (16, 16))
     assert not result.anomalous
 
@@ -106,7 +108,13 @@ def test_single_pixel_cells():
 def test_image_smaller_than_grid_is_rejected():
     image = np.zeros((3, 3, 3), dtype=np.uint8)
     with pytest.raises(ValueError, match="grid=4 is too fine for a 3x3 image"):
-        detect(image, image)
+        detect(image, image, MradParams(grid=4, process_scale=1.0))
+    with pytest.raises(
+        ValueError,
+        match=r"grid=6 is too fine for the 12x8 query processed at "
+        r"process_scale=0.5 \(6x4\)",
+    ):
+        detect(np.zeros((8, 12, 3), np.uint8), np.zeros((8, 12, 3), np.uint8))
 
 
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32, np.float64])
@@ -156,9 +164,12 @@ def test_constant_score_map_gives_no_seeds_and_empty_mask():
     ids=lambda c: "-".join(f"{k}={v}" for k, v in c.items()),
 )
 def test_extreme_and_alternative_parameters_stay_well_formed(pair, changes):
-    result = detect(pair.query, pair.reference, MradParams().replace(**changes))
+    params = MradParams().replace(**changes)
+    result = detect(pair.query, pair.reference, params)
     assert_well_formed(result, pair.query.shape[:2])
-    clean = detect(pair.reference, pair.reference, MradParams().replace(**changes))
+    # A clean frame at full resolution: identical statistics, nothing to find. (Per-image
+    # scaling stretches any residual to 255, which is why it is not the default.)
+    clean = detect(pair.reference, pair.reference, params.replace(process_scale=1.0))
     assert not clean.anomalous
 
 
@@ -220,22 +231,30 @@ def test_invalid_parameters_raise_value_error_naming_them(changes, message):
 
 def test_profiles():
     assert profile("default") == MradParams()
-    assert profile("paper").score_scaling == "per_image"
-    assert profile("fast", grid=6).grid == 6
-    paper = MradParams()
+    paper = profile("paper")
     assert (paper.grid, paper.tolerance, paper.kernel_fraction, paper.blur_sigma) == (
         4,
         50.0,
         0.2,
         5.0,
     )
+    assert (paper.score_scaling, paper.noise_removal, paper.process_scale) == (
+        "per_image",
+        "local_std",
+        1.0,
+    )
+    assert profile("baseline") == paper.replace(score_scaling="fixed")
+    assert profile("accurate") == MradParams(process_scale=1.0)
+    assert profile("baseline", grid=8).grid == 8
     with pytest.raises(ValueError, match="unknown MRAD profile 'best'"):
         profile("best")
 
 
 def test_blurred_pixel_score_keeps_the_mask_and_ranks_every_pixel(pair):
-    regions = detect(pair.query, pair.reference)
-    blurred = detect(pair.query, pair.reference, MradParams(pixel_score="blurred"))
+    regions = detect(pair.query, pair.reference, MradParams(process_scale=1.0))
+    blurred = detect(
+        pair.query, pair.reference, MradParams(process_scale=1.0, pixel_score="blurred")
+    )
     np.testing.assert_array_equal(regions.mask, blurred.mask)
     inside = regions.mask > 0
     np.testing.assert_array_equal(regions.score[inside], blurred.score[inside])

@@ -75,6 +75,8 @@ def test_config_file_sets_only_declared_parameters_with_valid_values():
         validate(name, declared[name], value)
     for name, parameter in detector_parameters().items():
         assert values[name] == parameter.default, f"{name}: config and library defaults differ"
+    for name in ("reference_scale", "shadows"):
+        assert values[name] == declared[name].default, f"{name}: config and node defaults differ"
 
 
 @pytest.mark.skipif(

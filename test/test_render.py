@@ -362,7 +362,7 @@ def test_bad_scale_raises(scale):
 
 
 def test_committed_station_renders(camera_pose):
-    with ReferenceRenderer(None, ALLO_INTRINSICS, scale=0.1) as renderer:
+    with ReferenceRenderer(None, ALLO_INTRINSICS, scale=0.1, shadows=True) as renderer:
         assert renderer.shadows
         result = renderer.render(look_at([20, -35, 18], [5, 0, 0]), SUN, labels=True)
     assert 0.02 < np.mean(result.labels == LABEL_STATION) < 0.6

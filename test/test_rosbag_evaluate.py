@@ -261,7 +261,7 @@ def test_limit_spreads_frames_over_the_split():
 
 
 def test_parameter_parsing_errors_are_usage_errors(data, capsys):
-    assert parse_params("fast", ["grid=3"]) == MradParams(process_scale=0.5, grid=3)
+    assert parse_params("accurate", ["grid=3"]) == MradParams(process_scale=1.0, grid=3)
     for bad in (
         ["--set", "grid=two"],
         ["--set", "nope=1"],

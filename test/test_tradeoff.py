@@ -12,7 +12,7 @@ from allo_mrad_ros.benchmarks.tradeoff import (
     perturbed,
     sweep_settings,
 )
-from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.detector import profile
 from allo_mrad_ros.geometry import look_at
 
 
@@ -57,7 +57,7 @@ def test_perturbation_has_exactly_the_requested_size(degrees, metres):
 
 
 def test_sweep_covers_the_issue_knobs_and_names_are_unique():
-    settings = sweep_settings(MradParams())
+    settings = sweep_settings(profile("baseline"))
     names = [s.name for s in settings]
     assert len(names) == len(set(names))
     assert {s.render.scale for s in settings} == {1.0, 0.5, 0.25, 0.125}

@@ -23,9 +23,10 @@ from types import ModuleType
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector import MradParams, detect
+from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
+from allo_mrad_ros.render import DEFAULT_SCALE
 
 _ORACLE_PATH = Path(__file__).resolve().parents[2] / "test" / "mrad_oracle.py"
 
@@ -47,12 +48,12 @@ def _summary(samples: list[float]) -> dict[str, float]:
     return {"median": float(np.median(samples)), "p95": float(np.percentile(samples, 95))}
 
 
-def run(frames: int, warmup: int, oracle_frames: int, ref_scale: float) -> dict:
+def run(frames: int, warmup: int, oracle_frames: int, ref_scale: float, profile_name: str) -> dict:
     """Time ``detect`` and the oracle on the built-in 1080p example; return the figures."""
     pair = example_pair(1080, 1920)
     ref_size = (round(1920 * ref_scale), round(1080 * ref_scale))
     reference = cv2.resize(pair.reference, ref_size, interpolation=cv2.INTER_AREA)
-    params = MradParams()
+    params = profile(profile_name)
     for _ in range(warmup):
         detect(pair.query, reference, params)
     totals: list[float] = []
@@ -70,6 +71,7 @@ def run(frames: int, warmup: int, oracle_frames: int, ref_scale: float) -> dict:
         "reference": f"{ref_size[0]}x{ref_size[1]}",
         "frames": frames,
         "warmup": warmup,
+        "profile": profile_name,
         "params": params.to_dict(),
         "stages_ms": {name: _summary(values) for name, values in stages.items()},
         "detect_ms_median": float(np.median(totals)),
@@ -83,12 +85,19 @@ def run(frames: int, warmup: int, oracle_frames: int, ref_scale: float) -> dict:
         report["oracle_ms_median"] = None
         report["speedup_vs_oracle"] = None
     else:
-        fast = cross_score(pair.query, reference, params.grid, params.abs_floor, params.rel_floor)
+        # The oracle scores the query at the resolution detect() processes it at.
+        scale = params.process_scale
+        size = (round(1920 * scale), round(1080 * scale))
+        query = (
+            cv2.resize(pair.query, size, interpolation=cv2.INTER_AREA) if scale < 1 else pair.query
+        )
+        report["processed_image"] = f"{size[0]}x{size[1]}"
+        fast = cross_score(query, reference, params.grid, params.abs_floor, params.rel_floor)
         oracle_times = []
         for _ in range(oracle_frames):
             start = time.perf_counter()
             exact = oracle.cross_score_vectorised(
-                pair.query, reference, params.grid, params.abs_floor, params.rel_floor
+                query, reference, params.grid, params.abs_floor, params.rel_floor
             )
             oracle_times.append(1e3 * (time.perf_counter() - start))
         error = np.abs(fast.astype(np.float64) - exact)
@@ -113,7 +122,8 @@ def _cpu_count() -> int:
 def format_report(report: dict) -> str:
     """The report as the table the benchmark prints."""
     lines = [
-        f"detect() on {report['image']} (reference {report['reference']}), "
+        f"detect() on {report['image']} (reference {report['reference']}, profile "
+        f"{report['profile']!r}, processed at {report.get('processed_image', report['image'])}), "
         f"{report['frames']} frames after {report['warmup']} warm-up, "
         f"{report['machine']['cpus']} CPUs",
         f"{'stage':<18}{'median ms':>12}{'p95 ms':>10}",
@@ -125,7 +135,8 @@ def format_report(report: dict) -> str:
     )
     if report.get("oracle_ms_median") is not None:
         lines.append(
-            f"float64 per-pixel oracle (cross score only): {report['oracle_ms_median']:.1f} ms "
+            f"float64 per-pixel oracle (cross score only, same resolution): "
+            f"{report['oracle_ms_median']:.1f} ms "
             f"median over {report['oracle_frames']} frames"
         )
         lines.append(
@@ -147,12 +158,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=30, help="timed frames (>= 20)")
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--oracle-frames", type=int, default=5)
-    parser.add_argument("--ref-scale", type=float, default=0.25, help="reference render scale")
+    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE, help="reference scale")
+    parser.add_argument("--profile", default="default", help="detector parameter profile")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_detector.json"))
     args = parser.parse_args(argv)
     if args.frames < 20:
         parser.error("--frames must be at least 20")
-    report = run(args.frames, args.warmup, args.oracle_frames, args.ref_scale)
+    report = run(args.frames, args.warmup, args.oracle_frames, args.ref_scale, args.profile)
     print(format_report(report))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")

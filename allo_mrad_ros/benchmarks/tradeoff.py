@@ -47,7 +47,7 @@ from allo_mrad_ros.sequence import Sequence as AlloSequence
 
 @dataclass(frozen=True)
 class RenderKey:
-    """What makes two references differ: the renderer's settings."""
+    """What makes two references differ: the renderer's settings (sweep baseline values)."""
 
     scale: float = 0.25
     shadows: bool = True
@@ -289,7 +289,8 @@ def plot_pareto(rows: Sequence[dict], default: str, path: Path, title: str) -> N
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    front = {r["setting"] for r in pareto_front(rows)}
+    conforming = [r for r in rows if r.get("conforms_to_mrad_md", True)]
+    front = {r["setting"] for r in pareto_front(conforming)}
     fig, ax = plt.subplots(figsize=(9, 6))
     for r in rows:
         chosen = r["setting"] == default
@@ -377,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     sequence = read_sequence(args.sequence)
     val, test = _split(sequence, "val", args.limit), _split(sequence, "test", args.limit)
-    settings = sweep_settings(MradParams())
+    settings = sweep_settings(profile("baseline"))
     sweep = Sweep(sequence)
     try:
         val_rows = [o.row() for o in sweep.run(val, settings, label="validation sweep")]

@@ -112,6 +112,12 @@ def detect(
     check_aspect(query, reference)
     full_shape = query.shape[:2]
     work = _resize_query(query, params.process_scale)
+    if params.process_scale < 1.0 and min(work.shape[:2]) < params.grid:
+        raise ValueError(
+            f"grid={params.grid} is too fine for the {full_shape[1]}x{full_shape[0]} query "
+            f"processed at process_scale={params.process_scale} "
+            f"({work.shape[1]}x{work.shape[0]}); use a larger image or process_scale=1"
+        )
     with timer.stage("cross_score"):
         raw = cross_score(work, reference, params.grid, params.abs_floor, params.rel_floor)
     with timer.stage("scale_threshold"):

@@ -8,6 +8,7 @@ from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
 from allo_mrad_ros.render.renderer import (
     DEFAULT_SCALE,
+    DEFAULT_SHADOWS,
     LABEL_ANOMALY,
     LABEL_SPACE,
     LABEL_STATION,
@@ -18,6 +19,7 @@ from allo_mrad_ros.render.renderer import (
 
 __all__ = [
     "DEFAULT_SCALE",
+    "DEFAULT_SHADOWS",
     "LABEL_ANOMALY",
     "LABEL_SPACE",
     "LABEL_STATION",

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
+from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 
 DETECTOR_PREFIX = "mrad."
 
@@ -68,14 +69,16 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
             True,
         ),
         "reference_scale": NodeParameter(
-            0.25, _number("linear scale of the rendered reference", 0.05, 1.0), True
+            DEFAULT_SCALE, _number("linear scale of the rendered reference", 0.05, 1.0), True
         ),
         "render_backend": NodeParameter(
             "",
             _choice("OpenGL backend: osmesa, egl, or empty to choose", "", "osmesa", "egl"),
             True,
         ),
-        "shadows": NodeParameter(True, _flag("render directional shadows from the Sun"), True),
+        "shadows": NodeParameter(
+            DEFAULT_SHADOWS, _flag("render directional shadows from the Sun"), True
+        ),
         "sun_direction": NodeParameter(
             [1.0, 0.0, 0.0],
             ParameterSpec(list, "station-frame vector towards the Sun until a sun topic arrives"),
