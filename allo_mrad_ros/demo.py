@@ -306,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=Path("data/demo"), help="sequence and bag")
     parser.add_argument("--out", type=Path, default=Path("reports/demo"), help="report folder")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed")
-    parser.add_argument("--rate", type=float, default=0.5, help="bag playback speed multiple")
+    parser.add_argument("--rate", type=float, default=1.0, help="bag playback speed multiple")
     parser.add_argument("--builtin", action="store_true", help="built-in example, no ROS")
     parser.add_argument("--profile", default="default", help="detector profile (--builtin)")
     parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE, help="(--builtin)")
