@@ -1,1 +1,13 @@
 """Benchmarks that print figures and write them to ``reports/`` (run by ``make bench-*``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def write_report(path: Path, report: object) -> None:
+    """Write a benchmark's figures as indented JSON (creating the folder) and say where."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"written: {path}")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import platform
 import resource
 import sys
@@ -23,6 +22,7 @@ from types import ModuleType
 import cv2
 import numpy as np
 
+from allo_mrad_ros.benchmarks import write_report
 from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
@@ -166,9 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames must be at least 20")
     report = run(args.frames, args.warmup, args.oracle_frames, args.ref_scale, args.profile)
     print(format_report(report))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"written: {args.out}")
+    write_report(args.out, report)
     return 0
 
 

@@ -11,7 +11,6 @@ Usage: ``python -m allo_mrad_ros.benchmarks.generate --out reports/bench_generat
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from allo_mrad_ros.benchmarks import write_report
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence.png import encode_png
 from allo_mrad_ros.synth.config import PRESETS, preset
@@ -94,9 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         f"per frame: synthesis {report['synthesis_ms_median']:.0f} ms, "
         f"PNG encoding {report['png_ms_median']:.0f} ms (medians)"
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_report(args.out, report)
     return 0
 
 

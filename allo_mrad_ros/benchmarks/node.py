@@ -13,7 +13,6 @@ Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/ben
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -24,6 +23,7 @@ import numpy as np
 import psutil
 import rclpy
 
+from allo_mrad_ros.benchmarks import write_report
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.geometry import look_at
@@ -131,9 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{report['rss_mb_after_1000']:.0f} MB after {args.frames} ({growth:+.1f} %)\n"
         f"node log: {log}"
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"written: {args.out}")
+    write_report(args.out, report)
     return 0
 
 

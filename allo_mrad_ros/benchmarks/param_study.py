@@ -12,13 +12,13 @@ Usage: ``python -m allo_mrad_ros.benchmarks.param_study [--scenes 16] [--out FIL
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from allo_mrad_ros.benchmarks import write_report
 from allo_mrad_ros.detector import METHODS, MradParams
 from allo_mrad_ros.example_scene import camera_effects, paste_object, station_view
 from allo_mrad_ros.metrics import MetricsAccumulator
@@ -93,9 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{name:<22}{metrics['p_ap']:>8.3f}{metrics['p_auroc']:>9.3f}"
             f"{metrics['i_auroc']:>9.3f}{metrics['p_fpr95']:>9.3f}"
         )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=2) + "\n")
-    print(f"written: {args.out}")
+    write_report(args.out, rows)
     return 0
 
 

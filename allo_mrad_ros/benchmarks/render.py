@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import json
 import os
 import platform
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from allo_mrad_ros.benchmarks import write_report
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
@@ -168,9 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         f"reference render (scale {report['ref_scale']}, {shadows}): median "
         f"{report['ref_ms_median']:.1f} ms, {verdict} the {TARGET_REF_MS:.0f} ms target"
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_report(args.out, report)
     return 0
 
 
