@@ -33,20 +33,13 @@ from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.render import DEFAULT_SCALE
 from allo_mrad_ros.resources import share_path
+from allo_mrad_ros.visualise import outline
 
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
 
 
 class DemoError(RuntimeError):
     """A step of the demo failed; the message says which and where its log is."""
-
-
-def overlay(image: np.ndarray, mask: np.ndarray, colour: tuple[int, int, int]) -> np.ndarray:
-    """The RGB image with the mask's outline drawn on it."""
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    out = image.copy()
-    cv2.drawContours(out, contours, -1, colour, thickness=max(2, image.shape[1] // 480))
-    return out
 
 
 def _save_rgb(path: Path, image: np.ndarray) -> None:
@@ -76,13 +69,12 @@ def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo
 
+    from allo_mrad_ros.ros.messages import fill_camera_info
+
     publisher = node.create_publisher(
         CameraInfo, "/arm_camera/camera_info", qos_profile_sensor_data
     )
-    info = CameraInfo(
-        width=intrinsics.width, height=intrinsics.height, distortion_model="plumb_bob"
-    )
-    info.k = [intrinsics.fx, 0.0, intrinsics.cx, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 1.0]
+    info = fill_camera_info(CameraInfo(), intrinsics)
     deadline = time.monotonic() + 60
     while "renderer ready" not in node_log.read_text():
         if time.monotonic() > deadline:
@@ -168,11 +160,11 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
         if recorded.latency_ms is not None:
             latencies.append(recorded.latency_ms)
         if frame.is_anomalous and len(saved) < 8:
-            image = overlay(
+            image = outline(
                 sequence.load_image(frame), (truth == 2).astype(np.uint8) * 255, (0, 255, 0)
             )
             path = out / "overlays" / f"{frame.name}.png"
-            _save_rgb(path, overlay(image, np.ascontiguousarray(recorded.mask), (255, 40, 40)))
+            _save_rgb(path, outline(image, np.ascontiguousarray(recorded.mask), (255, 40, 40)))
             saved.append(path.name)
 
     rclpy.init()
@@ -292,8 +284,8 @@ def run_builtin(out: Path, profile_name: str, ref_scale: float) -> int:
                 f"{iou:>7.2f}{result.timings_ms['total']:>8.1f}"
             )
             if label == "object":
-                image = overlay(
-                    overlay(query, pair.object_mask, (0, 255, 0)), result.mask, (255, 0, 0)
+                image = outline(
+                    outline(query, pair.object_mask, (0, 255, 0)), result.mask, (255, 0, 0)
                 )
                 _save_rgb(out / f"{name.lower()}_overlay.png", image)
     print(f"overlays (green: ground truth, red: detected) in {out}/")

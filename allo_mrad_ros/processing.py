@@ -49,6 +49,17 @@ class ProcessedFrame:
         return next(iter(self.results.values()))
 
 
+def earth_and_moon(
+    earth: Sequence[float] | None, moon: Sequence[float] | None
+) -> tuple[CelestialBody, ...]:
+    """Celestial bodies from a sequence frame's ``(x, y, z, r)`` Earth and Moon, where given."""
+    return tuple(
+        CelestialBody(name, tuple(float(v) for v in value[:3]), float(value[3]))
+        for name, value in (("earth", earth), ("moon", moon))
+        if value is not None
+    )
+
+
 def with_sun(
     bodies: Sequence[CelestialBody | Sequence], sun_direction: Sequence[float]
 ) -> list[CelestialBody | Sequence]:

@@ -23,6 +23,7 @@ import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import pose_matrix
+from allo_mrad_ros.processing import earth_and_moon
 from allo_mrad_ros.render import CelestialBody
 from allo_mrad_ros.sequence import (
     MASK_ANOMALY,
@@ -197,14 +198,6 @@ def spread(indices: list[int], limit: int) -> list[int]:
     return [indices[i] for i in positions]
 
 
-def _bodies_from_frame(earth: Any, moon: Any) -> tuple[CelestialBody, ...]:
-    return tuple(
-        CelestialBody(name, tuple(float(v) for v in value[:3]), float(value[3]))
-        for name, value in (("earth", earth), ("moon", moon))
-        if value is not None
-    )
-
-
 class SequenceSource(FrameSource):
     """Frames of a sequence folder (see :func:`open_source`)."""
 
@@ -253,7 +246,7 @@ class SequenceSource(FrameSource):
                 T_station_camera=frame.T_station_camera,
                 sun_direction=np.array(frame.sun_direction),
                 sun_strength=float(frame.sun_strength),
-                bodies=_bodies_from_frame(frame.earth, frame.moon),
+                bodies=earth_and_moon(frame.earth, frame.moon),
                 reference=reference,
             )
 

@@ -39,8 +39,8 @@ from tqdm import tqdm
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.geometry import pose_matrix
 from allo_mrad_ros.metrics import MetricsAccumulator
-from allo_mrad_ros.processing import with_sun
-from allo_mrad_ros.render import CelestialBody, ReferenceRenderer
+from allo_mrad_ros.processing import earth_and_moon, with_sun
+from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence
 
@@ -147,15 +147,6 @@ class Outcome:
         }
 
 
-def frame_bodies(frame: Frame) -> tuple[CelestialBody, ...]:
-    """Earth and Moon of a frame, where the sequence models them."""
-    bodies = []
-    for name, body in (("earth", frame.earth), ("moon", frame.moon)):
-        if body is not None:
-            bodies.append(CelestialBody(name, tuple(body[:3]), float(body[3])))
-    return tuple(bodies)
-
-
 def true_pose(frame: Frame) -> np.ndarray:
     """The pose the image was rendered from (``true_*`` columns), else the reported one."""
     keys = ("true_tx", "true_ty", "true_tz", "true_qx", "true_qy", "true_qz", "true_qw")
@@ -215,7 +206,7 @@ class Sweep:
             for key in keys:
                 start = time.perf_counter()
                 # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
-                bodies = with_sun(frame_bodies(frame), frame.sun_direction)
+                bodies = with_sun(earth_and_moon(frame.earth, frame.moon), frame.sun_direction)
                 references[key] = (
                     self.renderer(key)
                     .render(pose, frame.sun_direction, frame.sun_strength, bodies)

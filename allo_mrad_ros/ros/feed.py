@@ -25,7 +25,7 @@ from std_msgs.msg import Bool
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import matrix_to_quaternion
-from allo_mrad_ros.ros.messages import fill_image, stamp_to_ns
+from allo_mrad_ros.ros.messages import fill_camera_info, fill_image, stamp_to_ns
 
 
 def start_node(log_path: Path, *parameters: str) -> subprocess.Popen:
@@ -111,13 +111,7 @@ class CameraFeed:
 
     def camera_info(self) -> CameraInfo:
         """CameraInfo of the current intrinsics (no distortion)."""
-        k = self.intrinsics
-        msg = CameraInfo(width=k.width, height=k.height, distortion_model="plumb_bob")
-        msg.k = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
-        msg.p = [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
-        msg.d = [0.0] * 5
-        msg.header.frame_id = self.frame_id
-        return msg
+        return fill_camera_info(CameraInfo(), self.intrinsics, self.frame_id)
 
     def publish_frame(
         self,

@@ -134,6 +134,19 @@ def intrinsics_from_camera_info(msg: Any) -> CameraIntrinsics:
         raise MessageError("camera_info", f"camera_info is unusable: {error}") from error
 
 
+def fill_camera_info(msg: Any, intrinsics: CameraIntrinsics, frame_id: str = "") -> Any:
+    """Fill a ``sensor_msgs/CameraInfo`` for a distortion-free pinhole camera."""
+    k = intrinsics
+    msg.width, msg.height = k.width, k.height
+    msg.distortion_model = "plumb_bob"
+    msg.d = [0.0] * 5
+    msg.k = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
+    msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    msg.p = [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    msg.header.frame_id = frame_id
+    return msg
+
+
 def stamp_to_ns(stamp: Any) -> int:
     """Nanoseconds of a ``builtin_interfaces/Time``."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)

@@ -20,7 +20,6 @@ import time
 from collections import Counter
 from typing import Any
 
-import cv2
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -52,6 +51,7 @@ from allo_mrad_ros.ros.parameters import (
     node_parameters,
     validate,
 )
+from allo_mrad_ros.visualise import outline
 
 NODE_NAME = "mrad_detector"
 
@@ -392,7 +392,7 @@ class MradDetectorNode(Node):
                 messages.fill_image(Image(), header, frame.reference, "rgb8")
             )
         if self._settings["publish_overlay"]:
-            overlay = _outline(_as_uint8(image), result.mask)
+            overlay = outline(_as_uint8(image), result.mask, OVERLAY_COLOUR)
             self._pub_overlay.publish(messages.fill_image(Image(), header, overlay, "rgb8"))
 
     # --- diagnostics --------------------------------------------------------------------
@@ -448,13 +448,6 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
     if image.dtype == np.uint8:
         return image
     return (image / 257).astype(np.uint8)
-
-
-def _outline(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    out = image.copy()
-    cv2.drawContours(out, contours, -1, OVERLAY_COLOUR, thickness=max(2, image.shape[1] // 640))
-    return out
 
 
 def main(argv: list[str] | None = None) -> int:
