@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
 
@@ -20,12 +20,15 @@ from allo_mrad_ros.metrics import (
 
 
 def sklearn_fpr95(labels, scores):
-    fpr, tpr, _ = roc_curve(labels, scores)
+    # Keep every threshold: the default drop_intermediate=True thins collinear points, and
+    # "the first point reaching TPR 0.95" can then fall on a later point with a higher FPR.
+    fpr, tpr, _ = roc_curve(labels, scores, drop_intermediate=False)
     return fpr[np.argmax(tpr >= 0.95)]
 
 
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 400), ties=st.booleans())
+@example(seed=6838, n=121, ties=True)  # found on a fresh clone: sklearn's thinned ROC curve
 def test_exact_metrics_match_sklearn(seed, n, ties):
     rng = np.random.default_rng(seed)
     labels = rng.random(n) < rng.uniform(0.05, 0.95)
