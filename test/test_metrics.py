@@ -13,6 +13,8 @@ from allo_mrad_ros.metrics import (
     auroc_from_curve,
     average_precision,
     average_precision_from_curve,
+    bootstrap_ap_difference,
+    frame_counts,
     fpr_at_tpr,
     fpr_at_tpr_from_curve,
     roc_auc,
@@ -112,3 +114,47 @@ def test_bad_inputs_are_named():
         PixelScoreHistogram().update(np.full((2, 2), np.nan), np.zeros((2, 2)))
     with pytest.raises(MetricsError, match="differ in shape"):
         PixelScoreHistogram().update(np.zeros((2, 2)), np.zeros((2, 3)))
+
+
+def _frames(rng, count, shape=(12, 16)):
+    scores = [rng.uniform(0, 255, shape).round(1) for _ in range(count)]
+    masks = [np.where(rng.random(shape) < 0.2, 2, 0).astype(np.uint8) for _ in range(count)]
+    return scores, masks
+
+
+def test_bootstrap_resample_equals_sklearn_on_the_same_frames():
+    rng = np.random.default_rng(3)
+    scores, masks = _frames(rng, 7)
+    noisy = [s + rng.normal(0, 30, s.shape) for s in scores]
+    noisy = [np.clip(n, 0, 255) for n in noisy]
+    counts_a = np.stack([frame_counts(s, m, bins_per_unit=1) for s, m in zip(scores, masks)])
+    counts_b = np.stack([frame_counts(s, m, bins_per_unit=1) for s, m in zip(noisy, masks)])
+    differences = bootstrap_ap_difference(counts_a, counts_b, resamples=3, seed=11)
+
+    # Replay the first resample's frame draw and score the repeated pixels with sklearn.
+    drawn = np.random.default_rng(11).integers(0, 7, 7)
+    labels = np.concatenate([(masks[i] == 2).ravel() for i in drawn])
+
+    def ap(maps):
+        return average_precision_score(
+            labels, np.concatenate([np.rint(maps[i]).ravel() for i in drawn])
+        )
+
+    assert differences.shape == (3,)
+    assert differences[0] == pytest.approx(ap(noisy) - ap(scores), abs=1e-12)
+    assert not np.allclose(differences, 0.0)
+
+
+def test_bootstrap_of_a_detector_against_itself_is_zero():
+    rng = np.random.default_rng(4)
+    scores, masks = _frames(rng, 5)
+    counts = np.stack([frame_counts(s, m) for s, m in zip(scores, masks)])
+    assert np.array_equal(bootstrap_ap_difference(counts, counts, resamples=20), np.zeros(20))
+
+
+def test_bootstrap_rejects_unpaired_counts():
+    counts = np.zeros((4, 2, 511), dtype=np.int32)
+    with pytest.raises(MetricsError, match="frames, 2, bins"):
+        bootstrap_ap_difference(counts, counts[:3])
+    with pytest.raises(MetricsError, match="resamples"):
+        bootstrap_ap_difference(counts, counts, resamples=0)

@@ -359,7 +359,15 @@ def _bench() -> SynthConfig:
     )
 
 
-PRESETS = MappingProxyType({"smoke": _smoke, "demo": _demo, "bench": _bench})
+def _bench_val() -> SynthConfig:
+    # A validation split as large as bench's test, for choosing defaults: generate it with a
+    # seed other than the bench sequence's, so it shares no frame plan with that test split.
+    return SynthConfig(name="bench-val", splits={"val": SplitSpec(110, 220, 10)})
+
+
+PRESETS = MappingProxyType(
+    {"smoke": _smoke, "demo": _demo, "bench": _bench, "bench-val": _bench_val}
+)
 """Preset name to a function returning its :class:`SynthConfig`."""
 
 
@@ -370,7 +378,8 @@ def preset(name: str) -> SynthConfig:
     ----------
     name : str
         ``smoke`` (tiny images, 10 frames: for tests), ``demo`` (40 frames at 1920x1080,
-        test split) or ``bench`` (train 120, val 60, test 330 at 1920x1080).
+        test split), ``bench`` (train 120, val 60, test 330 at 1920x1080) or ``bench-val``
+        (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1).
 
     Returns
     -------
