@@ -42,7 +42,7 @@ bench-render: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json
 
 bench-node: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --rate 30 --out reports/bench_node.json
 
 # Speed against error: defaults chosen on data/bench_val, reported on data/bench's test split
 # (both generated first if missing, ~6 + ~4 min).

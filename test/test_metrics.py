@@ -14,9 +14,9 @@ from allo_mrad_ros.metrics import (
     average_precision,
     average_precision_from_curve,
     bootstrap_ap_difference,
-    frame_counts,
     fpr_at_tpr,
     fpr_at_tpr_from_curve,
+    frame_counts,
     roc_auc,
 )
 
@@ -127,8 +127,12 @@ def test_bootstrap_resample_equals_sklearn_on_the_same_frames():
     scores, masks = _frames(rng, 7)
     noisy = [s + rng.normal(0, 30, s.shape) for s in scores]
     noisy = [np.clip(n, 0, 255) for n in noisy]
-    counts_a = np.stack([frame_counts(s, m, bins_per_unit=1) for s, m in zip(scores, masks)])
-    counts_b = np.stack([frame_counts(s, m, bins_per_unit=1) for s, m in zip(noisy, masks)])
+    counts_a = np.stack(
+        [frame_counts(s, m, bins_per_unit=1) for s, m in zip(scores, masks, strict=True)]
+    )
+    counts_b = np.stack(
+        [frame_counts(s, m, bins_per_unit=1) for s, m in zip(noisy, masks, strict=True)]
+    )
     differences = bootstrap_ap_difference(counts_a, counts_b, resamples=3, seed=11)
 
     # Replay the first resample's frame draw and score the repeated pixels with sklearn.
@@ -148,7 +152,7 @@ def test_bootstrap_resample_equals_sklearn_on_the_same_frames():
 def test_bootstrap_of_a_detector_against_itself_is_zero():
     rng = np.random.default_rng(4)
     scores, masks = _frames(rng, 5)
-    counts = np.stack([frame_counts(s, m) for s, m in zip(scores, masks)])
+    counts = np.stack([frame_counts(s, m) for s, m in zip(scores, masks, strict=True)])
     assert np.array_equal(bootstrap_ap_difference(counts, counts, resamples=20), np.zeros(20))
 
 
