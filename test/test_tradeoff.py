@@ -8,6 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from allo_mrad_ros.benchmarks.tradeoff import (
     choose_default,
+    describe_speedup_tier,
+    most_accurate_with_speedup,
     pareto_front,
     perturbed,
     sweep_settings,
@@ -44,6 +46,15 @@ def test_default_is_the_fastest_within_the_margin_and_follows_the_spec():
     assert choose_default(ROWS, ap_margin=1.0)["setting"] == "fast close"
     assert choose_default(ROWS, ap_margin=0.1)["setting"] == "slow best"
     assert choose_default(ROWS, ap_margin=20.0)["setting"] == "fastest poor"
+
+
+def test_speedup_tier_is_the_most_accurate_fast_enough_row_within_the_spec():
+    # 200 ms best: 40 ms is 5x, 60 ms 3.3x, 15 ms 13x; the 10 ms row is outside mrad.md.
+    assert most_accurate_with_speedup(ROWS, 3.0)["setting"] == "fast close"
+    assert most_accurate_with_speedup(ROWS, 10.0)["setting"] == "fastest poor"
+    assert most_accurate_with_speedup(ROWS, 14.0) is None
+    assert "fast close (40.0 ms, 5.0x), 0.5 P.AP points below" in describe_speedup_tier(ROWS, 3)
+    assert describe_speedup_tier(ROWS, 14.0).startswith("no setting is 14x faster")
 
 
 @pytest.mark.parametrize(("degrees", "metres"), [(0.0, 0.0), (0.5, 0.0), (2.0, 0.0), (0.0, 0.1)])
