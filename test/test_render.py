@@ -280,6 +280,47 @@ def test_directional_shadows_fall_on_the_station_only():
     np.testing.assert_array_equal(shaded_body.rgb[body], plain_body.rgb[body])
 
 
+def test_shadow_map_is_reused_exactly_while_nothing_it_depends_on_changes(monkeypatch):
+    pr = import_pyrender(choose_backend())
+    passes = []
+    original = pr.renderer.Renderer._shadow_mapping_pass
+
+    def counted(self, scene, light_node, flags):
+        passes.append(light_node.name)
+        return original(self, scene, light_node, flags)
+
+    monkeypatch.setattr(pr.renderer.Renderer, "_shadow_mapping_pass", counted)
+    plate = trimesh.creation.box(extents=[6.0, 6.0, 0.1])
+    blocker = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
+    blocker.apply_translation([0.0, 0.0, 2.0])
+    model = trimesh.Scene([plate, blocker])
+    near = look_at([0.5, -4.0, 6.0], [0.0, 0.0, 0.0])
+    far = look_at([-3.0, -6.0, 7.0], [0.5, 0.0, 0.0])
+    # Far outside the shadow camera's box: it must not invalidate the map.
+    earth = CelestialBody("earth", (200.0, 50.0, 60.0), 30.0)
+    caster = ExtraObject(
+        trimesh.creation.box(extents=[0.5, 0.5, 0.5]),
+        pose_matrix([1.5, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]),
+    )
+    frames = [  # (pose, sun, bodies, extras, shadow pass expected)
+        (near, (0.0, 0.0, 1.0), [], [], True),
+        (far, (0.0, 0.0, 1.0), [], [], False),
+        (far, (0.0, 0.0, 1.0), [earth], [], False),
+        (far, (0.3, 0.0, 1.0), [earth], [], True),
+        (far, (0.3, 0.0, 1.0), [], [caster], True),
+        (near, (0.3, 0.0, 1.0), [], [caster], False),
+        (near, (0.3, 0.0, 1.0), [], [], True),
+    ]
+    with ReferenceRenderer(model, K_SMALL, scale=1.0, shadows=True) as cached:
+        for pose, sun, bodies, extras, expect_pass in frames:
+            before = len(passes)
+            image = cached.render(pose, sun, bodies=bodies, extra_objects=extras).rgb
+            assert (len(passes) > before) == expect_pass
+            with ReferenceRenderer(model, K_SMALL, scale=1.0, shadows=True) as fresh:
+                expected = fresh.render(pose, sun, bodies=bodies, extra_objects=extras).rgb
+            np.testing.assert_array_equal(image, expected)
+
+
 def test_backend_choice(monkeypatch):
     monkeypatch.setenv("ALLO_MRAD_GL_BACKEND", "OSMesa")
     assert choose_backend() == "osmesa"

@@ -288,6 +288,7 @@ class ReferenceRenderer:
                 f"{INSTALL_HINT}"
             ) from error
         _install_program_cache(pr, self._gl)
+        _install_shadow_map_cache(self._gl)
 
     # ------------------------------------------------------------------ scene content
     def _material(self, group: MeshGroup) -> object:
@@ -606,3 +607,56 @@ def _install_program_cache(pr: ModuleType, offscreen: object) -> None:
 
     renderer._program_cache.clear()
     renderer._program_cache = StableProgramCache()
+
+
+def _shadow_map_inputs(renderer: object, scene: object, light_node: object, flags: int) -> tuple:
+    """Everything a light's shadow map depends on.
+
+    The flags, the shadow texture, the light camera (its pose and projection follow from the
+    light's pose and the scene bounds) and every mesh that reaches the light camera's view
+    volume, with its pose. Meshes wholly outside that volume are clipped from the map: the
+    Sun disc, Earth and Moon, which move with the camera, never invalidate it. Meshes are
+    held by reference, so an entry never matches a new mesh that reused a freed object's id.
+    """
+    view, projection = renderer._get_light_cam_matrices(scene, light_node, flags)
+    to_clip = projection @ view
+    casters = []
+    for node in scene.mesh_nodes:
+        if not node.mesh.is_visible:
+            continue
+        pose = scene.get_pose(node)
+        corners = trimesh.bounds.corners(node.mesh.bounds)
+        clip = np.c_[corners, np.ones(8)] @ (to_clip @ pose).T
+        ndc = clip[:, :3] / clip[:, 3:]
+        if ((ndc > 1.0).all(axis=0) | (ndc < -1.0).all(axis=0)).any():
+            continue
+        casters.append((node.mesh, pose.tobytes()))
+    return (int(flags), light_node.light.shadow_texture, to_clip.tobytes(), frozenset(casters))
+
+
+def _install_shadow_map_cache(offscreen: object) -> None:
+    """Skip a light's shadow-map pass when nothing it depends on has changed.
+
+    The Sun moves about a degree a day relative to the station, so consecutive frames of a
+    stream share its shadow map; the pass renders the casters into a 2048x2048 depth map
+    and is most of what shadows cost at the default reference size. The forward pass reads
+    the map from the light's texture, which persists in the context between frames.
+    """
+    renderer = getattr(offscreen, "_renderer", None)
+    if renderer is None or not hasattr(renderer, "_shadow_mapping_pass"):
+        return
+    render_shadow_map = renderer._shadow_mapping_pass
+    drawn: dict[object, tuple] = {}
+
+    def shadow_mapping_pass(scene: object, light_node: object, flags: int) -> None:
+        if type(light_node.light).__name__ != "DirectionalLight":
+            render_shadow_map(scene, light_node, flags)
+            return
+        inputs = _shadow_map_inputs(renderer, scene, light_node, flags)
+        if drawn.get(light_node) == inputs:
+            return
+        drawn.pop(light_node, None)
+        render_shadow_map(scene, light_node, flags)
+        drawn[light_node] = inputs
+
+    renderer._shadow_mapping_pass = shadow_mapping_pass
