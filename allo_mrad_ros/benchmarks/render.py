@@ -1,7 +1,8 @@
 """Benchmark of :class:`allo_mrad_ros.render.ReferenceRenderer` on the committed station model.
 
-Times colour renders at the default reference scale (0.25: 480x270) and at 1920x1080, each
-with directional shadows on and off, plus the generator's mode (colour, depth and labels),
+Times colour renders at the default reference scale (0.125: 240x135) and at 1920x1080, each
+with directional shadows on and off (at the reference scale also with a Sun that moves every
+frame, so the shadow map cannot be reused), plus the generator's mode (colour, depth and labels),
 over a fixed set of viewpoints with the Sun, Earth and Moon in the scene. Prints median and
 p95 per configuration and writes them to a JSON report.
 
@@ -65,6 +66,14 @@ def _summary(samples: list[float]) -> dict[str, float]:
     }
 
 
+def _turned(direction: tuple[float, float, float], degrees: float) -> np.ndarray:
+    """``direction`` turned about the station's z axis."""
+    angle = np.radians(degrees)
+    c, s = np.cos(angle), np.sin(angle)
+    x, y, z = direction
+    return np.array([c * x - s * y, s * x + c * y, z])
+
+
 def time_config(
     scale: float,
     shadows: bool,
@@ -73,8 +82,14 @@ def time_config(
     backend: str | None,
     depth: bool = False,
     labels: bool = False,
+    moving_sun: bool = False,
 ) -> dict:
-    """Build one renderer and time ``frames`` renders cycling over :func:`viewpoints`."""
+    """Build one renderer and time ``frames`` renders cycling over :func:`viewpoints`.
+
+    The Sun stays fixed, as within a stream (it moves about a degree a day), so the shadow
+    map is drawn once and reused; ``moving_sun`` turns it by half a degree every frame, which
+    forces a new shadow map each time (the cost for frames of unrelated days).
+    """
     poses = viewpoints()
     start = time.perf_counter()
     with ReferenceRenderer(
@@ -85,10 +100,9 @@ def time_config(
             renderer.render(poses[i % len(poses)], SUN_CENTRE, bodies=BODIES)
         samples = []
         for i in range(frames):
+            sun = _turned(SUN_CENTRE, 0.5 * (i + 1)) if moving_sun else SUN_CENTRE
             t0 = time.perf_counter()
-            renderer.render(
-                poses[i % len(poses)], SUN_CENTRE, bodies=BODIES, depth=depth, labels=labels
-            )
+            renderer.render(poses[i % len(poses)], sun, bodies=BODIES, depth=depth, labels=labels)
             samples.append(time.perf_counter() - t0)
         k = renderer.output_intrinsics
         info = {
@@ -96,6 +110,7 @@ def time_config(
             "shadows": shadows,
             "depth": depth,
             "labels": labels,
+            "moving_sun": moving_sun,
             "init_ms": init_s * 1000.0,
             "triangles": renderer.triangle_count,
             "backend": renderer.backend,
@@ -107,6 +122,9 @@ def run(frames: int, full_frames: int, warmup: int, ref_scale: float, backend: s
     """Time every configuration and return the report."""
     configs = {
         "ref_shadows": time_config(ref_scale, True, frames, warmup, backend),
+        "ref_shadows_moving_sun": time_config(
+            ref_scale, True, frames, warmup, backend, moving_sun=True
+        ),
         "ref_no_shadows": time_config(ref_scale, False, frames, warmup, backend),
         "ref_shadows_depth_labels": time_config(
             ref_scale, True, frames, warmup, backend, depth=True, labels=True
