@@ -176,8 +176,9 @@ class ReferenceRenderer:
     backend : str or None
         ``"osmesa"`` or ``"egl"``; None chooses (see :func:`~.backend.choose_backend`).
     shadows : bool
-        Cast directional shadows from the Sun (one extra shadow-map pass per frame; on by
-        default, as chosen by the speed-against-error benchmark).
+        Cast directional shadows from the Sun (on by default, as chosen by the
+        speed-against-error benchmark). The shadow-map pass runs only when the Sun, the
+        shadow camera or the meshes inside its view volume changed since the last frame.
     znear, zfar : float
         Clipping distances in metres. Bodies beyond ``zfar`` are pulled inside it with their
         apparent size kept.
