@@ -8,9 +8,9 @@ On an ALLO-like sequence (``allo-synth generate --preset bench``):
    frame is render plus detect, measured interleaved frame by frame so every setting sees
    the same machine load. Frames run in split order, grouped by day, so a renderer reuses
    its shadow map between consecutive frames of one day (36 % of the bench test frames),
-   as it does for every frame of a stream. The validation split is the ``val`` split of ``--validation``
-   (``make bench``: the 330-frame ``bench-val`` preset, seed 1) or, without it, of
-   ``--sequence``.
+   as it does for every frame of a stream. The validation split is the ``val`` split of
+   ``--validation`` (``make bench``: the 330-frame ``bench-val`` preset, seed 1) or,
+   without it, of ``--sequence``.
 2. **Choose the default on validation only**: among the settings on the Pareto front (no
    other setting is both faster and more accurate), the fastest whose P.AP is within
    ``--ap-margin`` points of the best validation P.AP.
