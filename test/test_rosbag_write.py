@@ -467,11 +467,15 @@ def test_play_loops_filters_topics_and_publishes_the_clock(tmp_path, sequence):
     thread = threading.Thread(target=player)
     thread.start()
     try:
-        deadline = time.monotonic() + 60
+        # Messages published just before the player returns are still in flight: keep
+        # spinning for a grace period after it ends (a slow machine made the last two late).
+        deadline, player_done = time.monotonic() + 60, None
         while time.monotonic() < deadline and (thread.is_alive() or len(labels) < 2 * FRAMES):
             executor.spin_once(timeout_sec=0.05)
-            if not thread.is_alive() and time.monotonic() > deadline - 50:
-                break
+            if not thread.is_alive():
+                player_done = player_done or time.monotonic()
+                if time.monotonic() - player_done > 10.0:
+                    break
     finally:
         thread.join(timeout=30)
         executor.shutdown()
