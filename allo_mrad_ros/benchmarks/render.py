@@ -22,7 +22,7 @@ import numpy as np
 
 from allo_mrad_ros.benchmarks import write_report
 from allo_mrad_ros.camera import ALLO_INTRINSICS
-from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
 from allo_mrad_ros.resources import share_path
 
@@ -66,14 +66,6 @@ def _summary(samples: list[float]) -> dict[str, float]:
     }
 
 
-def _turned(direction: tuple[float, float, float], degrees: float) -> np.ndarray:
-    """``direction`` turned about the station's z axis."""
-    angle = np.radians(degrees)
-    c, s = np.cos(angle), np.sin(angle)
-    x, y, z = direction
-    return np.array([c * x - s * y, s * x + c * y, z])
-
-
 def time_config(
     scale: float,
     shadows: bool,
@@ -100,7 +92,9 @@ def time_config(
             renderer.render(poses[i % len(poses)], SUN_CENTRE, bodies=BODIES)
         samples = []
         for i in range(frames):
-            sun = _turned(SUN_CENTRE, 0.5 * (i + 1)) if moving_sun else SUN_CENTRE
+            sun = SUN_CENTRE
+            if moving_sun:
+                sun = euler_zyx_to_matrix(0.0, 0.0, np.radians(0.5 * (i + 1))) @ SUN_CENTRE
             t0 = time.perf_counter()
             renderer.render(poses[i % len(poses)], sun, bodies=BODIES, depth=depth, labels=labels)
             samples.append(time.perf_counter() - t0)

@@ -289,7 +289,7 @@ class ReferenceRenderer:
                 f"{INSTALL_HINT}"
             ) from error
         _install_program_cache(pr, self._gl)
-        _install_shadow_map_cache(self._gl)
+        _install_shadow_map_cache(pr, self._gl)
 
     # ------------------------------------------------------------------ scene content
     def _material(self, group: MeshGroup) -> object:
@@ -635,7 +635,7 @@ def _shadow_map_inputs(renderer: object, scene: object, light_node: object, flag
     return (int(flags), light_node.light.shadow_texture, to_clip.tobytes(), frozenset(casters))
 
 
-def _install_shadow_map_cache(offscreen: object) -> None:
+def _install_shadow_map_cache(pr: ModuleType, offscreen: object) -> None:
     """Skip a light's shadow-map pass when nothing it depends on has changed.
 
     The Sun moves about a degree a day relative to the station, so consecutive frames of a
@@ -650,13 +650,13 @@ def _install_shadow_map_cache(offscreen: object) -> None:
     drawn: dict[object, tuple] = {}
 
     def shadow_mapping_pass(scene: object, light_node: object, flags: int) -> None:
-        if type(light_node.light).__name__ != "DirectionalLight":
+        if not isinstance(light_node.light, pr.DirectionalLight):
             render_shadow_map(scene, light_node, flags)
             return
         inputs = _shadow_map_inputs(renderer, scene, light_node, flags)
         if drawn.get(light_node) == inputs:
             return
-        drawn.pop(light_node, None)
+        drawn.pop(light_node, None)  # a pass that fails leaves the texture in doubt
         render_shadow_map(scene, light_node, flags)
         drawn[light_node] = inputs
 
