@@ -137,7 +137,9 @@ def play_bag(
     wait_for : iterable of str
         Before the delay, wait until each of these topics has a matched subscriber (e.g.
         the detector's image topic), so nothing is published into the void. ``/clock``
-        may be one of them when ``clock`` is set.
+        may be one of them when ``clock`` is set. Discovery is two-sided: the subscriber
+        may match the publisher a little later and miss what comes before, so keep a
+        ``delay`` (a few hundred ms) after the wait.
     wait_timeout : float
         Seconds to wait for those subscribers before giving up with :class:`PlayError`.
 

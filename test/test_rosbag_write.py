@@ -459,7 +459,9 @@ def test_play_loops_filters_topics_and_publishes_the_clock(tmp_path, sequence):
             passes=2,
             topics=[T.label],
             clock=True,
-            delay=0.0,
+            # The player seeing our subscription does not mean our subscription has seen
+            # the player yet; without a settle delay the first samples can be dropped.
+            delay=0.5,
             wait_for=[T.label, "/clock"],
             node_name="allo_bag_loop_player",
         )
@@ -467,15 +469,11 @@ def test_play_loops_filters_topics_and_publishes_the_clock(tmp_path, sequence):
     thread = threading.Thread(target=player)
     thread.start()
     try:
-        # Messages published just before the player returns are still in flight: keep
-        # spinning for a grace period after it ends (a slow machine made the last two late).
-        deadline, player_done = time.monotonic() + 60, None
+        deadline = time.monotonic() + 60
         while time.monotonic() < deadline and (thread.is_alive() or len(labels) < 2 * FRAMES):
             executor.spin_once(timeout_sec=0.05)
-            if not thread.is_alive():
-                player_done = player_done or time.monotonic()
-                if time.monotonic() - player_done > 10.0:
-                    break
+            if not thread.is_alive() and time.monotonic() > deadline - 50:
+                break
     finally:
         thread.join(timeout=30)
         executor.shutdown()
