@@ -10,8 +10,11 @@ from __future__ import annotations
 import ctypes.util
 import os
 import sys
+import threading
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 BACKENDS = ("egl", "osmesa")
 ENV_BACKEND = "ALLO_MRAD_GL_BACKEND"
@@ -107,3 +110,90 @@ def import_pyrender(backend: str) -> ModuleType:
             f"pyrender failed to import with {backend}: {error}; {INSTALL_HINT}"
         ) from error
     return pyrender
+
+
+class EglDisplayShare:
+    """Reference-count the EGL display that every pyrender context of a process shares.
+
+    EGL hands out one display per device and process, and pyrender's ``EGLPlatform``
+    calls ``eglTerminate`` on it when any one context is deleted, which leaves every other
+    live renderer failing with ``EGL_NOT_INITIALIZED``. :meth:`adopt` replaces a platform's
+    ``delete_context`` so that deleting destroys only that platform's context, and the
+    display is terminated when the last context on it is gone.
+
+    Parameters
+    ----------
+    destroy_context, terminate : callable
+        ``eglDestroyContext(display, context)`` and ``eglTerminate(display)``; injectable so
+        the bookkeeping is testable without a GPU.
+    """
+
+    def __init__(
+        self,
+        destroy_context: Callable[[object, object], object],
+        terminate: Callable[[object], object],
+    ) -> None:
+        self._destroy_context = destroy_context
+        self._terminate = terminate
+        self._users: dict[int, int] = {}
+        self._lock = threading.Lock()
+
+    def users(self, display: object) -> int:
+        """Return how many adopted contexts live on ``display``."""
+        with self._lock:
+            return self._users.get(_display_key(display), 0)
+
+    def adopt(self, platform: Any) -> None:
+        """Count ``platform``'s display and make its deletion release only its own context.
+
+        Parameters
+        ----------
+        platform : pyrender.platforms.egl.EGLPlatform
+            A platform whose context has been initialised (``_egl_display`` set).
+        """
+        key = _display_key(platform._egl_display)
+        with self._lock:
+            self._users[key] = self._users.get(key, 0) + 1
+
+        def delete_context() -> None:
+            display, context = platform._egl_display, platform._egl_context
+            if display is None:
+                return
+            if context is not None:
+                self._destroy_context(display, context)
+                platform._egl_context = None
+            platform._egl_display = None
+            with self._lock:
+                left = self._users.get(key, 1) - 1
+                if left > 0:
+                    self._users[key] = left
+                else:
+                    self._users.pop(key, None)
+            if left <= 0:
+                self._terminate(display)
+
+        platform.delete_context = delete_context
+
+
+def _display_key(display: object) -> int:
+    value = getattr(display, "value", display)
+    return int(value or 0)
+
+
+_EGL_SHARE: EglDisplayShare | None = None
+
+
+def share_egl_display(offscreen_renderer: Any) -> None:
+    """Make an EGL ``pyrender.OffscreenRenderer`` release the shared display safely.
+
+    A no-op for any other platform (OSMesa contexts own their buffers and share nothing).
+    """
+    global _EGL_SHARE
+    platform = getattr(offscreen_renderer, "_platform", None)
+    if type(platform).__name__ != "EGLPlatform" or platform._egl_display is None:
+        return
+    if _EGL_SHARE is None:
+        from OpenGL.EGL import eglDestroyContext, eglTerminate
+
+        _EGL_SHARE = EglDisplayShare(eglDestroyContext, eglTerminate)
+    _EGL_SHARE.adopt(platform)

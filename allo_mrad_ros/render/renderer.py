@@ -24,6 +24,7 @@ from allo_mrad_ros.render.backend import (
     RendererError,
     choose_backend,
     import_pyrender,
+    share_egl_display,
 )
 from allo_mrad_ros.render.bodies import (
     CelestialBody,
@@ -288,6 +289,7 @@ class ReferenceRenderer:
                 f"cannot start an OpenGL context with the {self.backend} backend: {error}; "
                 f"{INSTALL_HINT}"
             ) from error
+        share_egl_display(self._gl)
         _install_program_cache(pr, self._gl)
         _install_shadow_map_cache(pr, self._gl)
 
