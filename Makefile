@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test lint bench bench-detector bench-render bench-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test test-distro lint bench bench-detector bench-render bench-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -34,6 +34,28 @@ lint: $(STAMP)
 
 test: lint
 	$(ISOLATED) $(PY) -m pytest -q --timeout=600
+	$(MAKE) test-distro
+
+# The distro route's Python side, without a ROS install: Python 3.10 and the NumPy 1.21 / SciPy
+# 1.8 / OpenCV 4.5 that Ubuntu 22.04 (Humble) ships, plus requirements-distro*.txt, then every
+# test that needs no rclpy (README, "On a ROS 2 distro"). Skipped where no python3.10 exists.
+DISTRO_PYTHON ?= $(firstword $(foreach c,python3.10 $(wildcard $(HOME)/.pyenv/versions/3.10*/bin/python3.10) /usr/bin/python3.10,$(shell $(c) -c 'import sys; print(sys.executable)' 2>/dev/null)))
+DISTRO_VENV := .venv-distro
+DISTRO_STAMP := $(DISTRO_VENV)/.installed
+test-distro:
+	@if [ -z "$(DISTRO_PYTHON)" ]; then echo "test-distro: no python3.10 here, skipped"; \
+	else $(MAKE) --no-print-directory $(DISTRO_STAMP) && \
+	  $(ISOLATED) $(DISTRO_VENV)/bin/python -m pytest -q --timeout=600 -p no:cacheprovider \
+	    --deselect test/test_station_model.py::test_rebuild_is_bit_identical_to_committed_file; fi
+
+$(DISTRO_STAMP): test/data/humble_apt_stand_ins.txt requirements-distro.txt requirements-distro-nodeps.txt setup.py
+	@test -x $(DISTRO_VENV)/bin/python || $(DISTRO_PYTHON) -m venv $(DISTRO_VENV)
+	$(DISTRO_VENV)/bin/python -m pip install -q --disable-pip-version-check \
+	  -r test/data/humble_apt_stand_ins.txt -r requirements-distro.txt
+	$(DISTRO_VENV)/bin/python -m pip install -q --disable-pip-version-check --no-deps \
+	  --ignore-requires-python -r requirements-distro-nodeps.txt
+	$(DISTRO_VENV)/bin/python -m pip install -q --disable-pip-version-check --no-deps -e .
+	@touch $@
 
 bench-detector: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json

@@ -59,9 +59,15 @@ def curve_from_counts(positives: np.ndarray, negatives: np.ndarray) -> Curve:
     return Curve(thresholds, tp / total_pos, fp / total_neg, precision)
 
 
+def trapezoid_area(y: np.ndarray, x: np.ndarray) -> float:
+    """Trapezoid-rule area under ``y(x)`` (``numpy.trapezoid`` is NumPy 2 only; ROS distros
+    ship NumPy 1.x)."""
+    return float(np.sum(np.diff(x) * (y[1:] + y[:-1])) / 2.0)
+
+
 def auroc_from_curve(curve: Curve) -> float:
     """Area under the ROC curve (trapezoids, as scikit-learn's ``roc_auc_score``)."""
-    return float(np.trapezoid(curve.tpr, curve.fpr))
+    return trapezoid_area(curve.tpr, curve.fpr)
 
 
 def average_precision_from_curve(curve: Curve) -> float:

@@ -1,0 +1,164 @@
+"""package.xml names only real ROS packages and rosdep keys, and covers every import.
+
+The allowed names live in ``test/data/rosdep_keys.txt``, copied from rosdistro (the file
+says which commit); ``rosdep install`` fails on the first unknown key, so one typo breaks the
+distro route for every user.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+KEYS_FILE = ROOT / "test" / "data" / "rosdep_keys.txt"
+RUNTIME_TREES = ("allo_mrad_ros", "rosbag_tools", "launch")
+FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools", "mrad_oracle", "rosbag_fixtures", "conftest"}
+
+# Import name -> the package.xml key that provides it on a distro, or the requirement name in
+# requirements-distro*.txt (the pip part of the distro route) for modules rosdep has no key for.
+MODULE_PROVIDERS = {
+    "OpenGL": "python3-opengl",
+    "cv2": "python3-opencv",
+    "matplotlib": "python3-matplotlib",
+    "numpy": "python3-numpy",
+    "psutil": "python3-psutil",
+    "scipy": "python3-scipy",
+    "tqdm": "python3-tqdm",
+    "yaml": "python3-yaml",
+    "trimesh": "python3-trimesh-pip",
+    "rosbags": "python3-rosbags-pip",
+    "pyrender": "pyrender-maintained",
+    "skyfield": "skyfield",
+    "skyfield_data": "skyfield-data",
+    "pytest": "python3-pytest",
+    "hypothesis": "python3-hypothesis",
+    "sklearn": "python3-sklearn",
+    # Test-only oracles without a rosdep key: the pip world's requirements-dev.txt.
+    "mcap": "mcap",
+    "mcap_ros2": "mcap-ros2-support",
+    "spectral": "spectral",
+}
+
+
+def _allowed_names() -> dict[str, set[str]]:
+    sections: dict[str, set[str]] = {}
+    current = None
+    for line in KEYS_FILE.read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        if line.startswith("["):
+            current = sections.setdefault(line.strip("[]"), set())
+        else:
+            assert current is not None, f"{KEYS_FILE}: name before a [section]: {line}"
+            current.add(line)
+    return sections
+
+
+def _manifest_depends() -> dict[str, set[str]]:
+    root = ET.parse(ROOT / "package.xml").getroot()
+    depends: dict[str, set[str]] = {}
+    for element in root:
+        if isinstance(element.tag, str) and element.tag.endswith("depend"):
+            depends.setdefault(element.tag, set()).add(element.text.strip())
+    return depends
+
+
+def _requirement_names(path: Path) -> set[str]:
+    names = set()
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line and not line.startswith("-"):
+            names.add(re.split(r"[<>=!~;\[ ]", line, maxsplit=1)[0].lower())
+    return names
+
+
+def _third_party_imports(trees: tuple[str, ...]) -> dict[str, str]:
+    """Top-level third-party module -> one file importing it."""
+    found: dict[str, str] = {}
+    for tree in trees:
+        for path in sorted((ROOT / tree).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if isinstance(node, ast.Import):
+                    names = [alias.name for alias in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    names = [node.module]
+                else:
+                    continue
+                for name in names:
+                    top = name.split(".")[0]
+                    if top in sys.stdlib_module_names or top in FIRST_PARTY or top == "__future__":
+                        continue
+                    found.setdefault(top, str(path.relative_to(ROOT)))
+    return found
+
+
+def test_every_manifest_dependency_is_a_ros_package_or_a_rosdep_key():
+    allowed = _allowed_names()
+    valid = allowed["ros_packages"] | allowed["rosdep_keys"]
+    for tag, names in _manifest_depends().items():
+        unknown = sorted(names - valid)
+        assert not unknown, f"package.xml <{tag}> names unknown rosdep keys: {unknown}"
+
+
+def test_the_keys_that_broke_the_distro_route_stay_out():
+    names = set().union(*_manifest_depends().values())
+    # libosmesa6 and python3-skyfield are not rosdep keys; python3-pyrender-pip installs the
+    # abandoned pyrender 0.1.45 over the import name of pyrender-maintained.
+    assert not names & {"libosmesa6", "python3-skyfield", "python3-pyrender-pip"}
+
+
+def test_every_runtime_import_has_a_provider_on_a_distro():
+    depends = _manifest_depends()
+    exec_keys = depends.get("exec_depend", set()) | depends.get("depend", set())
+    distro_pip = _requirement_names(ROOT / "requirements-distro.txt") | _requirement_names(
+        ROOT / "requirements-distro-nodeps.txt"
+    )
+    ros_packages = _allowed_names()["ros_packages"]
+    missing = []
+    for module, where in sorted(_third_party_imports(RUNTIME_TREES).items()):
+        if module in ros_packages:
+            if module not in exec_keys:
+                missing.append(f"{module} ({where}): add <exec_depend>{module}</exec_depend>")
+            continue
+        provider = MODULE_PROVIDERS.get(module)
+        if provider is None:
+            missing.append(f"{module} ({where}): no provider known; add it to MODULE_PROVIDERS")
+        elif provider not in exec_keys and provider.lower() not in distro_pip:
+            missing.append(f"{module} ({where}): {provider} is in neither package.xml nor "
+                           "requirements-distro*.txt")
+    assert not missing, "\n".join(missing)
+
+
+def test_every_test_import_has_a_provider():
+    depends = _manifest_depends()
+    keys = set().union(*depends.values())
+    dev = _requirement_names(ROOT / "requirements-dev.txt") | _requirement_names(
+        ROOT / "requirements.txt"
+    )
+    missing = []
+    for module, where in sorted(_third_party_imports(("test",)).items()):
+        provider = MODULE_PROVIDERS.get(module, module)
+        if provider not in keys and provider.lower() not in dev and module not in keys:
+            missing.append(f"{module} ({where})")
+    assert not missing, f"test imports without a key or requirement: {missing}"
+
+
+@pytest.mark.parametrize("name", ["requirements-distro.txt", "requirements-distro-nodeps.txt"])
+def test_distro_requirements_use_ranges_and_no_ros_wheels(name):
+    for number, raw in enumerate((ROOT / name).read_text().splitlines(), 1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        assert "==" not in line, f"{name}:{number}: pin {line!r}; the distro route uses ranges"
+        assert not line.lower().startswith("ros-"), f"{name}:{number}: ROS wheel {line!r}"
+    if name == "requirements-distro.txt":
+        assert re.search(r"^numpy[^#\n]*<2", (ROOT / name).read_text(), re.MULTILINE), (
+            "NumPy must stay below 2 on a distro: its message packages are built against 1.x"
+        )
