@@ -180,14 +180,37 @@ class StationBuilder:
             merged = trimesh.util.concatenate(shaded)
             vertices = np.round(merged.vertices / POSITION_QUANTUM) * POSITION_QUANTUM
             normals = np.round(merged.vertex_normals / NORMAL_QUANTUM) * NORMAL_QUANTUM
+            vertices, normals, faces = _canonical_order(vertices, normals, merged.faces)
             # A fresh Trimesh drops the generators' metadata (it would land in glTF extras).
             clean = trimesh.Trimesh(
-                vertices=vertices, faces=merged.faces, vertex_normals=normals, process=False
+                vertices=vertices, faces=faces, vertex_normals=normals, process=False
             )
             clean.visual = trimesh.visual.TextureVisuals(material=materials[material])
             name = f"{component}_{material}"
             scene.add_geometry(clean, node_name=name, geom_name=name)
         return scene
+
+
+def _canonical_order(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Order vertices and faces by value, not by how trimesh happened to produce them.
+
+    trimesh's smooth shading groups faces with NumPy sorts whose order among ties depends on
+    the CPU's SIMD sort kernels, so the same mesh came out with its faces in another order on
+    another machine, and the committed file could not be rebuilt bit for bit. Sorting by value
+    (stable sorts only) makes the bytes depend on the geometry alone. Winding is kept.
+    """
+    vertex_order = np.lexsort(np.column_stack([vertices, normals]).T[::-1])
+    new_index = np.empty_like(vertex_order)
+    new_index[vertex_order] = np.arange(len(vertex_order))
+    faces = new_index[faces]
+    # Rotate each face to start at its smallest index (same winding), then sort the faces.
+    first = np.argmin(faces, axis=1)
+    rows = np.arange(len(faces))[:, None]
+    faces = faces[rows, (first[:, None] + np.arange(3)) % 3]
+    face_order = np.lexsort(faces.T[::-1])
+    return vertices[vertex_order], normals[vertex_order], faces[face_order]
 
 
 def _module_handrails(
