@@ -41,6 +41,7 @@ import numpy as np
 
 from .camera import ALLO_INTRINSICS, CameraIntrinsics
 from .ephemeris import EPOCH_2030, EphemerisError, allo_sky
+from .errors import InvalidInput
 from .geometry import blender_camera_to_optical, euler_zyx_to_matrix, matrix_to_quaternion
 from .sequence import Sequence as AlloSequence
 from .sequence import (
@@ -62,7 +63,7 @@ _CAMERA_DIR = re.compile(r"^Camera(\d+)$")
 _POSE_COLUMNS = ("split", "index", "x", "y", "z", "roll", "pitch", "yaw")
 
 
-class AlloImportError(ValueError):
+class AlloImportError(InvalidInput):
     """An ALLO tree, file name or pose table cannot be imported."""
 
 

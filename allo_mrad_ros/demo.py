@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector import METHODS, MradParams, profile
+from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.render import DEFAULT_SCALE
@@ -38,7 +39,7 @@ from allo_mrad_ros.visualise import outline
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
 
 
-class DemoError(RuntimeError):
+class DemoError(BackendError):
     """A step of the demo failed; the message says which and where its log is."""
 
 

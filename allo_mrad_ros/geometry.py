@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from allo_mrad_ros.errors import InvalidInput
+
 # Unit-norm tolerance for quaternions read from files or messages.
 QUATERNION_NORM_TOLERANCE = 1e-3
 
@@ -19,7 +21,7 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 OPTICAL_TO_OPENGL = np.diag([1.0, -1.0, -1.0])
 
 
-class PoseError(ValueError):
+class PoseError(InvalidInput):
     """A pose, quaternion or rotation is not valid."""
 
 

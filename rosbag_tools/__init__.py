@@ -11,7 +11,7 @@ One console script, ``allo-bag``, with five subcommands:
     Publishes a bag over DDS with rclpy at its recorded rate (:mod:`.play`).
 ``evaluate``
     Runs MRAD and the PAD and RXD baselines on every frame of a bag or a sequence through
-    :class:`allo_mrad_ros.processing.FrameProcessor` and writes a report (:mod:`.evaluate`).
+    :class:`allo_mrad_ros.pipeline.FrameProcessor` and writes a report (:mod:`.evaluate`).
 ``ablate``
     The paper's Table II parameter sweeps of MRAD as one table (:mod:`.ablate`).
 

@@ -7,14 +7,14 @@ frame), 2 for a usage error, 130 when interrupted.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from allo_mrad_ros.detector import PROFILES, MradParams, profile
+from allo_mrad_ros.detector import PROFILES
+from allo_mrad_ros.errors import AlloError, InvalidInput
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
@@ -22,38 +22,8 @@ from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
 PROG = "allo-bag"
 
 
-class CliError(RuntimeError):
+class CliError(InvalidInput):
     """A command-line value is invalid (reported as a usage error)."""
-
-
-def parse_params(profile_name: str, assignments: Sequence[str]) -> MradParams:
-    """Detector parameters from a profile name and ``key=value`` overrides.
-
-    Values take the type of the field's default (int, float or text).
-
-    Raises
-    ------
-    CliError
-        For an unknown profile or key, or a value of the wrong type or range.
-    """
-    if profile_name not in PROFILES:
-        raise CliError(f"unknown profile {profile_name!r}; choose from {sorted(PROFILES)}")
-    base = profile(profile_name)
-    kinds = {f.name: type(getattr(base, f.name)) for f in dataclasses.fields(base)}
-    changes: dict[str, object] = {}
-    for text in assignments:
-        key, sep, value = text.partition("=")
-        key = key.strip()
-        if not sep or key not in kinds:
-            raise CliError(f"--set expects KEY=VALUE with KEY one of {sorted(kinds)}; got {text!r}")
-        try:
-            changes[key] = kinds[key](value.strip())
-        except ValueError:
-            raise CliError(f"--set {key}: {value!r} is not a valid {kinds[key].__name__}") from None
-    try:
-        return base.replace(**changes) if changes else base
-    except ValueError as error:
-        raise CliError(f"--set: {error}") from None
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -141,10 +111,10 @@ def _parser() -> argparse.ArgumentParser:
             "--set", action="append", default=[], metavar="KEY=VALUE", help="MRAD parameter"
         )
         sub.add_argument(
-            "--ref-scale",
+            "--reference-scale",
             type=float,
             default=DEFAULT_SCALE,
-            help=f"reference render scale (default {DEFAULT_SCALE})",
+            help=f"linear scale of the rendered reference (default {DEFAULT_SCALE})",
         )
         sub.add_argument(
             "--use-sequence-references",
@@ -222,22 +192,38 @@ def _play(args: argparse.Namespace) -> int:
 
 
 def _source(args: argparse.Namespace) -> object:
-    from rosbag_tools.frames import open_source
+    from rosbag_tools.bag_source import open_source
 
     return open_source(args.input, mesh=args.mesh, use_references=args.use_sequence_references)
 
 
-def _evaluate(args: argparse.Namespace) -> int:
-    from rosbag_tools.evaluate import EvaluationConfig, evaluate
-    from rosbag_tools.report import evaluation_markdown, write_evaluation_report
+def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)) -> object:
+    """The :class:`~allo_mrad_ros.pipeline.PipelineConfig` of ``evaluate``/``ablate`` options.
 
-    params = parse_params(args.profile, args.set)
+    Raises
+    ------
+    CliError
+        For an unknown profile, method or parameter, or a value out of range.
+    """
+    from allo_mrad_ros.pipeline import PipelineConfig, ProcessingError, RenderSettings, params_from
+
+    try:
+        return PipelineConfig(
+            RenderSettings(reference_scale=args.reference_scale, shadows=args.shadows),
+            params_from(args.profile, args.set),
+            tuple(methods),
+        )
+    except ProcessingError as error:
+        raise CliError(str(error)) from None
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from allo_mrad_ros.evaluation.evaluate import EvaluationConfig, evaluate
+    from allo_mrad_ros.evaluation.report import evaluation_markdown, write_evaluation_report
+
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     config = EvaluationConfig(
-        methods=methods,
-        params=params,
-        ref_scale=args.ref_scale,
-        shadows=args.shadows,
+        pipeline=pipeline_config(args, methods),
         split=args.split,
         limit=args.limit,
         jobs=args.jobs,
@@ -255,14 +241,12 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _ablate(args: argparse.Namespace) -> int:
-    from rosbag_tools.ablate import ablate
-    from rosbag_tools.report import ablation_markdown, write_ablation_report
+    from allo_mrad_ros.evaluation.ablate import ablate
+    from allo_mrad_ros.evaluation.report import ablation_markdown, write_ablation_report
 
     result = ablate(
         _source(args),
-        base=parse_params(args.profile, args.set),
-        ref_scale=args.ref_scale,
-        shadows=args.shadows,
+        config=pipeline_config(args),
         split=args.split,
         limit=args.limit,
         jobs=args.jobs,
@@ -283,30 +267,6 @@ _COMMANDS = {
 }
 
 
-def _known_errors() -> tuple[type[BaseException], ...]:
-    from rosbag_tools.ablate import AblationError
-    from rosbag_tools.bagio import BagReadError
-    from rosbag_tools.evaluate import EvaluationError
-    from rosbag_tools.frames import FrameSourceError
-    from rosbag_tools.info import InfoError
-    from rosbag_tools.parallel import ParallelError
-    from rosbag_tools.play import PlayError
-    from rosbag_tools.report import ReportError
-    from rosbag_tools.writer import BagWriteError
-
-    return (
-        AblationError,
-        BagReadError,
-        BagWriteError,
-        EvaluationError,
-        FrameSourceError,
-        InfoError,
-        ParallelError,
-        PlayError,
-        ReportError,
-    )
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``allo-bag`` with ``argv`` (default: the process arguments).
 
@@ -324,7 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _COMMANDS[args.command](args)
     except (CliError, TopicError) as error:
         parser.error(str(error))
-    except _known_errors() as error:
+    except AlloError as error:
         print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -47,6 +47,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.render.bodies import DEFAULT_COLOURS
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -79,7 +80,7 @@ DEFAULT_DISTRO = "kilted"
 _TOPIC_NAME = re.compile(r"^/?[A-Za-z~{][A-Za-z0-9_{}~]*(/[A-Za-z0-9_{}][A-Za-z0-9_{}]*)*$")
 
 
-class TopicError(ValueError):
+class TopicError(InvalidInput):
     """A topic name, distribution or message value is invalid."""
 
 

@@ -29,6 +29,7 @@ from rosbags.interfaces import QosTime as _QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from tqdm import tqdm
 
+from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
 from rosbag_tools.topics import (
     CAMERA_INFO,
@@ -67,7 +68,7 @@ _FRAME_ID = re.compile(r"^[A-Za-z0-9_./-]+$")
 _UNSPECIFIED = _QosTime(0, 0)
 
 
-class BagWriteError(RuntimeError):
+class BagWriteError(BackendError):
     """A bag cannot be written: invalid input sequence, option or output path."""
 
 

@@ -6,7 +6,7 @@ import trimesh
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.processing import FrameProcessor, ProcessingError
+from allo_mrad_ros.pipeline import FrameProcessor, ProcessingError
 from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
 
 INTRINSICS = CameraIntrinsics(640, 360, 444.4, 444.4, 320.0, 180.0)
@@ -67,7 +67,7 @@ def test_wrong_image_size_and_unknown_method_are_named(renderers, pose):
 
 
 def test_sun_disc_is_added_to_the_reference_only_when_in_view(renderers):
-    from allo_mrad_ros.processing import with_sun
+    from allo_mrad_ros.pipeline import with_sun
 
     _, reference_renderer = renderers
     processor = FrameProcessor(reference_renderer)

@@ -46,7 +46,7 @@ from tqdm import tqdm
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.geometry import pose_matrix
 from allo_mrad_ros.metrics import MetricsAccumulator, bootstrap_ap_difference, frame_counts
-from allo_mrad_ros.processing import earth_and_moon, with_sun
+from allo_mrad_ros.pipeline import earth_and_moon, with_sun
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence

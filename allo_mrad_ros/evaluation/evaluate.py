@@ -1,7 +1,7 @@
-"""``allo-bag evaluate``: MRAD, PAD and RXD on every frame of a split, offline.
+"""Offline evaluation (``allo-bag evaluate``): MRAD, PAD and RXD on every frame of a split.
 
-Every frame goes through :meth:`allo_mrad_ros.processing.FrameProcessor.process`, the step
-the detector node runs: the reference is rendered at the frame's pose with the input's own
+Every frame goes through :meth:`allo_mrad_ros.pipeline.Pipeline.process`, the step the
+detector node runs: the reference is rendered at the frame's pose with the input's own
 station model, then each method detects. Pixel scores are pooled into per-frame histograms
 in the workers (exactly what :class:`~allo_mrad_ros.metrics.MetricsAccumulator` would add),
 so only counts travel between processes; histograms add up, so the totals equal a single
@@ -13,7 +13,6 @@ frames (the usual per-category reading).
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -24,7 +23,14 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
-from allo_mrad_ros.detector import METHODS, MradParams
+from allo_mrad_ros.detector import DetectionResult
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
+from allo_mrad_ros.evaluation.sources import (
+    EvalFrame,
+    FrameSource,
+    open_sequence,
+)
 from allo_mrad_ros.metrics import (
     POSITIVE_CLASS,
     AlloMetrics,
@@ -32,10 +38,7 @@ from allo_mrad_ros.metrics import (
     MetricsAccumulator,
     PixelScoreHistogram,
 )
-from allo_mrad_ros.processing import FrameProcessor
-from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
-from rosbag_tools.frames import EvalFrame, FrameSource, open_source
-from rosbag_tools.parallel import RunClock, run_frames
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
 
 ALL_METHODS = ("MRAD", "PAD", "RXD")
 NORMAL_GROUP = "normal"
@@ -43,7 +46,7 @@ OVERLAY_WIDTH = 320
 OVERLAYS_PER_GROUP = 2
 
 
-class EvaluationError(RuntimeError):
+class EvaluationError(InvalidInput):
     """Evaluation cannot run (bad option) or a frame failed (the message names it)."""
 
 
@@ -53,14 +56,8 @@ class EvaluationConfig:
 
     Parameters
     ----------
-    methods : tuple of str
-        Detectors, names from :data:`allo_mrad_ros.detector.METHODS`.
-    params : MradParams
-        Detector parameters (PAD and RXD use the shared post-processing ones).
-    ref_scale : float
-        Linear scale of the rendered reference, (0, 1].
-    shadows : bool
-        Render Sun shadows in the reference.
+    pipeline : PipelineConfig
+        Render settings, detector parameters and methods (default: all three methods).
     split : str or None
         Split to evaluate; None means ``test`` if present, else every frame.
     limit : int or None
@@ -73,10 +70,7 @@ class EvaluationConfig:
         Show a progress bar.
     """
 
-    methods: tuple[str, ...] = ALL_METHODS
-    params: MradParams = field(default_factory=MradParams)
-    ref_scale: float = DEFAULT_SCALE
-    shadows: bool = DEFAULT_SHADOWS
+    pipeline: PipelineConfig = field(default_factory=lambda: PipelineConfig(methods=ALL_METHODS))
     split: str | None = None
     limit: int | None = None
     jobs: int = 1
@@ -84,17 +78,17 @@ class EvaluationConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        unknown = [m for m in self.methods if m not in METHODS]
-        if unknown or not self.methods:
-            raise EvaluationError(f"unknown method(s) {unknown}; choose from {sorted(METHODS)}")
-        if not (math.isfinite(self.ref_scale) and 0 < self.ref_scale <= 1):
-            raise EvaluationError(f"ref_scale must be in (0, 1], got {self.ref_scale!r}")
-        if self.jobs < 1:
-            raise EvaluationError(f"jobs must be at least 1, got {self.jobs}")
-        if self.limit is not None and self.limit < 1:
-            raise EvaluationError(f"limit must be at least 1, got {self.limit}")
+        check_run_options(self.jobs, self.limit)
         if self.overlays < 0:
             raise EvaluationError(f"overlays must be >= 0, got {self.overlays}")
+
+
+def check_run_options(jobs: int, limit: int | None) -> None:
+    """Validate the worker count and the frame limit of a run (evaluate and ablate)."""
+    if jobs < 1:
+        raise EvaluationError(f"jobs must be at least 1, got {jobs}")
+    if limit is not None and limit < 1:
+        raise EvaluationError(f"limit must be at least 1, got {limit}")
 
 
 # ----------------------------------------------------------------- per-frame outcome
@@ -127,6 +121,18 @@ class MethodOutcome:
     anomalous: bool
     timings_ms: dict[str, float]
 
+    @classmethod
+    def of(
+        cls, result: DetectionResult, truth: np.ndarray, timings_ms: dict[str, float]
+    ) -> MethodOutcome:
+        """The outcome of one detection against the frame's ground truth."""
+        return cls(
+            frame_counts(result.score, truth),
+            float(result.area),
+            bool(result.anomalous),
+            timings_ms,
+        )
+
 
 @dataclass
 class Overlay:
@@ -158,36 +164,38 @@ class FrameOutcome:
 
 # ----------------------------------------------------------------- worker side
 @dataclass(frozen=True)
-class RendererSetup:
-    """What a worker needs to build its renderer and processor."""
+class WorkerSetup:
+    """What a worker process needs to build its pipeline (picklable)."""
 
     mesh: Any
     camera: CameraIntrinsics
-    ref_scale: float
-    shadows: bool
+    config: PipelineConfig
 
 
 _STATE: dict[str, Any] = {}
 
 
-def build_renderer(setup: RendererSetup) -> ReferenceRenderer:
-    """The reference renderer of a run (one per process)."""
-    return ReferenceRenderer(setup.mesh, setup.camera, scale=setup.ref_scale, shadows=setup.shadows)
-
-
-def _init_evaluation(setup: RendererSetup, params: MradParams, methods: tuple[str, ...]) -> None:
+def start_worker(setup: WorkerSetup) -> Pipeline:
+    """Build this process's pipeline (one reference provider per process)."""
     release_worker_state()
-    renderer = build_renderer(setup)
-    _STATE["renderer"] = renderer
-    _STATE["processor"] = FrameProcessor(renderer, params, methods)
+    pipeline = Pipeline(
+        ReferenceProvider(setup.mesh, setup.camera, setup.config.render), setup.config
+    )
+    _STATE["pipeline"] = pipeline
+    return pipeline
+
+
+def worker_pipeline() -> Pipeline:
+    """The pipeline :func:`start_worker` built in this process."""
+    return _STATE["pipeline"]
 
 
 def release_worker_state() -> None:
-    """Close this process's renderer (after an in-process run)."""
-    renderer = _STATE.pop("renderer", None)
+    """Close this process's reference provider (after an in-process run)."""
+    pipeline = _STATE.pop("pipeline", None)
     _STATE.clear()
-    if renderer is not None:
-        renderer.close()
+    if pipeline is not None:
+        pipeline.provider.close()
 
 
 def _small(array: np.ndarray, interpolation: int) -> np.ndarray:
@@ -206,26 +214,13 @@ def frame_counts(score: np.ndarray, mask: np.ndarray) -> SparseCounts:
 
 def _evaluate_frame(job: tuple[EvalFrame, bool]) -> FrameOutcome:
     frame, want_overlay = job
-    processor: FrameProcessor = _STATE["processor"]
     try:
-        processed = processor.process(
-            frame.image,
-            frame.T_station_camera,
-            frame.sun_direction,
-            frame.sun_strength,
-            frame.bodies,
-            reference=frame.reference,
-        )
+        processed = worker_pipeline().process(frame.image, frame.view, reference=frame.reference)
         methods = {
-            name: MethodOutcome(
-                counts=frame_counts(result.score, frame.mask),
-                area=float(result.area),
-                anomalous=bool(result.anomalous),
-                timings_ms=dict(result.timings_ms),
-            )
+            name: MethodOutcome.of(result, frame.mask, dict(result.timings_ms))
             for name, result in processed.results.items()
         }
-    except Exception as error:
+    except (ValueError, RuntimeError) as error:
         raise EvaluationError(f"frame {frame.name} (index {frame.index}): {error}") from None
     overlay = None
     if want_overlay:
@@ -352,7 +347,7 @@ def evaluate(
     Parameters
     ----------
     source : FrameSource or path-like
-        Input (see :func:`rosbag_tools.frames.open_source`).
+        Input; a path opens a sequence folder (bags: :func:`rosbag_tools.bag_source.open_source`).
     config : EvaluationConfig, optional
         Options (defaults: all three methods, default parameters, test split).
 
@@ -364,16 +359,17 @@ def evaluate(
     ------
     EvaluationError
         For a frame that fails (naming it) or an invalid option.
-    rosbag_tools.frames.FrameSourceError
+    allo_mrad_ros.evaluation.sources.FrameSourceError
         For an input that cannot be read.
     """
     config = config or EvaluationConfig()
     if not isinstance(source, FrameSource):
-        source = open_source(source)
+        source = open_sequence(source)
     split = config.split if config.split is not None else source.default_split()
     indices = source.select(split, config.limit)
-    setup = RendererSetup(source.mesh, source.camera, config.ref_scale, config.shadows)
-    tallies: dict[str, dict[str, Tally]] = {m: defaultdict(Tally) for m in config.methods}
+    methods = config.pipeline.methods
+    setup = WorkerSetup(source.mesh, source.camera, config.pipeline)
+    tallies: dict[str, dict[str, Tally]] = {m: defaultdict(Tally) for m in methods}
     samples: dict[str, list[float]] = defaultdict(list)
     overlays: list[FrameOutcome] = []
     frames_by_group: dict[str, int] = defaultdict(int)
@@ -382,8 +378,8 @@ def evaluate(
     outcomes = run_frames(
         _jobs(source, indices, config.overlays, chosen),
         len(indices),
-        initializer=_init_evaluation,
-        initargs=(setup, config.params, tuple(config.methods)),
+        initializer=start_worker,
+        initargs=(setup,),
         work=_evaluate_frame,
         jobs=config.jobs,
         progress=config.progress,
@@ -405,7 +401,7 @@ def evaluate(
         if config.jobs == 1:
             release_worker_state()
     metrics, curves, detection = {}, {}, {}
-    for name in config.methods:
+    for name in methods:
         accumulator = merged_accumulator(list(tallies[name].values()))
         metrics[name] = accumulator.compute()
         curves[name] = _curve(accumulator)
@@ -423,7 +419,7 @@ def evaluate(
                 )
                 .compute()
                 .as_dict()
-                for name in config.methods
+                for name in methods
             },
         }
     return EvaluationResult(

@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import optical_to_opengl_pose, validate_transform
 from allo_mrad_ros.render.backend import (
     INSTALL_HINT,
@@ -119,17 +120,17 @@ def _number(value: float, name: str, low: float = -math.inf, low_inclusive: bool
     too_low = number < low if low_inclusive else number <= low
     if not math.isfinite(number) or too_low:
         bound = "" if low == -math.inf else f" and {'>=' if low_inclusive else '>'} {low}"
-        raise RendererError(f"{name} must be finite{bound}, got {value!r}")
+        raise InvalidInput(f"{name} must be finite{bound}, got {value!r}")
     return number
 
 
 def _unit_vector(value: object, name: str) -> np.ndarray:
     vector = np.asarray(value, dtype=np.float64)
     if vector.shape != (3,) or not np.all(np.isfinite(vector)):
-        raise RendererError(f"{name} must be 3 finite numbers, got {value!r}")
+        raise InvalidInput(f"{name} must be 3 finite numbers, got {value!r}")
     norm = float(np.linalg.norm(vector))
     if norm < 1e-12:
-        raise RendererError(f"{name} must not be zero")
+        raise InvalidInput(f"{name} must not be zero")
     return vector / norm
 
 
@@ -137,9 +138,9 @@ def _object_pose(value: object, name: str) -> np.ndarray:
     """A finite 4x4 affine pose with positive determinant (scaling is allowed)."""
     pose = np.asarray(value, dtype=np.float64)
     if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-        raise RendererError(f"{name} pose must be a finite 4x4 matrix")
+        raise InvalidInput(f"{name} pose must be a finite 4x4 matrix")
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]) or np.linalg.det(pose[:3, :3]) <= 0:
-        raise RendererError(f"{name} pose must be affine with a positive determinant")
+        raise InvalidInput(f"{name} pose must be affine with a positive determinant")
     return pose
 
 
@@ -194,7 +195,9 @@ class ReferenceRenderer:
     Raises
     ------
     RendererError
-        If no OpenGL backend starts, the model is missing or empty, or a parameter is invalid.
+        If no OpenGL backend starts.
+    InvalidInput
+        If the model is missing or empty, or a parameter is invalid.
 
     Notes
     -----
@@ -218,10 +221,10 @@ class ReferenceRenderer:
         cull_bodies: bool = True,
     ) -> None:
         if not isinstance(intrinsics, CameraIntrinsics):
-            raise RendererError(f"intrinsics must be a CameraIntrinsics, got {type(intrinsics)}")
+            raise InvalidInput(f"intrinsics must be a CameraIntrinsics, got {type(intrinsics)}")
         scale = _number(scale, "scale", 0.0, low_inclusive=False)
         if scale > 4.0:
-            raise RendererError(f"scale must be at most 4, got {scale}")
+            raise InvalidInput(f"scale must be at most 4, got {scale}")
         self._znear = _number(znear, "znear", 0.0, low_inclusive=False)
         self._zfar = _number(zfar, "zfar", self._znear, low_inclusive=False)
         self._sun_intensity = _number(sun_intensity, "sun_intensity", 0.0)
@@ -229,7 +232,7 @@ class ReferenceRenderer:
         ambient = _number(ambient, "ambient", 0.0)
         cone = _number(spot_cone_deg, "spot_cone_deg", 0.0, low_inclusive=False)
         if cone >= 180.0:
-            raise RendererError(f"spot_cone_deg must be < 180, got {cone}")
+            raise InvalidInput(f"spot_cone_deg must be < 180, got {cone}")
         self.intrinsics = intrinsics
         self.output_intrinsics = intrinsics.scaled(scale)
         self.scale = scale
@@ -362,11 +365,11 @@ class ReferenceRenderer:
             self._extra_meshes.move_to_end(key)
             return self._extra_meshes[key][1]
         if not isinstance(mesh, (trimesh.Trimesh, trimesh.Scene)):
-            raise RendererError(f"extra object mesh must be a trimesh mesh, got {type(mesh)}")
+            raise InvalidInput(f"extra object mesh must be a trimesh mesh, got {type(mesh)}")
         try:
             groups = load_model(mesh, two_sided=True)
-        except RendererError as error:
-            raise RendererError(f"extra object: {error}") from error
+        except InvalidInput as error:
+            raise InvalidInput(f"extra object: {error}") from error
         pr_mesh = self._mesh_from_groups(groups)
         self._extra_meshes[key] = (mesh, pr_mesh)  # holding the mesh keeps id() unique
         if len(self._extra_meshes) > _EXTRA_CACHE_SIZE:
@@ -478,7 +481,7 @@ class ReferenceRenderer:
             for i, extra in enumerate(extras):
                 label = int(extra.label)
                 if not 0 <= label <= 255:
-                    raise RendererError(f"extra object label must be in 0..255, got {label}")
+                    raise InvalidInput(f"extra object label must be in 0..255, got {label}")
                 pose = _object_pose(extra.pose, f"extra object {i}")
                 mesh = self._extra_mesh(extra.mesh)
                 node = scene.add(mesh, pose=pose, name=f"extra:{i}")

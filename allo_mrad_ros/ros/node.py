@@ -7,7 +7,7 @@ Structure (one place per concern):
 * subscription callbacks only store the newest message (:class:`.buffers.LatestSlot` for
   images, :class:`.buffers.StampedBuffer` for poses), so inputs never wait for processing;
 * one processing thread owns the OpenGL renderer (GL contexts are bound to a thread), looks
-  up the pose at the image stamp, runs :class:`~allo_mrad_ros.processing.FrameProcessor`
+  up the pose at the image stamp, runs :class:`~allo_mrad_ros.pipeline.FrameProcessor`
   and publishes with the input image's header;
 * a timer publishes ``/diagnostics``.
 """
@@ -39,7 +39,7 @@ from visualization_msgs.msg import MarkerArray
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import MradParams
-from allo_mrad_ros.processing import FrameProcessor
+from allo_mrad_ros.pipeline import FrameProcessor
 from allo_mrad_ros.render import ReferenceRenderer, RendererError
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.buffers import LatestSlot, StageStatistics, StampedBuffer

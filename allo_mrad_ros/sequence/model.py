@@ -14,6 +14,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from allo_mrad_ros.errors import InvalidInput
+
 from ..camera import CameraIntrinsics
 from ..geometry import pose_matrix
 
@@ -58,7 +60,7 @@ COLUMNS = (
 """The columns of ``frames.csv`` in the order the writer emits them."""
 
 
-class SequenceError(ValueError):
+class SequenceError(InvalidInput):
     """A sequence on disk, or a value about to be written to one, is not valid.
 
     Parameters
