@@ -28,6 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.example_scene import example_pair
@@ -73,7 +74,7 @@ def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None
     from allo_mrad_ros.ros.messages import fill_camera_info
 
     publisher = node.create_publisher(
-        CameraInfo, "/arm_camera/camera_info", qos_profile_sensor_data
+        CameraInfo, interface.CAMERA_INFO_TOPIC, qos_profile_sensor_data
     )
     info = fill_camera_info(CameraInfo(), intrinsics)
     deadline = time.monotonic() + 60
@@ -174,7 +175,7 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     node = start_node(logs / "node.log", "publish_overlay:=false")
     try:
         deadline = time.monotonic() + 60
-        while listener.count_subscribers("/arm_camera/image_raw") < 2:
+        while listener.count_subscribers(interface.IMAGE_TOPIC) < 2:
             if time.monotonic() > deadline or node.poll() is not None:
                 raise DemoError(f"the node did not start; see {logs / 'node.log'}")
             rclpy.spin_once(listener, timeout_sec=0.1)
@@ -190,7 +191,7 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
                 "--rate",
                 str(rate),
                 "--wait-for",
-                "/arm_camera/image_raw",
+                interface.IMAGE_TOPIC,
             ],
             stdout=(logs / "play.log").open("w"),
             stderr=subprocess.STDOUT,

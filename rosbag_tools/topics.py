@@ -46,6 +46,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.render.bodies import DEFAULT_COLOURS
@@ -60,9 +61,9 @@ MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 STRING = "std_msgs/msg/String"
 
 # visualization_msgs/Marker constants (the same in every ROS 2 distribution).
-MARKER_SPHERE = 2
-MARKER_ADD = 0
-MARKER_DELETE = 2
+MARKER_SPHERE = interface.MARKER_SPHERE
+MARKER_ADD = interface.MARKER_ADD
+MARKER_DELETE = interface.MARKER_DELETE
 
 DISTROS: dict[str, tuple[Stores, int]] = {
     # rosbag2 metadata version per distribution. rosbags writes versions 8 and 9 only, so
@@ -94,16 +95,16 @@ class TopicNames:
         If a name is not a valid ROS 2 topic name or two roles share a name.
     """
 
-    image: str = "/arm_camera/image_raw"
-    camera_info: str = "/arm_camera/camera_info"
-    tf: str = "/tf"
-    tf_static: str = "/tf_static"
-    pose: str = "/arm_camera/pose"
-    sun_direction: str = "/allo/sun_direction"
-    sun_strength: str = "/allo/sun_strength"
-    bodies: str = "/allo/celestial_bodies"
-    mask: str = "/allo/ground_truth/mask"
-    label: str = "/allo/ground_truth/label"
+    image: str = interface.IMAGE_TOPIC
+    camera_info: str = interface.CAMERA_INFO_TOPIC
+    tf: str = interface.TF_TOPIC
+    tf_static: str = interface.TF_STATIC_TOPIC
+    pose: str = interface.POSE_TOPIC
+    sun_direction: str = interface.SUN_DIRECTION_TOPIC
+    sun_strength: str = interface.SUN_STRENGTH_TOPIC
+    bodies: str = interface.BODIES_TOPIC
+    mask: str = interface.MASK_TOPIC
+    label: str = interface.LABEL_TOPIC
 
     def __post_init__(self) -> None:
         seen: dict[str, str] = {}

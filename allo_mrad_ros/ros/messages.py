@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import PoseError, pose_matrix
@@ -208,7 +209,10 @@ def markers_to_bodies(markers: Sequence[Any]) -> list[CelestialBody]:
     """
     bodies = []
     for marker in markers:
-        if int(marker.type) != 2 or int(marker.action) not in (0, 1):  # SPHERE, ADD/MODIFY
+        if int(marker.type) != interface.MARKER_SPHERE or int(marker.action) not in (
+            interface.MARKER_ADD,
+            interface.MARKER_MODIFY,
+        ):
             continue
         p = marker.pose.position
         try:
