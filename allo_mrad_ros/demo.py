@@ -261,12 +261,12 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     return 0
 
 
-def run_builtin(out: Path, profile_name: str, ref_scale: float) -> int:
+def run_builtin(out: Path, profile_name: str, reference_scale: float) -> int:
     """Run the three detectors on the built-in synthetic example (no ROS)."""
     params: MradParams = profile(profile_name)
     pair = example_pair()
     height, width = pair.query.shape[:2]
-    ref_size = (round(width * ref_scale), round(height * ref_scale))
+    ref_size = (round(width * reference_scale), round(height * reference_scale))
     reference = cv2.resize(pair.reference, ref_size, interpolation=cv2.INTER_AREA)
     truth = pair.object_mask > 0
     out.mkdir(parents=True, exist_ok=True)
@@ -303,10 +303,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=1.0, help="bag playback speed multiple")
     parser.add_argument("--builtin", action="store_true", help="built-in example, no ROS")
     parser.add_argument("--profile", default="default", help="detector profile (--builtin)")
-    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE, help="(--builtin)")
+    parser.add_argument("--reference-scale", type=float, default=DEFAULT_SCALE, help="(--builtin)")
     args = parser.parse_args(argv)
     if args.builtin:
-        return run_builtin(args.out, args.profile, args.ref_scale)
+        return run_builtin(args.out, args.profile, args.reference_scale)
     try:
         return run_live(args.data, args.out, args.seed, args.rate)
     except DemoError as error:

@@ -43,22 +43,20 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from allo_mrad_ros.detector import METHODS, MradParams, profile
+from allo_mrad_ros.detector import MradParams, profile
 from allo_mrad_ros.geometry import pose_matrix
 from allo_mrad_ros.metrics import MetricsAccumulator, bootstrap_ap_difference, frame_counts
-from allo_mrad_ros.pipeline import earth_and_moon, with_sun
-from allo_mrad_ros.render import ReferenceRenderer
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence
+from allo_mrad_ros.view import View
 
 
-@dataclass(frozen=True)
-class RenderKey:
-    """What makes two references differ: the renderer's settings (sweep baseline values)."""
-
-    scale: float = 0.25
-    shadows: bool = True
-    cull_bodies: bool = True
+def render_settings(
+    reference_scale: float, shadows: bool = True, cull_bodies: bool = True
+) -> RenderSettings:
+    """The render settings of a sweep point (the sweep's baseline: shadows, bodies culled)."""
+    return RenderSettings(reference_scale, shadows, cull_bodies)
 
 
 @dataclass(frozen=True)
@@ -66,9 +64,14 @@ class Setting:
     """One point of the sweep: how the reference is rendered and how MRAD runs."""
 
     name: str
-    render: RenderKey = RenderKey()
+    render: RenderSettings
     params: MradParams = field(default_factory=MradParams)
     method: str = "MRAD"
+
+    @property
+    def config(self) -> PipelineConfig:
+        """The pipeline configuration this setting runs."""
+        return PipelineConfig(self.render, self.params, (self.method,))
 
     @property
     def conforms(self) -> bool:
@@ -79,24 +82,24 @@ class Setting:
 def sweep_settings(base: MradParams) -> list[Setting]:
     """The swept settings: each knob alone around ``base``, then the speed knobs combined
     with each accuracy knob (grid 6, cell_spread), so fast and accurate can meet."""
-    full, eighth = RenderKey(), RenderKey(0.125)
-    eighth_flat = RenderKey(0.125, False)
+    full, eighth = render_settings(0.25), render_settings(0.125)
+    eighth_flat = render_settings(0.125, False)
     half = base.replace(process_scale=0.5)
     settings = [
         Setting("baseline", full, base),
-        Setting("ref scale 1", RenderKey(1.0), base),
-        Setting("ref scale 1/2", RenderKey(0.5), base),
+        Setting("ref scale 1", render_settings(1.0), base),
+        Setting("ref scale 1/2", render_settings(0.5), base),
         Setting("ref scale 1/8", eighth, base),
         Setting("query scale 1/2", full, half),
         Setting("query scale 1/4", full, base.replace(process_scale=0.25)),
-        Setting("no shadows", RenderKey(0.25, False), base),
-        Setting("bodies always", RenderKey(0.25, True, False), base),
+        Setting("no shadows", render_settings(0.25, False), base),
+        Setting("bodies always", render_settings(0.25, True, False), base),
         Setting("grid 6", full, base.replace(grid=6)),
         Setting("cell_spread", full, base.replace(noise_removal="cell_spread")),
         Setting("per_image scaling", full, base.replace(score_scaling="per_image")),
         Setting("ref 1/8, no shadows", eighth_flat, base),
         Setting("ref 1/8, query 1/2, no shadows", eighth_flat, half),
-        Setting("paper-faithful", RenderKey(1.0), profile("paper")),
+        Setting("paper-faithful", render_settings(1.0), profile("paper")),
     ]
     for label, accurate in (
         ("grid 6", base.replace(grid=6)),
@@ -145,7 +148,7 @@ class Outcome:
         return {
             "setting": s.name,
             "method": s.method,
-            "ref_scale": s.render.scale,
+            "reference_scale": s.render.reference_scale,
             "shadows": s.render.shadows,
             "cull_bodies": s.render.cull_bodies,
             "params": s.params.to_dict(),
@@ -186,19 +189,14 @@ class Sweep:
 
     def __init__(self, sequence: AlloSequence) -> None:
         self.sequence = sequence
-        self._renderers: dict[RenderKey, ReferenceRenderer] = {}
+        self._providers: dict[RenderSettings, ReferenceProvider] = {}
 
-    def renderer(self, key: RenderKey) -> ReferenceRenderer:
-        """The (cached) renderer of a render key."""
-        if key not in self._renderers:
-            self._renderers[key] = ReferenceRenderer(
-                self.sequence.meta.mesh,
-                self.sequence.meta.camera,
-                scale=key.scale,
-                shadows=key.shadows,
-                cull_bodies=key.cull_bodies,
-            )
-        return self._renderers[key]
+    def provider(self, render: RenderSettings) -> ReferenceProvider:
+        """The (cached) reference provider of some render settings."""
+        if render not in self._providers:
+            meta = self.sequence.meta
+            self._providers[render] = ReferenceProvider(meta.mesh, meta.camera, render)
+        return self._providers[render]
 
     def run(
         self,
@@ -209,27 +207,24 @@ class Sweep:
     ) -> list[Outcome]:
         """Evaluate every setting on every frame; returns one outcome per setting."""
         outcomes = [Outcome(s) for s in settings]
+        pipelines = [Pipeline(self.provider(s.render), s.config) for s in settings]
         keys = list(dict.fromkeys(s.render for s in settings))
         for frame in tqdm(frames, desc=label, unit="frame", leave=False):
             image = self.sequence.load_image(frame)
             truth = self.sequence.load_mask(frame)
-            pose = pose_of(frame)
+            # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
+            view = View.from_row(
+                pose_of(frame), frame.sun_direction, frame.sun_strength, frame.earth, frame.moon
+            )
             references, render_ms = {}, {}
             for key in keys:
                 start = time.perf_counter()
-                # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
-                bodies = with_sun(earth_and_moon(frame.earth, frame.moon), frame.sun_direction)
-                references[key] = (
-                    self.renderer(key)
-                    .render(pose, frame.sun_direction, frame.sun_strength, bodies)
-                    .rgb
-                )
+                references[key] = self.provider(key).render(view)
                 render_ms[key] = 1e3 * (time.perf_counter() - start)
-            for outcome in outcomes:
+            for outcome, pipeline in zip(outcomes, pipelines, strict=True):
                 s = outcome.setting
-                start = time.perf_counter()
-                result = METHODS[s.method](image, references[s.render], s.params)
-                detect = 1e3 * (time.perf_counter() - start)
+                results, detect_ms = pipeline.detect(image, references[s.render])
+                result, detect = results[s.method], detect_ms[s.method]
                 outcome.render_ms.append(render_ms[s.render])
                 outcome.detect_ms.append(detect)
                 outcome.latency_ms.append(render_ms[s.render] + detect)
@@ -239,9 +234,9 @@ class Sweep:
 
     def close(self) -> None:
         """Release the GL contexts."""
-        for renderer in self._renderers.values():
-            renderer.close()
-        self._renderers.clear()
+        for provider in self._providers.values():
+            provider.close()
+        self._providers.clear()
 
 
 def pareto_front(rows: Iterable[dict]) -> list[dict]:
