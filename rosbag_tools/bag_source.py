@@ -34,8 +34,7 @@ from allo_mrad_ros.ros.messages import (
 )
 from allo_mrad_ros.sequence import MASK_ANOMALY, META_FILE
 from allo_mrad_ros.view import View
-from rosbag_tools.bagio import BagReadError, bag_topics, custom_data, is_bag, open_bag
-from rosbag_tools.writer import (
+from rosbag_tools.bag_meta import (
     KEY_MESH,
     KEY_MESH_SHA256,
     KEY_NAME,
@@ -43,6 +42,7 @@ from rosbag_tools.writer import (
     decode_splits,
     file_sha256,
 )
+from rosbag_tools.bagio import BagReadError, bag_topics, custom_data, is_bag, open_bag
 
 
 class BagSource(FrameSource):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from allo_mrad_ros.allo_ephemeris import allo_sky, parse_allo_ephemeris, read_allo_ephemeris
 from allo_mrad_ros.ephemeris import (
     EARTH_DISTANCE_M,
     EARTH_RADIUS_KM,
@@ -22,10 +23,7 @@ from allo_mrad_ros.ephemeris import (
     LunarOrbit,
     Sky,
     StationEphemeris,
-    allo_sky,
     day_to_datetime,
-    parse_allo_ephemeris,
-    read_allo_ephemeris,
 )
 
 SHARED_ALLO = Path(__file__).resolve().parents[1].parent / "shared" / "allo"

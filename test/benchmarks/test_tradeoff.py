@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from allo_mrad_ros.benchmarks.tradeoff import (
+from allo_mrad_ros.benchmarks.tradeoff_report import (
     choose_default,
     describe_speedup_tier,
     most_accurate_with_speedup,
     pareto_front,
-    perturbed,
-    sweep_settings,
 )
+from allo_mrad_ros.benchmarks.tradeoff_settings import perturbed, sweep_settings
 from allo_mrad_ros.detector import profile
 from allo_mrad_ros.geometry import look_at
 
