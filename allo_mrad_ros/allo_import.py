@@ -44,6 +44,7 @@ from allo_mrad_ros.allo_format import (
 from .allo_ephemeris import allo_sky
 from .camera import ALLO_INTRINSICS, CameraIntrinsics
 from .ephemeris import EPOCH_2030, EphemerisError
+from .options import keyword_options
 from .sequence import Sequence as AlloSequence
 from .sequence import (
     SequenceError,
@@ -263,17 +264,8 @@ def add_import_parser(subparsers: argparse._SubParsersAction) -> argparse.Argume
 
 def _run_import(args: argparse.Namespace) -> int:
     try:
-        sequence = import_allo(
-            args.split_dir,
-            args.out,
-            args.split,
-            copy=args.copy,
-            rate_hz=args.rate_hz,
-            name=args.name,
-            overwrite=args.overwrite,
-            validate=args.validate,
-            progress=not args.quiet,
-        )
+        options = keyword_options(args, "copy", "rate_hz", "name", "overwrite", "validate")
+        sequence = import_allo(args.split_dir, args.out, args.split, **options)
     except (AlloImportError, SequenceError) as error:
         print(f"import-allo: error: {error}", file=sys.stderr)
         return 1

@@ -202,20 +202,8 @@ def open_source(
     mesh: str | PathLike[str] | None = None,
     use_references: bool = False,
 ) -> FrameSource:
-    """Open a sequence folder or a bag for evaluation.
-
-    Parameters
-    ----------
-    path : path-like
-        Sequence folder (with ``sequence.yaml``) or rosbag2 bag.
-    mesh : path-like, optional
-        Station model to render references with, instead of the sequence's or the bag's.
-    use_references : bool
-        Use the sequence's pre-rendered references (sequences only).
-
-    Returns
-    -------
-    FrameSource
+    """Open a sequence folder (as :func:`~allo_mrad_ros.evaluation.sources.open_sequence`) or
+    a bag (``mesh`` then overrides the model the bag records; it has no references).
 
     Raises
     ------

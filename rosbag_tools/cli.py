@@ -15,6 +15,7 @@ from pathlib import Path
 
 from allo_mrad_ros.detector import PROFILES
 from allo_mrad_ros.errors import AlloError, InvalidInput
+from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
@@ -45,6 +46,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     write.add_argument(
         "--split",
+        dest="splits",
         action="append",
         choices=("train", "val", "test"),
         help="write only this split (repeatable; default: all frames)",
@@ -58,6 +60,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     write.add_argument(
         "--tf-static-parent",
+        dest="static_parent",
         metavar="FRAME",
         help="also write /tf_static: identity from FRAME (e.g. world) to the station frame",
     )
@@ -142,17 +145,11 @@ def _parser() -> argparse.ArgumentParser:
 def _write(args: argparse.Namespace) -> int:
     from rosbag_tools.writer import write_bag
 
-    topics = TopicNames.from_assignments(args.topic)
     summary = write_bag(
         args.sequence,
         args.out,
-        storage=args.storage,
-        distro=args.distro,
-        topics=topics,
-        splits=args.split,
-        static_parent=args.tf_static_parent,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
+        topics=TopicNames.from_assignments(args.topic),
+        **keyword_options(args, "storage", "distro", "splits", "static_parent", "overwrite"),
     )
     total = sum(summary.messages.values())
     print(
@@ -173,16 +170,8 @@ def _info(args: argparse.Namespace) -> int:
 def _play(args: argparse.Namespace) -> int:
     from rosbag_tools.play import play_bag
 
-    summary = play_bag(
-        args.bag,
-        rate=args.rate,
-        loop=args.loop,
-        topics=args.topics,
-        delay=args.delay,
-        clock=args.clock,
-        wait_for=args.wait_for,
-        wait_timeout=args.wait_timeout,
-    )
+    options = ("rate", "loop", "topics", "delay", "clock", "wait_for", "wait_timeout")
+    summary = play_bag(args.bag, **keyword_options(args, *options))
     total = sum(summary.published.values())
     print(
         f"published {total} messages on {len(summary.published)} topics in "

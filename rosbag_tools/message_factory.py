@@ -159,6 +159,17 @@ class MessageFactory:
         x, y, z, w = (float(v) for v in xyzw)
         return self.build("geometry_msgs/msg/Quaternion", x=x, y=y, z=z, w=w)
 
+    def _placement(
+        self, msgtype: str, names: tuple[str, str], xyz: Sequence[float], xyzw: Sequence[float]
+    ) -> Any:
+        """A Transform (translation, rotation) or Pose (position, orientation)."""
+        point = (
+            "geometry_msgs/msg/Vector3" if names[0] == "translation" else "geometry_msgs/msg/Point"
+        )
+        return self.build(
+            msgtype, **{names[0]: self._point(point, xyz), names[1]: self._quaternion(xyzw)}
+        )
+
     def tf_message(
         self,
         stamp_ns: int,
@@ -168,10 +179,8 @@ class MessageFactory:
         rotation_xyzw: Sequence[float],
     ) -> Any:
         """A ``tf2_msgs/TFMessage`` holding one transform ``parent`` -> ``child``."""
-        transform = self.build(
-            "geometry_msgs/msg/Transform",
-            translation=self._point("geometry_msgs/msg/Vector3", translation),
-            rotation=self._quaternion(rotation_xyzw),
+        transform = self._placement(
+            "geometry_msgs/msg/Transform", ("translation", "rotation"), translation, rotation_xyzw
         )
         stamped = self.build(
             "geometry_msgs/msg/TransformStamped",
@@ -189,10 +198,8 @@ class MessageFactory:
         orientation_xyzw: Sequence[float],
     ) -> Any:
         """A ``geometry_msgs/PoseStamped``."""
-        pose = self.build(
-            "geometry_msgs/msg/Pose",
-            position=self._point("geometry_msgs/msg/Point", position),
-            orientation=self._quaternion(orientation_xyzw),
+        pose = self._placement(
+            "geometry_msgs/msg/Pose", ("position", "orientation"), position, orientation_xyzw
         )
         return self.build(POSE_STAMPED, header=self.header(stamp_ns, frame_id), pose=pose)
 

@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks import machine_facts, write_report
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
@@ -149,9 +147,7 @@ def run(
         "model_bytes": model.stat().st_size,
         "triangles": ref["triangles"],
         "backend": ref["backend"],
-        "cpu_count": os.cpu_count(),
-        "machine": platform.machine(),
-        "python": platform.python_version(),
+        **machine_facts(),
     }
 
 

@@ -35,7 +35,7 @@ from allo_mrad_ros.evaluation.evaluate import (
     start_worker,
 )
 from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
-from allo_mrad_ros.evaluation.sources import EvalFrame, FrameSource, open_sequence
+from allo_mrad_ros.evaluation.sources import EvalFrame, FrameSource, RunFacts, open_sequence
 from allo_mrad_ros.metrics import AlloMetrics, MetricsAccumulator
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
 
@@ -102,14 +102,9 @@ class AblationRow:
 
 
 @dataclass
-class AblationResult:
+class AblationResult(RunFacts):
     """The whole table and the run's facts."""
 
-    input: str
-    kind: str
-    name: str
-    split: str | None
-    frames: int
     baseline: MradParams
     reference_scale: float
     rows: list[AblationRow] = field(default_factory=list)
@@ -227,11 +222,7 @@ def ablate(
         for p in points
     ]
     return AblationResult(
-        input=str(source.path),
-        kind=source.kind,
-        name=source.name,
-        split=chosen_split,
-        frames=len(indices),
+        **vars(RunFacts.of(source, chosen_split, indices)),
         baseline=base,
         reference_scale=config.render.reference_scale,
         rows=rows,

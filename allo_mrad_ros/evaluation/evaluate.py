@@ -28,6 +28,7 @@ from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
 from allo_mrad_ros.evaluation.sources import (
     EvalFrame,
     FrameSource,
+    RunFacts,
     open_sequence,
 )
 from allo_mrad_ros.evaluation.tally import (
@@ -171,14 +172,9 @@ def _evaluate_frame(job: tuple[EvalFrame, bool]) -> FrameOutcome:
 
 
 @dataclass
-class EvaluationResult:
+class EvaluationResult(RunFacts):
     """Metrics, breakdowns, curves, latencies and overlays of one run."""
 
-    input: str
-    kind: str
-    name: str
-    split: str | None
-    frames: int
     config: EvaluationConfig
     metrics: dict[str, AlloMetrics]
     per_type: dict[str, dict[str, Any]]
@@ -299,11 +295,7 @@ def evaluate(
             },
         }
     return EvaluationResult(
-        input=str(source.path),
-        kind=source.kind,
-        name=source.name,
-        split=split,
-        frames=len(indices),
+        **vars(RunFacts.of(source, split, indices)),
         config=config,
         metrics=metrics,
         per_type=per_type,

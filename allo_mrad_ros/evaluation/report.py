@@ -81,6 +81,13 @@ def _write_json(path: Path, data: Mapping[str, Any]) -> None:
     _write_text(path, json.dumps(_clean(data), indent=2, allow_nan=False) + "\n")
 
 
+def _write_tables(out: Path, stem: str, data: Mapping[str, Any], text: str) -> list[Path]:
+    """Write ``<stem>.json`` and ``<stem>.md`` into ``out``; return both paths."""
+    _write_json(out / f"{stem}.json", data)
+    _write_text(out / f"{stem}.md", text)
+    return [out / f"{stem}.json", out / f"{stem}.md"]
+
+
 def _save(figure: Figure, path: Path) -> None:
     try:
         figure.savefig(path, dpi=110, format="png")
@@ -292,9 +299,8 @@ def write_evaluation_report(result: EvaluationResult, out: str | PathLike[str]) 
         If a file cannot be written.
     """
     out = _prepare(out)
-    _write_json(out / "metrics.json", evaluation_json(result))
-    _write_text(out / "metrics.md", evaluation_markdown(result))
-    written = [out / "metrics.json", out / "metrics.md", *plot_curves(result, out)]
+    written = _write_tables(out, "metrics", evaluation_json(result), evaluation_markdown(result))
+    written += plot_curves(result, out)
     overlays = plot_overlays(result, out)
     if overlays is not None:
         written.append(overlays)
@@ -361,14 +367,7 @@ def _metric_values(metrics: AlloMetrics) -> list[float]:
 
 
 def write_ablation_report(result: AblationResult, out: str | PathLike[str]) -> list[Path]:
-    """Write ``ablation.md`` and ``ablation.json``; return the files.
-
-    Raises
-    ------
-    ReportError
-        If a file cannot be written.
-    """
-    out = _prepare(out)
-    _write_json(out / "ablation.json", ablation_json(result))
-    _write_text(out / "ablation.md", ablation_markdown(result))
-    return [out / "ablation.json", out / "ablation.md"]
+    """Write ``ablation.md`` and ``ablation.json``; return the files (ReportError if not)."""
+    return _write_tables(
+        _prepare(out), "ablation", ablation_json(result), ablation_markdown(result)
+    )

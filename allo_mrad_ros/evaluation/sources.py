@@ -82,6 +82,7 @@ class FrameHeader:
     split: str
 
 
+@dataclass(eq=False)
 class FrameSource:
     """Frames of a sequence or a bag, with the camera and the station model.
 
@@ -103,21 +104,12 @@ class FrameSource:
         Index and split of every frame, in order.
     """
 
-    def __init__(
-        self,
-        path: Path,
-        kind: str,
-        name: str,
-        camera: CameraIntrinsics,
-        mesh: Path | None,
-        headers: tuple[FrameHeader, ...],
-    ) -> None:
-        self.path = path
-        self.kind = kind
-        self.name = name
-        self.camera = camera
-        self.mesh = mesh
-        self.headers = headers
+    path: Path
+    kind: str
+    name: str
+    camera: CameraIntrinsics
+    mesh: Path | None
+    headers: tuple[FrameHeader, ...]
 
     @property
     def splits(self) -> tuple[str, ...]:
@@ -153,6 +145,22 @@ class FrameSource:
     def frames(self, indices: list[int]) -> Iterator[EvalFrame]:
         """Yield the frames of ``indices`` (ascending) in order."""
         raise NotImplementedError
+
+
+@dataclass
+class RunFacts:
+    """What every run reports about its input: path, kind, name, split and frame count."""
+
+    input: str
+    kind: str
+    name: str
+    split: str | None
+    frames: int
+
+    @classmethod
+    def of(cls, source: FrameSource, split: str | None, indices: list[int]) -> RunFacts:
+        """The facts of running ``indices`` of ``split`` of ``source``."""
+        return cls(str(source.path), source.kind, source.name, split, len(indices))
 
 
 def spread(indices: list[int], limit: int) -> list[int]:

@@ -128,6 +128,16 @@ class SequenceError(InvalidInput):
         )
 
 
+def read_text(path: Path) -> str:
+    """A sequence file's UTF-8 text (raises SequenceError naming the file)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SequenceError("file not found", file=path) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise SequenceError(f"cannot read file: {error}", file=path) from None
+
+
 def _check_frame_id(value: object, key: str) -> None:
     if not isinstance(value, str) or not value or any(c.isspace() for c in value):
         raise SequenceError(
