@@ -142,7 +142,7 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _write(args: argparse.Namespace) -> int:
+def _write(args: argparse.Namespace) -> str:
     from rosbag_tools.writer import write_bag
 
     summary = write_bag(
@@ -151,33 +151,30 @@ def _write(args: argparse.Namespace) -> int:
         topics=TopicNames.from_assignments(args.topic),
         **keyword_options(args, "storage", "distro", "splits", "static_parent", "overwrite"),
     )
-    total = sum(summary.messages.values())
-    print(
-        f"wrote {summary.path}: {summary.frames} frames, {total} messages on "
-        f"{len(summary.messages)} topics ({summary.storage}, {summary.distro} definitions)"
+    return (
+        f"wrote {summary.path}: {summary.frames} frames, {sum(summary.messages.values())} "
+        f"messages on {len(summary.messages)} topics ({summary.storage}, {summary.distro} "
+        "definitions)"
     )
-    return 0
 
 
-def _info(args: argparse.Namespace) -> int:
+def _info(args: argparse.Namespace) -> str:
     from rosbag_tools.info import bag_info, format_info
 
     info = bag_info(args.bag)
-    print(json.dumps(info.as_dict(), indent=2) if args.json else format_info(info))
-    return 0
+    return json.dumps(info.as_dict(), indent=2) if args.json else format_info(info)
 
 
-def _play(args: argparse.Namespace) -> int:
+def _play(args: argparse.Namespace) -> str:
     from rosbag_tools.play import play_bag
 
     options = ("rate", "loop", "topics", "delay", "clock", "wait_for", "wait_timeout")
     summary = play_bag(args.bag, **keyword_options(args, *options))
-    total = sum(summary.published.values())
-    print(
-        f"published {total} messages on {len(summary.published)} topics in "
-        f"{summary.wall_s:.2f} s ({summary.passes} pass(es)); skipped {len(summary.skipped)}"
+    return (
+        f"published {sum(summary.published.values())} messages on {len(summary.published)} "
+        f"topics in {summary.wall_s:.2f} s ({summary.passes} pass(es)); "
+        f"skipped {len(summary.skipped)}"
     )
-    return 0
 
 
 def _source(args: argparse.Namespace) -> object:
@@ -206,7 +203,7 @@ def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)
         raise CliError(str(error)) from None
 
 
-def _evaluate(args: argparse.Namespace) -> int:
+def _evaluate(args: argparse.Namespace) -> str:
     from allo_mrad_ros.evaluation.evaluate import EvaluationConfig, evaluate
     from allo_mrad_ros.evaluation.report import evaluation_markdown, write_evaluation_report
 
@@ -222,14 +219,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     result = evaluate(_source(args), config)
     write_evaluation_report(result, args.out)
     table = evaluation_markdown(result).split("\n## ")[0]
-    print(table.rstrip())
-    print(
-        f"\n{result.frames_per_second:.2f} frames/s with {config.jobs} job(s); report in {args.out}"
+    return (
+        f"{table.rstrip()}\n\n{result.frames_per_second:.2f} frames/s with {config.jobs} "
+        f"job(s); report in {args.out}"
     )
-    return 0
 
 
-def _ablate(args: argparse.Namespace) -> int:
+def _ablate(args: argparse.Namespace) -> str:
     from allo_mrad_ros.evaluation.ablate import ablate
     from allo_mrad_ros.evaluation.report import ablation_markdown, write_ablation_report
 
@@ -242,9 +238,7 @@ def _ablate(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     write_ablation_report(result, args.out)
-    print(ablation_markdown(result).rstrip())
-    print(f"\nreport in {args.out}")
-    return 0
+    return f"{ablation_markdown(result).rstrip()}\n\nreport in {args.out}"
 
 
 _COMMANDS = {
@@ -270,7 +264,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format=f"{PROG} {args.command}: %(message)s")
     logging.getLogger("allo_bag").setLevel(logging.INFO)
     try:
-        return _COMMANDS[args.command](args)
+        print(_COMMANDS[args.command](args))
     except (CliError, TopicError) as error:
         parser.error(str(error))
     except AlloError as error:

@@ -191,17 +191,17 @@ class MessageFactory:
         return self.build(TF_MESSAGE, transforms=[stamped])
 
     def pose_stamped(
-        self,
-        stamp_ns: int,
-        frame_id: str,
-        position: Sequence[float],
-        orientation_xyzw: Sequence[float],
+        self, stamp_ns: int, frame_id: str, pose: tuple[Sequence[float], Sequence[float]]
     ) -> Any:
-        """A ``geometry_msgs/PoseStamped``."""
-        pose = self._placement(
-            "geometry_msgs/msg/Pose", ("position", "orientation"), position, orientation_xyzw
+        """A ``geometry_msgs/PoseStamped`` from ``pose`` = (position, orientation x, y, z, w)."""
+        position, orientation_xyzw = pose
+        return self.build(
+            POSE_STAMPED,
+            header=self.header(stamp_ns, frame_id),
+            pose=self._placement(
+                "geometry_msgs/msg/Pose", ("position", "orientation"), position, orientation_xyzw
+            ),
         )
-        return self.build(POSE_STAMPED, header=self.header(stamp_ns, frame_id), pose=pose)
 
     def vector3_stamped(self, stamp_ns: int, frame_id: str, vector: Sequence[float]) -> Any:
         """A ``geometry_msgs/Vector3Stamped``."""

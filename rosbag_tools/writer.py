@@ -177,7 +177,7 @@ class _FrameEncoder:
             (
                 t.pose,
                 POSE_STAMPED,
-                build.pose_stamped(stamp, station, frame.position, frame.quaternion),
+                build.pose_stamped(stamp, station, (frame.position, frame.quaternion)),
             ),
             (
                 t.sun_direction,

@@ -151,25 +151,10 @@ def ablate(
 ) -> AblationResult:
     """Run the Table II sweeps over a split of a sequence or bag.
 
-    Parameters
-    ----------
-    source : FrameSource or path-like
-        Input; a path opens a sequence folder (bags: :func:`rosbag_tools.bag_source.open_source`).
-    config : PipelineConfig, optional
-        Reference rendering and the baseline parameters (default: the project defaults);
-        its methods are ignored (the sweeps are of MRAD).
-    split : str, optional
-        Split to use; None means ``test`` if present, else every frame.
-    limit : int, optional
-        Use at most this many frames, evenly spread over the split.
-    jobs : int
-        Worker processes.
-    progress : bool
-        Show a progress bar.
-
-    Returns
-    -------
-    AblationResult
+    ``source``, ``split``, ``limit``, ``jobs`` and ``progress`` are as for
+    :func:`~allo_mrad_ros.evaluation.evaluate.evaluate`; ``config`` gives the reference
+    rendering and the baseline parameters (default: the project defaults; its methods are
+    ignored, the sweeps are of MRAD).
 
     Raises
     ------

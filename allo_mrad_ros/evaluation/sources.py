@@ -210,23 +210,15 @@ class SequenceSource(FrameSource):
                     f"{sequence.root}: frame {frame.name} (row {index + 1}) has no reference; "
                     "drop --use-sequence-references to render one"
                 )
-            yield EvalFrame(
-                index=index,
-                name=frame.name,
-                stamp_ns=frame.stamp_ns,
-                split=frame.split,
-                anomaly=frame.anomaly,
-                image=image,
-                mask=mask,
-                view=View.from_row(
-                    frame.T_station_camera,
-                    frame.sun_direction,
-                    frame.sun_strength,
-                    frame.earth,
-                    frame.moon,
-                ),
-                reference=reference,
+            view = View.from_row(
+                frame.T_station_camera,
+                frame.sun_direction,
+                frame.sun_strength,
+                frame.earth,
+                frame.moon,
             )
+            header = (index, frame.name, frame.stamp_ns, frame.split, frame.anomaly)
+            yield EvalFrame(*header, image, mask, view, reference)
 
 
 def open_sequence(
