@@ -125,17 +125,10 @@ class RenderSettings:
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """Everything that decides a frame's result: render settings, detector parameters, methods.
-
-    Parameters
-    ----------
-    render : RenderSettings
-        Reference rendering.
-    params : MradParams
-        Detector parameters (PAD and RXD use the shared post-processing ones).
-    methods : tuple of str
-        Detectors to run, names from :data:`allo_mrad_ros.detector.METHODS`; the first is
-        the primary one (MRAD for the node).
+    """Everything that decides a frame's result: ``render`` (:class:`RenderSettings`),
+    ``params`` (:class:`~allo_mrad_ros.detector.MradParams`; PAD and RXD use its shared
+    post-processing fields) and ``methods`` (names from
+    :data:`allo_mrad_ros.detector.METHODS`; the first is the primary one, MRAD for the node).
     """
 
     render: RenderSettings = field(default_factory=RenderSettings)

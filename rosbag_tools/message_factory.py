@@ -219,6 +219,17 @@ class MessageFactory:
         """A ``std_msgs/String``."""
         return self.build(STRING, data=text)
 
+    def _sphere_marker(self, header: Any, name: str, action: int, **fields: Any) -> Any:
+        return self.build(
+            "visualization_msgs/msg/Marker",
+            header=header,
+            ns=name,
+            id=0,
+            type=MARKER_SPHERE,
+            action=action,
+            **fields,
+        )
+
     def body_markers(
         self,
         stamp_ns: int,
@@ -252,27 +263,15 @@ class MessageFactory:
                 orientation=self._quaternion((0.0, 0.0, 0.0, 1.0)),
             )
             markers.append(
-                self.build(
-                    "visualization_msgs/msg/Marker",
-                    header=header,
-                    ns=name,
-                    id=0,
-                    type=MARKER_SPHERE,
-                    action=MARKER_ADD,
+                self._sphere_marker(
+                    header,
+                    name,
+                    MARKER_ADD,
                     pose=pose,
                     scale=self._point("geometry_msgs/msg/Vector3", (diameter,) * 3),
                     color=self.build("std_msgs/msg/ColorRGBA", r=r, g=g, b=b, a=1.0),
                 )
             )
         for name in deleted:
-            markers.append(
-                self.build(
-                    "visualization_msgs/msg/Marker",
-                    header=header,
-                    ns=name,
-                    id=0,
-                    type=MARKER_SPHERE,
-                    action=MARKER_DELETE,
-                )
-            )
+            markers.append(self._sphere_marker(header, name, MARKER_DELETE))
         return self.build(MARKER_ARRAY, markers=markers)

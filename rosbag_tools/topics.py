@@ -161,13 +161,7 @@ DEFAULT_TOPICS = TopicNames()
 
 
 def typestore_for(distro: str) -> Typestore:
-    """Return the rosbags typestore of a distribution name (``humble``, ``jazzy``, ``kilted``).
-
-    Raises
-    ------
-    TopicError
-        For an unsupported distribution.
-    """
+    """The rosbags typestore of ``humble``, ``jazzy`` or ``kilted`` (else TopicError)."""
     if distro not in DISTROS:
         raise TopicError(f"unsupported ROS distribution {distro!r}; choose from {sorted(DISTROS)}")
     return get_typestore(DISTROS[distro][0])

@@ -93,21 +93,9 @@ STATIC_QOS = _qos(QosDurability.TRANSIENT_LOCAL, 1)
 
 @dataclass(frozen=True)
 class BagSummary:
-    """What :func:`write_bag` wrote.
-
-    Attributes
-    ----------
-    path : pathlib.Path
-        The bag folder.
-    storage, distro : str
-        Storage plugin and message-definition distribution.
-    frames : int
-        Frames written.
-    messages : dict
-        Topic -> message count.
-    start_ns, end_ns : int
-        First and last frame stamps.
-    """
+    """What :func:`write_bag` wrote: the bag folder, its storage plugin and message-definition
+    distribution, the frames written, the message count per topic, the first and last frame
+    stamps."""
 
     path: Path
     storage: str

@@ -62,20 +62,11 @@ class EvaluationError(InvalidInput):
 class EvaluationConfig:
     """Options of :func:`evaluate`.
 
-    Parameters
-    ----------
-    pipeline : PipelineConfig
-        Render settings, detector parameters and methods (default: all three methods).
-    split : str or None
-        Split to evaluate; None means ``test`` if present, else every frame.
-    limit : int or None
-        Evaluate at most this many frames, evenly spread over the split.
-    jobs : int
-        Worker processes.
-    overlays : int
-        Example frames in the overlay grid (0: none).
-    progress : bool
-        Show a progress bar.
+    ``pipeline``: render settings, detector parameters and methods (default: all three
+    methods); ``split``: the split to evaluate (None: ``test`` if present, else every frame);
+    ``limit``: at most this many frames, evenly spread over the split; ``jobs``: worker
+    processes; ``overlays``: example frames in the overlay grid (0: none); ``progress``: show
+    a progress bar.
     """
 
     pipeline: PipelineConfig = field(default_factory=lambda: PipelineConfig(methods=ALL_METHODS))

@@ -36,26 +36,11 @@ class FrameSourceError(InvalidInput):
 class EvalFrame:
     """One frame to evaluate (plain arrays, so it pickles to worker processes).
 
-    Attributes
-    ----------
-    index : int
-        Position of the frame in the input (0-based, all splits counted).
-    name : str
-        The sequence's image name, or ``frame<index>`` for bags.
-    stamp_ns : int
-        Frame time.
-    split : str
-        ``train``, ``val`` or ``test``.
-    anomaly : str
-        Anomaly type, empty for normal frames.
-    image : numpy.ndarray
-        RGB uint8 (H, W, 3).
-    mask : numpy.ndarray
-        Ground truth uint8 (H, W), classes 0, 1, 2.
-    view : View
-        Camera pose, lighting and the bodies the frame has (Earth, Moon).
-    reference : numpy.ndarray or None
-        Pre-rendered reference, when asked for and available.
+    ``index`` is the frame's position in the input (0-based, all splits counted), ``name``
+    the sequence's image name (``frame<index>`` for bags), ``stamp_ns`` its time, ``split``
+    and ``anomaly`` (empty for normal frames) its labels; ``image`` is RGB uint8 (H, W, 3),
+    ``mask`` the ground truth uint8 (H, W) with classes 0, 1, 2, ``view`` the camera pose,
+    lighting and bodies (Earth, Moon), ``reference`` a pre-rendered reference when asked for.
     """
 
     index: int
