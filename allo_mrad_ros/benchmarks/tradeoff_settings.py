@@ -53,15 +53,15 @@ def sweep_settings(base: MradParams) -> list[Setting]:
         Setting("ref scale 1", render_settings(1.0), base),
         Setting("ref scale 1/2", render_settings(0.5), base),
         Setting("ref scale 1/8", eighth, base),
-        Setting("query scale 1/2", full, half),
-        Setting("query scale 1/4", full, base.replace(process_scale=0.25)),
+        Setting("process scale 1/2", full, half),
+        Setting("process scale 1/4", full, base.replace(process_scale=0.25)),
         Setting("no shadows", render_settings(0.25, False), base),
         Setting("bodies always", render_settings(0.25, True, False), base),
         Setting("grid 6", full, base.replace(grid=6)),
         Setting("cell_spread", full, base.replace(noise_removal="cell_spread")),
         Setting("per_image scaling", full, base.replace(score_scaling="per_image")),
         Setting("ref 1/8, no shadows", eighth_flat, base),
-        Setting("ref 1/8, query 1/2, no shadows", eighth_flat, half),
+        Setting("ref 1/8, process 1/2, no shadows", eighth_flat, half),
         Setting("paper-faithful", render_settings(1.0), profile("paper")),
     ]
     for label, accurate in (
@@ -74,18 +74,18 @@ def sweep_settings(base: MradParams) -> list[Setting]:
             settings.append(Setting(label, full, accurate))
         settings += [
             Setting(f"{label}, ref 1/8", eighth, accurate),
-            Setting(f"{label}, query 1/2", full, fast),
-            Setting(f"{label}, ref 1/8, query 1/2", eighth, fast),
-            Setting(f"{label}, ref 1/8, query 1/2, no shadows", eighth_flat, fast),
-            Setting(f"{label}, ref 1/8, query 1/4", eighth, fastest),
-            Setting(f"{label}, ref 1/8, query 1/4, no shadows", eighth_flat, fastest),
+            Setting(f"{label}, process 1/2", full, fast),
+            Setting(f"{label}, ref 1/8, process 1/2", eighth, fast),
+            Setting(f"{label}, ref 1/8, process 1/2, no shadows", eighth_flat, fast),
+            Setting(f"{label}, ref 1/8, process 1/4", eighth, fastest),
+            Setting(f"{label}, ref 1/8, process 1/4, no shadows", eighth_flat, fastest),
         ]
     # Not mrad.md's output (score kept outside the regions): shown, never chosen.
     blurred = base.replace(grid=6, pixel_score="blurred")
     settings += [
         Setting("grid 6, pixel score blurred (not mrad.md)", full, blurred),
         Setting(
-            "grid 6, pixel score blurred, ref 1/8, query 1/2 (not mrad.md)",
+            "grid 6, pixel score blurred, ref 1/8, process 1/2 (not mrad.md)",
             eighth,
             blurred.replace(process_scale=0.5),
         ),
