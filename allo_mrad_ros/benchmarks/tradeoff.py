@@ -3,7 +3,7 @@
 On an ALLO-like sequence (``allo-synth generate --preset bench``):
 
 1. **Sweep on the validation split**: reference scale (1, 1/2, 1/4, 1/8), process
-   processing scale (1, 1/2, 1/4), directional shadows on/off, celestial bodies always vs only in
+   scale (1, 1/2, 1/4), directional shadows on/off, celestial bodies always vs only in
    view, grid 4 vs 6, the two noise-removal variants, the two score scalings. Latency per
    frame is render plus detect, measured interleaved frame by frame so every setting sees
    the same machine load. Frames run in split order, grouped by day, so a renderer reuses
