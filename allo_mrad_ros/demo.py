@@ -28,7 +28,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.detector import METHODS, MradParams, profile
+from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.render import DEFAULT_SCALE
@@ -38,7 +40,7 @@ from allo_mrad_ros.visualise import outline
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
 
 
-class DemoError(RuntimeError):
+class DemoError(BackendError):
     """A step of the demo failed; the message says which and where its log is."""
 
 
@@ -72,7 +74,7 @@ def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None
     from allo_mrad_ros.ros.messages import fill_camera_info
 
     publisher = node.create_publisher(
-        CameraInfo, "/arm_camera/camera_info", qos_profile_sensor_data
+        CameraInfo, interface.CAMERA_INFO_TOPIC, qos_profile_sensor_data
     )
     info = fill_camera_info(CameraInfo(), intrinsics)
     deadline = time.monotonic() + 60
@@ -173,7 +175,7 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     node = start_node(logs / "node.log", "publish_overlay:=false")
     try:
         deadline = time.monotonic() + 60
-        while listener.count_subscribers("/arm_camera/image_raw") < 2:
+        while listener.count_subscribers(interface.IMAGE_TOPIC) < 2:
             if time.monotonic() > deadline or node.poll() is not None:
                 raise DemoError(f"the node did not start; see {logs / 'node.log'}")
             rclpy.spin_once(listener, timeout_sec=0.1)
@@ -189,7 +191,7 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
                 "--rate",
                 str(rate),
                 "--wait-for",
-                "/arm_camera/image_raw",
+                interface.IMAGE_TOPIC,
             ],
             stdout=(logs / "play.log").open("w"),
             stderr=subprocess.STDOUT,
@@ -259,12 +261,12 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     return 0
 
 
-def run_builtin(out: Path, profile_name: str, ref_scale: float) -> int:
+def run_builtin(out: Path, profile_name: str, reference_scale: float) -> int:
     """Run the three detectors on the built-in synthetic example (no ROS)."""
     params: MradParams = profile(profile_name)
     pair = example_pair()
     height, width = pair.query.shape[:2]
-    ref_size = (round(width * ref_scale), round(height * ref_scale))
+    ref_size = (round(width * reference_scale), round(height * reference_scale))
     reference = cv2.resize(pair.reference, ref_size, interpolation=cv2.INTER_AREA)
     truth = pair.object_mask > 0
     out.mkdir(parents=True, exist_ok=True)
@@ -301,10 +303,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=1.0, help="bag playback speed multiple")
     parser.add_argument("--builtin", action="store_true", help="built-in example, no ROS")
     parser.add_argument("--profile", default="default", help="detector profile (--builtin)")
-    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE, help="(--builtin)")
+    parser.add_argument("--reference-scale", type=float, default=DEFAULT_SCALE, help="(--builtin)")
     args = parser.parse_args(argv)
     if args.builtin:
-        return run_builtin(args.out, args.profile, args.ref_scale)
+        return run_builtin(args.out, args.profile, args.reference_scale)
     try:
         return run_live(args.data, args.out, args.seed, args.rate)
     except DemoError as error:

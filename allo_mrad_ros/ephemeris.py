@@ -4,14 +4,12 @@ Two sources give the same :class:`Sky` (all in the station frame, metres):
 
 * :class:`StationEphemeris` computes it from JPL DE421 (``skyfield`` + ``skyfield-data``,
   offline) for a station on a Keplerian lunar orbit (:class:`LunarOrbit`);
-* :func:`read_allo_ephemeris` / :func:`allo_sky` read ALLO's own 2030 table, shipped with
+* :mod:`allo_mrad_ros.allo_ephemeris` reads ALLO's own 2030 table, shipped with
   the package.
 
 Scaling, as in ALLO
-    A renderer cannot draw the Sun 150 million km away, so each body is placed at a fixed
-    scaled distance along its true direction with its radius scaled by the same factor:
-    ``r' = R * d' / D``. The ratio radius/distance, hence the apparent angular radius
-    ``asin(r'/d')``, is exactly the true one. The default distances are ALLO's (Moon 500 m,
+    Each body sits at a fixed scaled distance along its true direction with its apparent
+    size kept (see :mod:`allo_mrad_ros.sky`). The default distances are ALLO's (Moon 500 m,
     Earth 2 km, Sun 4 km, read off its table): they keep the true depth order, so the Moon
     can hide the Earth, and stay inside a 10 km far clip plane.
 
@@ -34,56 +32,38 @@ The station frame
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from functools import cache
-from importlib import resources
-from os import PathLike
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.sky import (
+    EARTH_DISTANCE_M,
+    EARTH_RADIUS_KM,
+    MOON_DISTANCE_M,
+    MOON_RADIUS_KM,
+    SUN_DISTANCE_M,
+    SUN_RADIUS_KM,
+    Sky,
+    scaled_to_distance,
+)
+
 EPOCH_2030 = datetime(2030, 1, 1, tzinfo=timezone.utc)
 """2030-01-01T00:00:00Z, day 1.0 of :meth:`StationEphemeris.sky_on_day`."""
 
-# IAU 2015 nominal solar radius; mean Earth and Moon radii.
-SUN_RADIUS_KM = 695_700.0
-EARTH_RADIUS_KM = 6_371.0
-MOON_RADIUS_KM = 1_737.4
 # Lunar GM of DE421.
 MOON_GM_KM3_S2 = 4_902.800066
 # IAU 1976 mean obliquity of the ecliptic at J2000 (84381.448 arcsec).
 OBLIQUITY_J2000_DEG = 23.439291111
 
-# ALLO's scaled distances (ephemeris_2030.csv: every row at exactly these distances).
-MOON_DISTANCE_M = 500.0
-EARTH_DISTANCE_M = 2_000.0
-SUN_DISTANCE_M = 4_000.0
 
-ALLO_TABLE_COLUMNS = (
-    "moon_r",
-    "moon_x",
-    "moon_y",
-    "moon_z",
-    "sun_r",
-    "sun_x",
-    "sun_y",
-    "sun_z",
-    "earth_r",
-    "earth_x",
-    "earth_y",
-    "earth_z",
-)
-"""Columns of ALLO's ``ephemeris_2030.csv`` (Blender units = metres, station frame)."""
-
-
-class EphemerisError(ValueError):
+class EphemerisError(InvalidInput):
     """Invalid orbit parameters, times or ephemeris table contents."""
 
 
@@ -92,71 +72,6 @@ def _check_aware(when: object, name: str) -> None:
         raise EphemerisError(f"{name} must be a datetime, got {type(when).__name__}")
     if when.tzinfo is None or when.utcoffset() is None:
         raise EphemerisError(f"{name} must be timezone-aware (e.g. UTC), got {when!r}")
-
-
-def _frozen(values: object, length: int, name: str) -> np.ndarray:
-    array = np.array(values, dtype=np.float64)
-    if array.shape != (length,) or not np.all(np.isfinite(array)):
-        raise EphemerisError(f"{name} must be {length} finite numbers, got {values!r}")
-    array.setflags(write=False)
-    return array
-
-
-@dataclass(frozen=True, eq=False)
-class Sky:
-    """Sun, Earth and Moon in the station frame at one time, scaled for rendering.
-
-    Attributes
-    ----------
-    sun_direction : numpy.ndarray
-        Unit vector from the station origin towards the Sun, shape (3,).
-    sun, earth, moon : numpy.ndarray
-        ``(x, y, z, r)``: scaled-down centre and radius in metres, apparent size kept.
-    """
-
-    sun_direction: np.ndarray
-    sun: np.ndarray
-    earth: np.ndarray
-    moon: np.ndarray
-
-    def __post_init__(self) -> None:
-        direction = _frozen(self.sun_direction, 3, "sun_direction")
-        if abs(np.linalg.norm(direction) - 1.0) > 1e-9:
-            raise EphemerisError(f"sun_direction must be a unit vector, got {direction}")
-        object.__setattr__(self, "sun_direction", direction)
-        for body in ("sun", "earth", "moon"):
-            value = _frozen(getattr(self, body), 4, body)
-            distance = float(np.linalg.norm(value[:3]))
-            if not 0 < value[3] < distance:
-                raise EphemerisError(
-                    f"{body} radius must be positive and below its distance, "
-                    f"got r={value[3]} at {distance}"
-                )
-            object.__setattr__(self, body, value)
-
-    def bodies(self) -> list[tuple[str, tuple[float, float, float], float]]:
-        """Return ``(name, centre, radius)`` for the Sun, Earth and Moon.
-
-        These are the tuples the reference renderer's ``bodies`` argument accepts.
-        """
-        return [
-            (body, tuple(float(v) for v in getattr(self, body)[:3]), float(getattr(self, body)[3]))
-            for body in ("sun", "earth", "moon")
-        ]
-
-    def angular_radius(self, body: str) -> float:
-        """Apparent angular radius of ``sun``, ``earth`` or ``moon`` in radians."""
-        if body not in ("sun", "earth", "moon"):
-            raise EphemerisError(f"body must be sun, earth or moon, got {body!r}")
-        value = getattr(self, body)
-        return math.asin(value[3] / float(np.linalg.norm(value[:3])))
-
-
-def _scaled(vectors_km: np.ndarray, radius_km: float, distance_m: float) -> np.ndarray:
-    """(N, 3) true vectors -> (N, 4) ``(x, y, z, r)`` at ``distance_m``, same angular size."""
-    true_distance = np.linalg.norm(vectors_km, axis=1, keepdims=True)
-    scale = distance_m / true_distance
-    return np.hstack([vectors_km * scale, radius_km * scale])
 
 
 @dataclass(frozen=True)
@@ -396,7 +311,7 @@ class StationEphemeris:
             relative[body] = from_moon.T @ self.station_from_icrf.T - station
         radii = {"sun": SUN_RADIUS_KM, "earth": EARTH_RADIUS_KM, "moon": MOON_RADIUS_KM}
         scaled = {
-            body: _scaled(vectors, radii[body], self.distances_m[body])
+            body: scaled_to_distance(vectors, radii[body], self.distances_m[body])
             for body, vectors in relative.items()
         }
         sun_direction = scaled["sun"][:, :3] / self.distances_m["sun"]
@@ -419,105 +334,3 @@ class StationEphemeris:
         """Return the :class:`Sky` on a 1-based, possibly fractional day (see
         :func:`day_to_datetime`)."""
         return self.sky(day_to_datetime(day, year))
-
-
-def _allo_table_error(source: str, line: int, column: str | None, reason: str) -> EphemerisError:
-    where = f"{source}, line {line}" + (f", column {column!r}" if column else "")
-    return EphemerisError(f"{where}: {reason}")
-
-
-def parse_allo_ephemeris(text: str, source: str = "ephemeris_2030.csv") -> dict[int, Sky]:
-    """Parse the text of ALLO's ephemeris table.
-
-    Parameters
-    ----------
-    text : str
-        CSV text: one row per day, 12 numbers (:data:`ALLO_TABLE_COLUMNS`). Row 0 holds
-        uninitialised memory in ALLO's file and is skipped (only its field count is checked).
-    source : str
-        Name used in error messages.
-
-    Returns
-    -------
-    dict of int to Sky
-        Keyed by day (the row number, from 1), in the station frame, metres.
-
-    Raises
-    ------
-    EphemerisError
-        Naming the source, the line and the column at fault.
-    """
-    rows = list(enumerate(csv.reader(io.StringIO(text)), start=1))
-    while rows and not rows[-1][1]:
-        rows.pop()  # trailing blank lines; a blank line inside would shift the days
-    if len(rows) < 2:
-        raise _allo_table_error(source, len(rows) + 1, None, "need row 0 and at least one day")
-    skies: dict[int, Sky] = {}
-    for day, (line, fields) in enumerate(rows):
-        if len(fields) != len(ALLO_TABLE_COLUMNS):
-            raise _allo_table_error(
-                source, line, None, f"expected {len(ALLO_TABLE_COLUMNS)} fields, got {len(fields)}"
-            )
-        if day == 0:
-            continue
-        values = {}
-        for column, field in zip(ALLO_TABLE_COLUMNS, fields, strict=True):
-            try:
-                value = float(field)
-            except ValueError:
-                raise _allo_table_error(source, line, column, f"not a number: {field!r}") from None
-            if not math.isfinite(value):
-                raise _allo_table_error(source, line, column, f"not finite: {field!r}")
-            values[column] = value
-        bodies = {}
-        for body in ("moon", "sun", "earth"):
-            centre = np.array([values[f"{body}_{axis}"] for axis in "xyz"])
-            radius = values[f"{body}_r"]
-            if not 0 < radius < np.linalg.norm(centre):
-                raise _allo_table_error(
-                    source,
-                    line,
-                    f"{body}_r",
-                    f"radius must be positive and below the distance {np.linalg.norm(centre):g}",
-                )
-            bodies[body] = np.append(centre, radius)
-        sun_direction = bodies["sun"][:3] / np.linalg.norm(bodies["sun"][:3])
-        skies[day] = Sky(sun_direction=sun_direction, **bodies)
-    return skies
-
-
-def read_allo_ephemeris(path: str | PathLike[str] | None = None) -> dict[int, Sky]:
-    """Read ALLO's ephemeris table, by default the copy shipped in the package.
-
-    Parameters
-    ----------
-    path : path-like, optional
-        A table in ALLO's format; None for the package's ``data/ephemeris_2030.csv``.
-
-    Returns
-    -------
-    dict of int to Sky
-        Keyed by ALLO day (1-364 for the shipped table).
-    """
-    if path is None:
-        return dict(_shipped_allo_table())
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as error:
-        raise EphemerisError(f"{path}: cannot read: {error.strerror}") from None
-    return parse_allo_ephemeris(text, str(path))
-
-
-@cache
-def _shipped_allo_table() -> Mapping[int, Sky]:
-    resource = resources.files("allo_mrad_ros") / "data" / "ephemeris_2030.csv"
-    return parse_allo_ephemeris(resource.read_text(encoding="utf-8"), "ephemeris_2030.csv")
-
-
-def allo_sky(day: int) -> Sky:
-    """Return the :class:`Sky` of ALLO's shipped table for one ALLO day (1-364)."""
-    table = _shipped_allo_table()
-    if isinstance(day, bool) or not isinstance(day, (int, np.integer)) or int(day) not in table:
-        raise EphemerisError(f"ALLO day must be an integer in 1-{max(table)}, got {day!r}")
-    return table[int(day)]

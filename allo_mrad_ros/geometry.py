@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from allo_mrad_ros.errors import InvalidInput
+
 # Unit-norm tolerance for quaternions read from files or messages.
 QUATERNION_NORM_TOLERANCE = 1e-3
 
@@ -19,16 +21,19 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 OPTICAL_TO_OPENGL = np.diag([1.0, -1.0, -1.0])
 
 
-class PoseError(ValueError):
+class PoseError(InvalidInput):
     """A pose, quaternion or rotation is not valid."""
 
 
-def _finite_vector(values: object, length: int, name: str) -> np.ndarray:
+def finite_vector(
+    values: object, length: int, name: str, error: type[Exception] = PoseError
+) -> np.ndarray:
+    """``values`` as a float64 vector of ``length`` finite numbers, else ``error`` naming it."""
     array = np.asarray(values, dtype=np.float64)
     if array.shape != (length,):
-        raise PoseError(f"{name} must have {length} elements, got shape {array.shape}")
+        raise error(f"{name} must have {length} elements, got shape {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise PoseError(f"{name} must be finite, got {array.tolist()}")
+        raise error(f"{name} must be finite, got {array.tolist()}")
     return array
 
 
@@ -48,7 +53,7 @@ def quaternion_to_matrix(quaternion_xyzw: object, normalise: bool = True) -> np.
     numpy.ndarray
         3x3 float64 rotation matrix.
     """
-    q = _finite_vector(quaternion_xyzw, 4, "quaternion")
+    q = finite_vector(quaternion_xyzw, 4, "quaternion")
     norm = float(np.linalg.norm(q))
     if norm < 1e-9:
         raise PoseError(f"quaternion has zero norm: {q.tolist()}")
@@ -67,7 +72,7 @@ def pose_matrix(position: object, quaternion_xyzw: object) -> np.ndarray:
     """Return the 4x4 transform of a position and an ``(x, y, z, w)`` quaternion."""
     transform = np.eye(4)
     transform[:3, :3] = quaternion_to_matrix(quaternion_xyzw)
-    transform[:3, 3] = _finite_vector(position, 3, "position")
+    transform[:3, 3] = finite_vector(position, 3, "position")
     return transform
 
 
@@ -123,13 +128,13 @@ def look_at(eye: object, target: object, up: object = (0.0, 0.0, 1.0)) -> np.nda
     possible to ``-up``. Raises :class:`PoseError` if eye and target coincide or the
     viewing direction is parallel to ``up``.
     """
-    eye = _finite_vector(eye, 3, "eye")
-    forward = _finite_vector(target, 3, "target") - eye
+    eye = finite_vector(eye, 3, "eye")
+    forward = finite_vector(target, 3, "target") - eye
     distance = np.linalg.norm(forward)
     if distance < 1e-9:
         raise PoseError("look_at: eye and target coincide")
     forward /= distance
-    right = np.cross(forward, _finite_vector(up, 3, "up"))
+    right = np.cross(forward, finite_vector(up, 3, "up"))
     if np.linalg.norm(right) < 1e-9:
         raise PoseError("look_at: viewing direction is parallel to up")
     right /= np.linalg.norm(right)

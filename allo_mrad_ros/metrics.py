@@ -13,11 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from allo_mrad_ros.errors import InvalidInput
+
 POSITIVE_CLASS = 2
 TARGET_TPR = 0.95
 
 
-class MetricsError(ValueError):
+class MetricsError(InvalidInput):
     """Scores and labels cannot be scored (shape mismatch, one class only, bad values)."""
 
 

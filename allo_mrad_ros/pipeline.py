@@ -1,28 +1,204 @@
-"""One camera frame in, detections out: render the reference at the pose, then detect.
+"""One camera frame in, detections out: render the reference of a view once, run every detector.
 
-The ROS node and ``allo-bag evaluate`` both call :meth:`FrameProcessor.process`, so what is
-measured offline is what runs online.
+The node, ``allo-bag evaluate``/``ablate`` and the trade-off benchmark all build a
+:class:`PipelineConfig` (render settings, :class:`~allo_mrad_ros.detector.MradParams`,
+methods) and run frames through a :class:`Pipeline`, so what is measured offline is what
+runs online. A :class:`Pipeline` is immutable: a change of parameters builds a new one that
+shares the :class:`ReferenceProvider` (the GL context), it never mutates a running one.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
+from os import PathLike
+from typing import Any
 
 import numpy as np
 
-from allo_mrad_ros.detector import METHODS, DetectionResult, MradParams
-from allo_mrad_ros.ephemeris import SUN_DISTANCE_M, SUN_RADIUS_KM
-from allo_mrad_ros.render import CelestialBody, ReferenceRenderer
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector import METHODS, PROFILES, DetectionResult, MradParams, profile
+from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.view import View
 
-# Mean apparent radius of the Sun from the Earth-Moon system (1 au): 0.2665 degrees.
-SUN_ANGULAR_RADIUS_RAD = math.asin(SUN_RADIUS_KM / 149_597_870.7)
+RENDER_BACKENDS = ("", "osmesa", "egl")
 
 
-class ProcessingError(ValueError):
-    """A frame cannot be processed (image size, method name, ...)."""
+class ProcessingError(InvalidInput):
+    """A frame or a configuration cannot be processed (image size, method name, option)."""
+
+
+def coerce_value(name: str, spec: ParameterSpec, value: Any) -> Any:
+    """``value`` as ``spec``'s type, from text (command lines) or a number (YAML, ROS).
+
+    An integer becomes a float for a float parameter; text is parsed as the parameter's
+    type. The value is then validated against the spec.
+
+    Raises
+    ------
+    ProcessingError
+        Naming the parameter and the value.
+    """
+    if isinstance(value, str) and spec.kind in (int, float):
+        try:
+            value = spec.kind(value.strip())
+        except ValueError:
+            raise ProcessingError(
+                f"{name}: {value!r} is not a valid {spec.kind.__name__}"
+            ) from None
+    if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    try:
+        spec.check(name, value)
+    except ValueError as error:
+        raise ProcessingError(str(error)) from None
+    return value
+
+
+def params_from(profile_name: str, changes: Mapping[str, Any] | Sequence[str] = ()) -> MradParams:
+    """Detector parameters: a profile with changes, as a mapping or ``KEY=VALUE`` texts.
+
+    Raises
+    ------
+    ProcessingError
+        For an unknown profile or key, or a value of the wrong type or range.
+    """
+    if profile_name not in PROFILES:
+        raise ProcessingError(f"unknown profile {profile_name!r}; choose from {sorted(PROFILES)}")
+    if not isinstance(changes, Mapping):
+        pairs = {}
+        for text in changes:
+            key, sep, value = text.partition("=")
+            if not sep or key.strip() not in PARAMETER_SPECS:
+                raise ProcessingError(
+                    f"expected KEY=VALUE with KEY one of {sorted(PARAMETER_SPECS)}; got {text!r}"
+                )
+            pairs[key.strip()] = value.strip()
+        changes = pairs
+    unknown = sorted(set(changes) - set(PARAMETER_SPECS))
+    if unknown:
+        raise ProcessingError(f"unknown MRAD parameter(s) {unknown}")
+    coerced = {k: coerce_value(k, PARAMETER_SPECS[k], v) for k, v in changes.items()}
+    try:
+        return profile(profile_name, **coerced)
+    except ValueError as error:
+        raise ProcessingError(str(error)) from None
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How the reference is rendered.
+
+    Parameters
+    ----------
+    reference_scale : float
+        Linear scale of the rendered reference, (0, 1].
+    shadows : bool
+        Directional shadows from the Sun.
+    cull_bodies : bool
+        Draw celestial bodies only when in view (False exists to measure what culling saves).
+    render_backend : str
+        ``osmesa``, ``egl``, or empty to choose.
+    """
+
+    reference_scale: float = DEFAULT_SCALE
+    shadows: bool = DEFAULT_SHADOWS
+    cull_bodies: bool = True
+    render_backend: str = ""
+
+    def __post_init__(self) -> None:
+        scale = self.reference_scale
+        if isinstance(scale, bool) or not isinstance(scale, int | float):
+            raise ProcessingError(f"reference_scale must be a number, got {scale!r}")
+        if not (math.isfinite(scale) and 0 < scale <= 1):
+            raise ProcessingError(f"reference_scale must be in (0, 1], got {scale!r}")
+        if self.render_backend not in RENDER_BACKENDS:
+            raise ProcessingError(
+                f"render_backend must be one of {list(RENDER_BACKENDS)}, "
+                f"got {self.render_backend!r}"
+            )
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything that decides a frame's result: ``render`` (:class:`RenderSettings`),
+    ``params`` (:class:`~allo_mrad_ros.detector.MradParams`; PAD and RXD use its shared
+    post-processing fields) and ``methods`` (names from
+    :data:`allo_mrad_ros.detector.METHODS`; the first is the primary one, MRAD for the node).
+    """
+
+    render: RenderSettings = field(default_factory=RenderSettings)
+    params: MradParams = field(default_factory=MradParams)
+    methods: tuple[str, ...] = ("MRAD",)
+
+    def __post_init__(self) -> None:
+        methods = tuple(self.methods)
+        unknown = [name for name in methods if name not in METHODS]
+        if unknown or not methods:
+            raise ProcessingError(
+                f"unknown detection method(s) {unknown or list(methods)}; "
+                f"choose from {sorted(METHODS)}"
+            )
+        object.__setattr__(self, "methods", methods)
+
+    def replace(self, **changes: Any) -> PipelineConfig:
+        """A copy with ``changes`` (fields of this class or of :class:`RenderSettings`)."""
+        render_fields = {f.name for f in fields(RenderSettings)}
+        render_changes = {k: changes.pop(k) for k in list(changes) if k in render_fields}
+        if render_changes:
+            changes["render"] = replace(self.render, **render_changes)
+        return replace(self, **changes)
+
+
+class ReferenceProvider:
+    """Renders the reference of a :class:`~allo_mrad_ros.view.View` for one camera.
+
+    Owns the OpenGL renderer: build, use and close it on one thread.
+
+    Parameters
+    ----------
+    mesh : path-like, trimesh object or None
+        Station model (None: the package's model).
+    camera : CameraIntrinsics
+        Full-resolution intrinsics of the camera.
+    render : RenderSettings
+        Scale, shadows, body culling, backend.
+    """
+
+    def __init__(
+        self,
+        mesh: str | PathLike[str] | Any | None,
+        camera: CameraIntrinsics,
+        render: RenderSettings,
+    ) -> None:
+        self.settings = render
+        self.renderer = ReferenceRenderer(
+            mesh,
+            camera,
+            scale=render.reference_scale,
+            backend=render.render_backend or None,
+            shadows=render.shadows,
+            cull_bodies=render.cull_bodies,
+        )
+
+    @property
+    def camera(self) -> CameraIntrinsics:
+        """Full-resolution intrinsics the references are rendered for."""
+        return self.renderer.intrinsics
+
+    def render(self, view: View) -> np.ndarray:
+        """The reference RGB image of ``view``, the Sun's disc included."""
+        return self.renderer.render(
+            view.T_station_camera, view.sun_direction, view.sun_strength, view.sky_bodies
+        ).rgb
+
+    def close(self) -> None:
+        """Release the GL context."""
+        self.renderer.close()
 
 
 @dataclass(frozen=True)
@@ -32,7 +208,7 @@ class ProcessedFrame:
     Attributes
     ----------
     reference : numpy.ndarray
-        The reference RGB image (rendered at the renderer's output scale, or supplied).
+        The reference RGB image (rendered at the reference scale, or supplied).
     results : dict
         Method name to :class:`~allo_mrad_ros.detector.DetectionResult`, in the order asked.
     timings_ms : dict
@@ -49,98 +225,62 @@ class ProcessedFrame:
         return next(iter(self.results.values()))
 
 
-def earth_and_moon(
-    earth: Sequence[float] | None, moon: Sequence[float] | None
-) -> tuple[CelestialBody, ...]:
-    """Celestial bodies from a sequence frame's ``(x, y, z, r)`` Earth and Moon, where given."""
-    return tuple(
-        CelestialBody(name, tuple(float(v) for v in value[:3]), float(value[3]))
-        for name, value in (("earth", earth), ("moon", moon))
-        if value is not None
-    )
-
-
-def with_sun(
-    bodies: Sequence[CelestialBody | Sequence], sun_direction: Sequence[float]
-) -> list[CelestialBody | Sequence]:
-    """``bodies`` plus the Sun's disc along ``sun_direction``, unless a ``sun`` is there."""
-    bodies = list(bodies)
-    names = {b.name if isinstance(b, CelestialBody) else b[0] for b in bodies}
-    if "sun" in names:
-        return bodies
-    direction = np.asarray(sun_direction, dtype=np.float64)
-    norm = float(np.linalg.norm(direction))
-    if not np.isfinite(norm) or norm == 0.0:
-        return bodies  # the renderer reports the invalid direction itself
-    centre = tuple(SUN_DISTANCE_M * direction / norm)
-    radius = SUN_DISTANCE_M * math.tan(SUN_ANGULAR_RADIUS_RAD)
-    return [*bodies, CelestialBody("sun", centre, radius)]
-
-
-class FrameProcessor:
-    """Render-then-detect for a stream of frames from one camera.
+class Pipeline:
+    """Render-then-detect for a stream of frames from one camera: render once, detect many.
 
     Parameters
     ----------
-    renderer : ReferenceRenderer
-        Built once for the camera's intrinsics and the reference scale; reused per frame.
-    params : MradParams, optional
-        Detector parameters (defaults if omitted).
-    methods : sequence of str
-        Detectors to run, names from :data:`allo_mrad_ros.detector.METHODS`.
+    provider : ReferenceProvider
+        Renders the references; shared by pipelines built with :meth:`with_config`.
+    config : PipelineConfig
+        Parameters and methods (its render settings are the provider's).
     """
 
-    def __init__(
-        self,
-        renderer: ReferenceRenderer,
-        params: MradParams | None = None,
-        methods: Sequence[str] = ("MRAD",),
-    ) -> None:
-        unknown = [name for name in methods if name not in METHODS]
-        if unknown or not methods:
+    def __init__(self, provider: ReferenceProvider, config: PipelineConfig | None = None) -> None:
+        config = config or PipelineConfig(render=provider.settings)
+        if config.render != provider.settings:
             raise ProcessingError(
-                f"unknown detection method(s) {unknown or list(methods)}; "
-                f"choose from {sorted(METHODS)}"
+                f"render settings {config.render} differ from the provider's {provider.settings}"
             )
-        self.renderer = renderer
-        self.params = params or MradParams()
-        self.methods = tuple(methods)
+        self._provider = provider
+        self._config = config
 
-    def render_reference(
-        self,
-        T_station_camera: np.ndarray,
-        sun_direction: Sequence[float],
-        sun_strength: float = 1.0,
-        bodies: Sequence[CelestialBody | Sequence] = (),
-    ) -> np.ndarray:
-        """The reference RGB image for a camera pose and lighting.
+    @property
+    def provider(self) -> ReferenceProvider:
+        """The reference provider."""
+        return self._provider
 
-        The Sun's disc is in the camera image whenever the Sun is in view, so unless
-        ``bodies`` already has a ``sun``, one is added along ``sun_direction`` with its
-        true apparent size (the renderer culls it when out of view, at no cost).
-        """
-        bodies = with_sun(bodies, sun_direction)
-        return self.renderer.render(T_station_camera, sun_direction, sun_strength, bodies).rgb
+    @property
+    def config(self) -> PipelineConfig:
+        """The configuration (immutable)."""
+        return self._config
+
+    def with_config(self, config: PipelineConfig) -> Pipeline:
+        """A pipeline with another configuration sharing this one's provider."""
+        return Pipeline(self._provider, config)
+
+    def detect(
+        self, image: np.ndarray, reference: np.ndarray
+    ) -> tuple[dict[str, DetectionResult], dict[str, float]]:
+        """Run every method on ``image`` against ``reference``; results and ms per method."""
+        results, timings = {}, {}
+        for name in self._config.methods:
+            start = time.perf_counter()
+            results[name] = METHODS[name](image, reference, self._config.params)
+            timings[name] = 1e3 * (time.perf_counter() - start)
+        return results, timings
 
     def process(
-        self,
-        image: np.ndarray,
-        T_station_camera: np.ndarray,
-        sun_direction: Sequence[float],
-        sun_strength: float = 1.0,
-        bodies: Sequence[CelestialBody | Sequence] = (),
-        reference: np.ndarray | None = None,
+        self, image: np.ndarray, view: View, reference: np.ndarray | None = None
     ) -> ProcessedFrame:
-        """Detect anomalies in ``image`` seen from ``T_station_camera``.
+        """Detect anomalies in ``image`` seen from ``view``.
 
         Parameters
         ----------
         image : numpy.ndarray
-            H x W x 3 RGB camera image with the renderer's full-resolution size.
-        T_station_camera : numpy.ndarray
-            4x4 pose of the camera optical frame in the station frame.
-        sun_direction, sun_strength, bodies
-            Lighting and celestial bodies (see :meth:`ReferenceRenderer.render`).
+            H x W x 3 RGB camera image with the camera's full-resolution size.
+        view : View
+            Camera pose, lighting and celestial bodies.
         reference : numpy.ndarray, optional
             A pre-rendered reference to use instead of rendering one.
 
@@ -156,7 +296,8 @@ class FrameProcessor:
             From the detector (malformed image) or the renderer (invalid pose, lighting).
         """
         start = time.perf_counter()
-        expected = (self.renderer.intrinsics.height, self.renderer.intrinsics.width)
+        camera = self._provider.camera
+        expected = (camera.height, camera.width)
         if getattr(image, "shape", (None, None))[:2] != expected:
             raise ProcessingError(
                 f"image size {getattr(image, 'shape', None)} differs from the camera's "
@@ -164,12 +305,9 @@ class FrameProcessor:
             )
         timings: dict[str, float] = {"render": 0.0}
         if reference is None:
-            reference = self.render_reference(T_station_camera, sun_direction, sun_strength, bodies)
+            reference = self._provider.render(view)
             timings["render"] = 1e3 * (time.perf_counter() - start)
-        results = {}
-        for name in self.methods:
-            method_start = time.perf_counter()
-            results[name] = METHODS[name](image, reference, self.params)
-            timings[name] = 1e3 * (time.perf_counter() - method_start)
+        results, detect_ms = self.detect(image, reference)
+        timings.update(detect_ms)
         timings["total"] = 1e3 * (time.perf_counter() - start)
         return ProcessedFrame(reference, results, timings)

@@ -9,11 +9,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from allo_mrad_ros.errors import InvalidInput
+
 PACKAGE = "allo_mrad_ros"
 _SOURCE_ROOT = Path(__file__).resolve().parent.parent
 
 
-class ResourceError(FileNotFoundError):
+class ResourceError(InvalidInput, FileNotFoundError):
     """A data file of the package could not be found."""
 
 

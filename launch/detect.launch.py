@@ -14,6 +14,8 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
+from allo_mrad_ros import interface
+
 PACKAGE = "allo_mrad_ros"
 
 # (argument, default, description); topic defaults are the allo-bag writer's topics.
@@ -27,10 +29,10 @@ ARGUMENTS = [
     ("namespace", "", "namespace of the node"),
     ("pose_source", "tf", "camera pose from tf (tf2_ros) or topic (PoseStamped)"),
     ("use_sim_time", "false", "use /clock (true when replaying a bag with --clock)"),
-    ("image_topic", "/arm_camera/image_raw", "camera image (sensor_msgs/Image)"),
-    ("camera_info_topic", "/arm_camera/camera_info", "camera intrinsics"),
-    ("pose_topic", "/arm_camera/pose", "camera pose when pose_source is topic"),
-    ("sun_topic", "/allo/sun_direction", "sun direction (geometry_msgs/Vector3Stamped)"),
+    ("image_topic", interface.IMAGE_TOPIC, "camera image (sensor_msgs/Image)"),
+    ("camera_info_topic", interface.CAMERA_INFO_TOPIC, "camera intrinsics"),
+    ("pose_topic", interface.POSE_TOPIC, "camera pose when pose_source is topic"),
+    ("sun_topic", interface.SUN_DIRECTION_TOPIC, "sun direction (geometry_msgs/Vector3Stamped)"),
     ("rviz", "false", "also start RViz with the package's view"),
 ]
 
@@ -49,15 +51,15 @@ def generate_launch_description() -> LaunchDescription:
     detector = Node(
         package=PACKAGE,
         executable="mrad_detector",
-        name="mrad_detector",
+        name=interface.NODE_NAME,
         namespace=LaunchConfiguration("namespace"),
         output="screen",
         parameters=[config, overrides, {"mesh": LaunchConfiguration("mesh")}],
         remappings=[
-            ("/arm_camera/image_raw", LaunchConfiguration("image_topic")),
-            ("/arm_camera/camera_info", LaunchConfiguration("camera_info_topic")),
-            ("/arm_camera/pose", LaunchConfiguration("pose_topic")),
-            ("/allo/sun_direction", LaunchConfiguration("sun_topic")),
+            (interface.IMAGE_TOPIC, LaunchConfiguration("image_topic")),
+            (interface.CAMERA_INFO_TOPIC, LaunchConfiguration("camera_info_topic")),
+            (interface.POSE_TOPIC, LaunchConfiguration("pose_topic")),
+            (interface.SUN_DIRECTION_TOPIC, LaunchConfiguration("sun_topic")),
         ],
     )
     rviz = Node(

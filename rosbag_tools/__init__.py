@@ -9,15 +9,14 @@ One console script, ``allo-bag``, with five subcommands:
     Topics, types, message counts, duration and image sizes of a bag (:mod:`.info`).
 ``play``
     Publishes a bag over DDS with rclpy at its recorded rate (:mod:`.play`).
-``evaluate``
-    Runs MRAD and the PAD and RXD baselines on every frame of a bag or a sequence through
-    :class:`allo_mrad_ros.processing.FrameProcessor` and writes a report (:mod:`.evaluate`).
-``ablate``
-    The paper's Table II parameter sweeps of MRAD as one table (:mod:`.ablate`).
+``evaluate``, ``ablate``
+    Offline evaluation and the paper's Table II sweeps from :mod:`allo_mrad_ros.evaluation`,
+    on a sequence folder or a bag (:mod:`.bag_source` reads bags for it).
 
-The topic names and message layouts (:mod:`.topics`) are also what the detector node
-subscribes to. Nothing here needs a ROS installation except ``play``, which needs rclpy and
-the message packages of the bag's topics.
+The topic names (:mod:`allo_mrad_ros.interface`) are also what the detector node
+subscribes to; message layouts are in :mod:`.topics` and :mod:`.message_factory`. Nothing
+here needs a ROS installation except ``play``, which needs rclpy and the message packages of
+the bag's topics.
 """
 
 from rosbag_tools.topics import DEFAULT_TOPICS, DISTROS, TopicNames

@@ -24,12 +24,13 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_
 from rosbags.typesys import get_typestore as _get_typestore
 from rosbags.typesys.store import Typestore
 
+from allo_mrad_ros.errors import InvalidInput
 from rosbag_tools.topics import DEFAULT_TOPICS, TopicError, TopicNames
 
 METADATA_FILE = "metadata.yaml"
 
 
-class BagReadError(RuntimeError):
+class BagReadError(InvalidInput):
     """A bag cannot be opened or does not hold what is needed (the message names it)."""
 
 

@@ -7,14 +7,15 @@ frame), 2 for a usage error, 130 when interrupted.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from allo_mrad_ros.detector import PROFILES, MradParams, profile
+from allo_mrad_ros.detector import PROFILES
+from allo_mrad_ros.errors import AlloError, InvalidInput
+from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
@@ -22,38 +23,8 @@ from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
 PROG = "allo-bag"
 
 
-class CliError(RuntimeError):
+class CliError(InvalidInput):
     """A command-line value is invalid (reported as a usage error)."""
-
-
-def parse_params(profile_name: str, assignments: Sequence[str]) -> MradParams:
-    """Detector parameters from a profile name and ``key=value`` overrides.
-
-    Values take the type of the field's default (int, float or text).
-
-    Raises
-    ------
-    CliError
-        For an unknown profile or key, or a value of the wrong type or range.
-    """
-    if profile_name not in PROFILES:
-        raise CliError(f"unknown profile {profile_name!r}; choose from {sorted(PROFILES)}")
-    base = profile(profile_name)
-    kinds = {f.name: type(getattr(base, f.name)) for f in dataclasses.fields(base)}
-    changes: dict[str, object] = {}
-    for text in assignments:
-        key, sep, value = text.partition("=")
-        key = key.strip()
-        if not sep or key not in kinds:
-            raise CliError(f"--set expects KEY=VALUE with KEY one of {sorted(kinds)}; got {text!r}")
-        try:
-            changes[key] = kinds[key](value.strip())
-        except ValueError:
-            raise CliError(f"--set {key}: {value!r} is not a valid {kinds[key].__name__}") from None
-    try:
-        return base.replace(**changes) if changes else base
-    except ValueError as error:
-        raise CliError(f"--set: {error}") from None
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -75,6 +46,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     write.add_argument(
         "--split",
+        dest="splits",
         action="append",
         choices=("train", "val", "test"),
         help="write only this split (repeatable; default: all frames)",
@@ -88,6 +60,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     write.add_argument(
         "--tf-static-parent",
+        dest="static_parent",
         metavar="FRAME",
         help="also write /tf_static: identity from FRAME (e.g. world) to the station frame",
     )
@@ -141,10 +114,10 @@ def _parser() -> argparse.ArgumentParser:
             "--set", action="append", default=[], metavar="KEY=VALUE", help="MRAD parameter"
         )
         sub.add_argument(
-            "--ref-scale",
+            "--reference-scale",
             type=float,
             default=DEFAULT_SCALE,
-            help=f"reference render scale (default {DEFAULT_SCALE})",
+            help=f"linear scale of the rendered reference (default {DEFAULT_SCALE})",
         )
         sub.add_argument(
             "--use-sequence-references",
@@ -169,75 +142,74 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _write(args: argparse.Namespace) -> int:
+def _write(args: argparse.Namespace) -> str:
     from rosbag_tools.writer import write_bag
 
-    topics = TopicNames.from_assignments(args.topic)
     summary = write_bag(
         args.sequence,
         args.out,
-        storage=args.storage,
-        distro=args.distro,
-        topics=topics,
-        splits=args.split,
-        static_parent=args.tf_static_parent,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
+        topics=TopicNames.from_assignments(args.topic),
+        **keyword_options(args, "storage", "distro", "splits", "static_parent", "overwrite"),
     )
-    total = sum(summary.messages.values())
-    print(
-        f"wrote {summary.path}: {summary.frames} frames, {total} messages on "
-        f"{len(summary.messages)} topics ({summary.storage}, {summary.distro} definitions)"
+    return (
+        f"wrote {summary.path}: {summary.frames} frames, {sum(summary.messages.values())} "
+        f"messages on {len(summary.messages)} topics ({summary.storage}, {summary.distro} "
+        "definitions)"
     )
-    return 0
 
 
-def _info(args: argparse.Namespace) -> int:
+def _info(args: argparse.Namespace) -> str:
     from rosbag_tools.info import bag_info, format_info
 
     info = bag_info(args.bag)
-    print(json.dumps(info.as_dict(), indent=2) if args.json else format_info(info))
-    return 0
+    return json.dumps(info.as_dict(), indent=2) if args.json else format_info(info)
 
 
-def _play(args: argparse.Namespace) -> int:
+def _play(args: argparse.Namespace) -> str:
     from rosbag_tools.play import play_bag
 
-    summary = play_bag(
-        args.bag,
-        rate=args.rate,
-        loop=args.loop,
-        topics=args.topics,
-        delay=args.delay,
-        clock=args.clock,
-        wait_for=args.wait_for,
-        wait_timeout=args.wait_timeout,
+    options = ("rate", "loop", "topics", "delay", "clock", "wait_for", "wait_timeout")
+    summary = play_bag(args.bag, **keyword_options(args, *options))
+    return (
+        f"published {sum(summary.published.values())} messages on {len(summary.published)} "
+        f"topics in {summary.wall_s:.2f} s ({summary.passes} pass(es)); "
+        f"skipped {len(summary.skipped)}"
     )
-    total = sum(summary.published.values())
-    print(
-        f"published {total} messages on {len(summary.published)} topics in "
-        f"{summary.wall_s:.2f} s ({summary.passes} pass(es)); skipped {len(summary.skipped)}"
-    )
-    return 0
 
 
 def _source(args: argparse.Namespace) -> object:
-    from rosbag_tools.frames import open_source
+    from rosbag_tools.bag_source import open_source
 
     return open_source(args.input, mesh=args.mesh, use_references=args.use_sequence_references)
 
 
-def _evaluate(args: argparse.Namespace) -> int:
-    from rosbag_tools.evaluate import EvaluationConfig, evaluate
-    from rosbag_tools.report import evaluation_markdown, write_evaluation_report
+def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)) -> object:
+    """The :class:`~allo_mrad_ros.pipeline.PipelineConfig` of ``evaluate``/``ablate`` options.
 
-    params = parse_params(args.profile, args.set)
+    Raises
+    ------
+    CliError
+        For an unknown profile, method or parameter, or a value out of range.
+    """
+    from allo_mrad_ros.pipeline import PipelineConfig, ProcessingError, RenderSettings, params_from
+
+    try:
+        return PipelineConfig(
+            RenderSettings(reference_scale=args.reference_scale, shadows=args.shadows),
+            params_from(args.profile, args.set),
+            tuple(methods),
+        )
+    except ProcessingError as error:
+        raise CliError(str(error)) from None
+
+
+def _evaluate(args: argparse.Namespace) -> str:
+    from allo_mrad_ros.evaluation.evaluate import EvaluationConfig, evaluate
+    from allo_mrad_ros.evaluation.report import evaluation_markdown, write_evaluation_report
+
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     config = EvaluationConfig(
-        methods=methods,
-        params=params,
-        ref_scale=args.ref_scale,
-        shadows=args.shadows,
+        pipeline=pipeline_config(args, methods),
         split=args.split,
         limit=args.limit,
         jobs=args.jobs,
@@ -247,31 +219,26 @@ def _evaluate(args: argparse.Namespace) -> int:
     result = evaluate(_source(args), config)
     write_evaluation_report(result, args.out)
     table = evaluation_markdown(result).split("\n## ")[0]
-    print(table.rstrip())
-    print(
-        f"\n{result.frames_per_second:.2f} frames/s with {config.jobs} job(s); report in {args.out}"
+    return (
+        f"{table.rstrip()}\n\n{result.frames_per_second:.2f} frames/s with {config.jobs} "
+        f"job(s); report in {args.out}"
     )
-    return 0
 
 
-def _ablate(args: argparse.Namespace) -> int:
-    from rosbag_tools.ablate import ablate
-    from rosbag_tools.report import ablation_markdown, write_ablation_report
+def _ablate(args: argparse.Namespace) -> str:
+    from allo_mrad_ros.evaluation.ablate import ablate
+    from allo_mrad_ros.evaluation.report import ablation_markdown, write_ablation_report
 
     result = ablate(
         _source(args),
-        base=parse_params(args.profile, args.set),
-        ref_scale=args.ref_scale,
-        shadows=args.shadows,
+        config=pipeline_config(args),
         split=args.split,
         limit=args.limit,
         jobs=args.jobs,
         progress=not args.quiet,
     )
     write_ablation_report(result, args.out)
-    print(ablation_markdown(result).rstrip())
-    print(f"\nreport in {args.out}")
-    return 0
+    return f"{ablation_markdown(result).rstrip()}\n\nreport in {args.out}"
 
 
 _COMMANDS = {
@@ -281,30 +248,6 @@ _COMMANDS = {
     "evaluate": _evaluate,
     "ablate": _ablate,
 }
-
-
-def _known_errors() -> tuple[type[BaseException], ...]:
-    from rosbag_tools.ablate import AblationError
-    from rosbag_tools.bagio import BagReadError
-    from rosbag_tools.evaluate import EvaluationError
-    from rosbag_tools.frames import FrameSourceError
-    from rosbag_tools.info import InfoError
-    from rosbag_tools.parallel import ParallelError
-    from rosbag_tools.play import PlayError
-    from rosbag_tools.report import ReportError
-    from rosbag_tools.writer import BagWriteError
-
-    return (
-        AblationError,
-        BagReadError,
-        BagWriteError,
-        EvaluationError,
-        FrameSourceError,
-        InfoError,
-        ParallelError,
-        PlayError,
-        ReportError,
-    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -321,10 +264,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format=f"{PROG} {args.command}: %(message)s")
     logging.getLogger("allo_bag").setLevel(logging.INFO)
     try:
-        return _COMMANDS[args.command](args)
+        print(_COMMANDS[args.command](args))
     except (CliError, TopicError) as error:
         parser.error(str(error))
-    except _known_errors() as error:
+    except AlloError as error:
         print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

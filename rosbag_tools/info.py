@@ -7,12 +7,13 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+from allo_mrad_ros.errors import InvalidInput
+from rosbag_tools.bag_meta import KEY_MESH, KEY_NAME, KEY_SPLITS, decode_splits
 from rosbag_tools.bagio import BagReadError, custom_data, image_array, open_bag, read_metadata
 from rosbag_tools.topics import IMAGE
-from rosbag_tools.writer import KEY_MESH, KEY_NAME, KEY_SPLITS, decode_splits
 
 
-class InfoError(RuntimeError):
+class InfoError(InvalidInput):
     """A bag cannot be summarised."""
 
 

@@ -24,6 +24,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+from allo_mrad_ros.errors import BackendError
 from rosbag_tools.bagio import BagReadError, open_bag
 
 LOG = logging.getLogger("allo_bag.play")
@@ -33,7 +34,7 @@ DEFAULT_WAIT_TIMEOUT_S = 30.0
 ACK_TIMEOUT_S = 2.0
 
 
-class PlayError(RuntimeError):
+class PlayError(BackendError):
     """A bag cannot be played (bad option, no rclpy, unreadable bag)."""
 
 

@@ -14,7 +14,6 @@ the bag folder plus its SHA-256) and the sequence name.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -29,7 +28,21 @@ from rosbags.interfaces import QosTime as _QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from tqdm import tqdm
 
+from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
+from rosbag_tools.bag_meta import (
+    BAG_FORMAT,
+    KEY_FORMAT,
+    KEY_MESH,
+    KEY_MESH_SHA256,
+    KEY_NAME,
+    KEY_RATE,
+    KEY_SPLITS,
+    KEY_TOPICS,
+    encode_splits,
+    file_sha256,
+)
+from rosbag_tools.message_factory import MessageFactory
 from rosbag_tools.topics import (
     CAMERA_INFO,
     DEFAULT_DISTRO,
@@ -42,7 +55,6 @@ from rosbag_tools.topics import (
     STRING,
     TF_MESSAGE,
     VECTOR3_STAMPED,
-    MessageFactory,
     TopicError,
     TopicNames,
     typestore_for,
@@ -51,23 +63,12 @@ from rosbag_tools.topics import (
 STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 DEFAULT_STORAGE = "mcap"
 
-BAG_FORMAT = "allo-bag/1"
-"""Value of the ``allo.format`` custom-data key of bags written here."""
-
-# custom_data keys (rosbag2 metadata, strings only).
-KEY_FORMAT = "allo.format"
-KEY_NAME = "allo.sequence_name"
-KEY_SPLITS = "allo.splits"
-KEY_TOPICS = "allo.topics"
-KEY_MESH = "allo.mesh"
-KEY_MESH_SHA256 = "allo.mesh_sha256"
-KEY_RATE = "allo.rate_hz"
 
 _FRAME_ID = re.compile(r"^[A-Za-z0-9_./-]+$")
 _UNSPECIFIED = _QosTime(0, 0)
 
 
-class BagWriteError(RuntimeError):
+class BagWriteError(BackendError):
     """A bag cannot be written: invalid input sequence, option or output path."""
 
 
@@ -92,21 +93,9 @@ STATIC_QOS = _qos(QosDurability.TRANSIENT_LOCAL, 1)
 
 @dataclass(frozen=True)
 class BagSummary:
-    """What :func:`write_bag` wrote.
-
-    Attributes
-    ----------
-    path : pathlib.Path
-        The bag folder.
-    storage, distro : str
-        Storage plugin and message-definition distribution.
-    frames : int
-        Frames written.
-    messages : dict
-        Topic -> message count.
-    start_ns, end_ns : int
-        First and last frame stamps.
-    """
+    """What :func:`write_bag` wrote: the bag folder, its storage plugin and message-definition
+    distribution, the frames written, the message count per topic, the first and last frame
+    stamps."""
 
     path: Path
     storage: str
@@ -115,43 +104,6 @@ class BagSummary:
     messages: dict[str, int] = field(default_factory=dict)
     start_ns: int = 0
     end_ns: int = 0
-
-
-def encode_splits(splits: Iterable[str]) -> str:
-    """Run-length text of per-frame splits in playback order, e.g. ``"train:40,test:10"``."""
-    runs: list[list] = []
-    for split in splits:
-        if runs and runs[-1][0] == split:
-            runs[-1][1] += 1
-        else:
-            runs.append([split, 1])
-    return ",".join(f"{name}:{count}" for name, count in runs)
-
-
-def decode_splits(text: str) -> list[str]:
-    """Inverse of :func:`encode_splits`.
-
-    Raises
-    ------
-    ValueError
-        If the text is malformed or names an unknown split.
-    """
-    splits: list[str] = []
-    for run in filter(None, text.split(",")):
-        name, _, count = run.partition(":")
-        if name not in SPLITS or not count.isdigit():
-            raise ValueError(f"malformed split run {run!r} in {KEY_SPLITS}")
-        splits.extend([name] * int(count))
-    return splits
-
-
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    digest = hashlib.sha256()
-    with path.open("rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _check_options(storage: str, distro: str, static_parent: str | None) -> None:
@@ -213,7 +165,7 @@ class _FrameEncoder:
             (
                 t.pose,
                 POSE_STAMPED,
-                build.pose_stamped(stamp, station, frame.position, frame.quaternion),
+                build.pose_stamped(stamp, station, (frame.position, frame.quaternion)),
             ),
             (
                 t.sun_direction,

@@ -25,7 +25,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
 # install (no rclpy): modules that need rclpy at import are left out there, not failed.
 if importlib.util.find_spec("rclpy") is None:
     collect_ignore = [
-        path.name
-        for path in Path(__file__).parent.glob("test_*.py")
+        str(path.relative_to(REPO / "test"))
+        for path in (REPO / "test").rglob("test_*.py")
         if re.search(r"^(import|from) rclpy\b", path.read_text(), re.MULTILINE)
     ]

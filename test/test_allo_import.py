@@ -11,20 +11,17 @@ import cv2
 import numpy as np
 import pytest
 
-from allo_mrad_ros.allo_import import (
-    EPOCH_2030_NS,
+from allo_mrad_ros.allo_ephemeris import allo_sky
+from allo_mrad_ros.allo_format import (
     AlloImportError,
     AlloName,
-    add_import_parser,
     allo_base_poses,
     base_pose_to_optical,
-    import_allo,
-    main_import,
     parse_allo_name,
     parse_base_poses,
 )
+from allo_mrad_ros.allo_import import EPOCH_2030_NS, add_import_parser, import_allo, main_import
 from allo_mrad_ros.camera import CameraIntrinsics
-from allo_mrad_ros.ephemeris import allo_sky
 from allo_mrad_ros.geometry import quaternion_to_matrix
 from allo_mrad_ros.sequence import FRAMES_FILE, SequenceError, read_sequence
 

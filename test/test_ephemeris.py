@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from allo_mrad_ros.allo_ephemeris import allo_sky, parse_allo_ephemeris, read_allo_ephemeris
 from allo_mrad_ros.ephemeris import (
     EARTH_DISTANCE_M,
     EARTH_RADIUS_KM,
@@ -22,11 +23,9 @@ from allo_mrad_ros.ephemeris import (
     LunarOrbit,
     Sky,
     StationEphemeris,
-    allo_sky,
     day_to_datetime,
-    parse_allo_ephemeris,
-    read_allo_ephemeris,
 )
+from allo_mrad_ros.sky import SkyError
 
 SHARED_ALLO = Path(__file__).resolve().parents[1].parent / "shared" / "allo"
 PACKAGE_DATA = Path(__file__).resolve().parents[1] / "allo_mrad_ros" / "data"
@@ -72,9 +71,9 @@ def test_sun_direction_is_unit(skies: list[Sky]) -> None:
 
 
 def test_bodies_at_scaled_distances(skies: list[Sky]) -> None:
-    names = [name for name, _, _ in skies[0].bodies()]
+    names = [body.name for body in skies[0].bodies()]
     assert names == ["sun", "earth", "moon"]
-    assert skies[0].bodies()[1][2] == skies[0].earth[3]
+    assert skies[0].bodies()[1].radius == skies[0].earth[3]
     for sky in skies:
         for body, distance in (
             ("sun", SUN_DISTANCE_M),
@@ -198,7 +197,7 @@ def test_parameters_are_validated() -> None:
         LunarOrbit(epoch=datetime(2030, 1, 1))
     with pytest.raises(EphemerisError, match="sun_distance_m"):
         StationEphemeris(sun_distance_m=0.0)
-    with pytest.raises(EphemerisError, match="radius"):
+    with pytest.raises(SkyError, match="radius"):
         Sky(sun_direction=[1, 0, 0], sun=[1, 0, 0, 2], earth=[0, 1, 0, 0.1], moon=[0, 0, 1, 0.1])
 
 

@@ -5,9 +5,19 @@ import pytest
 import trimesh
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector import MradParams
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.processing import FrameProcessor, ProcessingError
+from allo_mrad_ros.pipeline import (
+    Pipeline,
+    PipelineConfig,
+    ProcessingError,
+    ReferenceProvider,
+    RenderSettings,
+    params_from,
+)
 from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
+from allo_mrad_ros.sky import with_sun
+from allo_mrad_ros.view import View
 
 INTRINSICS = CameraIntrinsics(640, 360, 444.4, 444.4, 320.0, 180.0)
 SUN = (0.3, -0.5, 0.8)
@@ -16,7 +26,7 @@ SUN = (0.3, -0.5, 0.8)
 @pytest.fixture(scope="module")
 def renderers():
     camera = ReferenceRenderer(None, INTRINSICS, scale=1.0, shadows=False)
-    reference = ReferenceRenderer(None, INTRINSICS, scale=0.5, shadows=False)
+    reference = ReferenceProvider(None, INTRINSICS, RenderSettings(0.5, shadows=False))
     yield camera, reference
     camera.close()
     reference.close()
@@ -36,8 +46,9 @@ def test_object_absent_from_the_model_is_detected(renderers, pose):
     object_pose[:3, 3] = pose[:3, 3] + 8.0 * pose[:3, 2] + 0.8 * pose[:3, 0] - 2.5 * pose[:3, 1]
     frame = camera.render(pose, SUN, extra_objects=[ExtraObject(box, object_pose)], labels=True)
     clean = camera.render(pose, SUN)
-    processor = FrameProcessor(reference_renderer, methods=("MRAD", "PAD", "RXD"))
-    found = processor.process(frame.rgb, pose, SUN)
+    config = PipelineConfig(reference_renderer.settings, methods=("MRAD", "PAD", "RXD"))
+    processor = Pipeline(reference_renderer, config)
+    found = processor.process(frame.rgb, View(pose, SUN))
     assert set(found.results) == {"MRAD", "PAD", "RXD"}
     assert found.reference.shape == (180, 320, 3)
     mrad = found.primary
@@ -45,37 +56,39 @@ def test_object_absent_from_the_model_is_detected(renderers, pose):
     assert mrad.anomalous
     hits = np.count_nonzero((mrad.mask > 0) & truth)
     assert hits >= 0.5 * np.count_nonzero(truth) and hits >= 0.9 * mrad.area
-    assert not processor.process(clean.rgb, pose, SUN).primary.anomalous
+    assert not processor.process(clean.rgb, View(pose, SUN)).primary.anomalous
     assert found.timings_ms["render"] > 0 and found.timings_ms["total"] >= found.timings_ms["MRAD"]
 
 
 def test_supplied_reference_skips_rendering(renderers, pose):
     camera, reference_renderer = renderers
     image = camera.render(pose, SUN).rgb
-    processor = FrameProcessor(reference_renderer)
-    given = processor.render_reference(pose, SUN)
-    out = processor.process(image, pose, SUN, reference=given)
+    processor = Pipeline(reference_renderer)
+    given = reference_renderer.render(View(pose, SUN))
+    out = processor.process(image, View(pose, SUN), reference=given)
     assert out.timings_ms["render"] == 0.0 and out.reference is given
 
 
 def test_wrong_image_size_and_unknown_method_are_named(renderers, pose):
     _, reference_renderer = renderers
     with pytest.raises(ProcessingError, match="differs from the camera's 640x360"):
-        FrameProcessor(reference_renderer).process(np.zeros((10, 10, 3), np.uint8), pose, SUN)
+        Pipeline(reference_renderer).process(np.zeros((10, 10, 3), np.uint8), View(pose, SUN))
     with pytest.raises(ProcessingError, match="unknown detection method"):
-        FrameProcessor(reference_renderer, methods=("MRAD", "YOLO"))
+        PipelineConfig(methods=("MRAD", "YOLO"))
+    with pytest.raises(ProcessingError, match="render settings"):
+        Pipeline(reference_renderer, PipelineConfig())
+    with pytest.raises(ProcessingError, match="reference_scale"):
+        RenderSettings(reference_scale=0.0)
 
 
 def test_sun_disc_is_added_to_the_reference_only_when_in_view(renderers):
-    from allo_mrad_ros.processing import with_sun
-
-    _, reference_renderer = renderers
-    processor = FrameProcessor(reference_renderer)
+    _, provider = renderers
+    reference_renderer = provider.renderer
     sun = np.array([0.2, -0.3, 0.93])
     sun /= np.linalg.norm(sun)
     eye = 100.0 * sun  # outside the station, on its sunny side
     towards_sun = look_at(eye, 200.0 * sun, up=(1.0, 0.0, 0.0))
-    reference = processor.render_reference(towards_sun, sun)
+    reference = provider.render(View(towards_sun, sun))
     assert reference[87:93, 157:163].max() > 200  # the disc (about 1 px radius here), ahead
     rendered = reference_renderer.render(towards_sun, sun, bodies=with_sun([], sun))
     assert rendered.bodies_in_view == ("sun",)
@@ -83,4 +96,38 @@ def test_sun_disc_is_added_to_the_reference_only_when_in_view(renderers):
     assert reference_renderer.render(away, sun, bodies=with_sun([], sun)).bodies_in_view == ()
     assert [b.name for b in with_sun([], sun)] == ["sun"]
     given = [("sun", (1.0, 0.0, 0.0), 5.0)]
-    assert with_sun(given, sun) == given
+    assert [(b.name, b.centre, b.radius) for b in with_sun(given, sun)] == given
+
+
+def test_a_new_config_swaps_the_pipeline_and_leaves_the_old_one_as_it_was(renderers, pose):
+    camera, provider = renderers
+    image = camera.render(pose, SUN).rgb
+    first = Pipeline(provider)
+    coarse = first.config.replace(params=first.config.params.replace(grid=2))
+    second = first.with_config(coarse)
+    assert second.provider is first.provider and first.config.params.grid == MradParams().grid
+    reference = provider.render(View(pose, SUN))
+    one = first.process(image, View(pose, SUN), reference=reference).primary
+    two = second.process(image, View(pose, SUN), reference=reference).primary
+    again = first.process(image, View(pose, SUN), reference=reference).primary
+    np.testing.assert_array_equal(one.score, again.score)
+    assert second.config.params.grid == 2 and two.score.shape == one.score.shape
+
+
+def test_parameters_from_text_and_numbers_have_one_coercion():
+    assert params_from("accurate", ["grid=3", "tolerance=30"]) == MradParams(
+        process_scale=1.0, grid=3, tolerance=30.0
+    )
+    assert params_from("default", {"tolerance": 30}).tolerance == 30.0
+    for bad, message in (
+        (["grid=two"], "not a valid int"),
+        (["nope=1"], "KEY=VALUE"),
+        (["grid=0"], "grid"),
+        ({"grid": 2.5}, "integer"),
+    ):
+        with pytest.raises(ProcessingError, match=message):
+            params_from("default", bad)
+    with pytest.raises(ProcessingError, match="unknown profile"):
+        params_from("x")
+    config = PipelineConfig().replace(reference_scale=0.25, methods=("PAD",))
+    assert config.render.reference_scale == 0.25 and config.methods == ("PAD",)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import platform
 from pathlib import Path
 
 
@@ -11,3 +13,12 @@ def write_report(path: Path, report: object) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(report, indent=2) + "\n")
     print(f"written: {path}")
+
+
+def machine_facts() -> dict[str, object]:
+    """CPU count, machine and Python version, for a report's figures to be read against."""
+    return {
+        "cpu_count": os.cpu_count(),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+    }

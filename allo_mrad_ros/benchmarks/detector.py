@@ -48,10 +48,12 @@ def _summary(samples: list[float]) -> dict[str, float]:
     return {"median": float(np.median(samples)), "p95": float(np.percentile(samples, 95))}
 
 
-def run(frames: int, warmup: int, oracle_frames: int, ref_scale: float, profile_name: str) -> dict:
+def run(
+    frames: int, warmup: int, oracle_frames: int, reference_scale: float, profile_name: str
+) -> dict:
     """Time ``detect`` and the oracle on the built-in 1080p example; return the figures."""
     pair = example_pair(1080, 1920)
-    ref_size = (round(1920 * ref_scale), round(1080 * ref_scale))
+    ref_size = (round(1920 * reference_scale), round(1080 * reference_scale))
     reference = cv2.resize(pair.reference, ref_size, interpolation=cv2.INTER_AREA)
     params = profile(profile_name)
     for _ in range(warmup):
@@ -158,13 +160,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=30, help="timed frames (>= 20)")
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--oracle-frames", type=int, default=5)
-    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE, help="reference scale")
+    parser.add_argument(
+        "--reference-scale", type=float, default=DEFAULT_SCALE, help="reference scale"
+    )
     parser.add_argument("--profile", default="default", help="detector parameter profile")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_detector.json"))
     args = parser.parse_args(argv)
     if args.frames < 20:
         parser.error("--frames must be at least 20")
-    report = run(args.frames, args.warmup, args.oracle_frames, args.ref_scale, args.profile)
+    report = run(args.frames, args.warmup, args.oracle_frames, args.reference_scale, args.profile)
     print(format_report(report))
     write_report(args.out, report)
     return 0

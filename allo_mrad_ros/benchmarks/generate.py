@@ -11,15 +11,13 @@ Usage: ``python -m allo_mrad_ros.benchmarks.generate --out reports/bench_generat
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks import machine_facts, write_report
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence.png import encode_png
 from allo_mrad_ros.synth.config import PRESETS, preset
@@ -65,9 +63,7 @@ def run(name: str, frames: int, seed: int, jobs: int, stage_frames: int) -> dict
         "frames_per_minute": report.frames_per_minute,
         "composition": report.composition,
         **stage_times(name, stage_frames, seed),
-        "cpu_count": os.cpu_count(),
-        "machine": platform.machine(),
-        "python": platform.python_version(),
+        **machine_facts(),
     }
 
 

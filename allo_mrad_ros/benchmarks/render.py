@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks import machine_facts, write_report
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
@@ -112,16 +110,18 @@ def time_config(
     return {**info, **_summary(samples)}
 
 
-def run(frames: int, full_frames: int, warmup: int, ref_scale: float, backend: str | None) -> dict:
+def run(
+    frames: int, full_frames: int, warmup: int, reference_scale: float, backend: str | None
+) -> dict:
     """Time every configuration and return the report."""
     configs = {
-        "ref_shadows": time_config(ref_scale, True, frames, warmup, backend),
+        "ref_shadows": time_config(reference_scale, True, frames, warmup, backend),
         "ref_shadows_moving_sun": time_config(
-            ref_scale, True, frames, warmup, backend, moving_sun=True
+            reference_scale, True, frames, warmup, backend, moving_sun=True
         ),
-        "ref_no_shadows": time_config(ref_scale, False, frames, warmup, backend),
+        "ref_no_shadows": time_config(reference_scale, False, frames, warmup, backend),
         "ref_shadows_depth_labels": time_config(
-            ref_scale, True, frames, warmup, backend, depth=True, labels=True
+            reference_scale, True, frames, warmup, backend, depth=True, labels=True
         ),
         "full_shadows": time_config(1.0, True, full_frames, warmup, backend),
         "full_no_shadows": time_config(1.0, False, full_frames, warmup, backend),
@@ -132,7 +132,7 @@ def run(frames: int, full_frames: int, warmup: int, ref_scale: float, backend: s
     default = "shadows" if default_shadows else "no_shadows"
     ref, full = configs[f"ref_{default}"], configs[f"full_{default}"]
     return {
-        "ref_scale": ref_scale,
+        "reference_scale": reference_scale,
         "ref_size": ref["size"],
         "full_size": full["size"],
         "default_shadows": default_shadows,
@@ -147,9 +147,7 @@ def run(frames: int, full_frames: int, warmup: int, ref_scale: float, backend: s
         "model_bytes": model.stat().st_size,
         "triangles": ref["triangles"],
         "backend": ref["backend"],
-        "cpu_count": os.cpu_count(),
-        "machine": platform.machine(),
-        "python": platform.python_version(),
+        **machine_facts(),
     }
 
 
@@ -160,12 +158,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=60, help="timed frames per reference config")
     parser.add_argument("--full-frames", type=int, default=24, help="timed frames at 1920x1080")
     parser.add_argument("--warmup", type=int, default=3)
-    parser.add_argument("--ref-scale", type=float, default=DEFAULT_SCALE)
+    parser.add_argument("--reference-scale", type=float, default=DEFAULT_SCALE)
     parser.add_argument("--backend", choices=("osmesa", "egl"), default=None)
     args = parser.parse_args(argv)
     if min(args.frames, args.full_frames) < 1 or args.warmup < 0:
         parser.error("--frames and --full-frames must be >= 1, --warmup >= 0")
-    report = run(args.frames, args.full_frames, args.warmup, args.ref_scale, args.backend)
+    report = run(args.frames, args.full_frames, args.warmup, args.reference_scale, args.backend)
     print(
         f"station model: {report['triangles']} triangles, {report['model_bytes']} bytes; "
         f"backend {report['backend']}, {report['cpu_count']} CPUs"
@@ -177,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     verdict = "meets" if report["ref_meets_target"] else "MISSES"
     shadows = "shadows" if report["default_shadows"] else "no shadows"
     print(
-        f"reference render (scale {report['ref_scale']}, {shadows}): median "
+        f"reference render (scale {report['reference_scale']}, {shadows}): median "
         f"{report['ref_ms_median']:.1f} ms, {verdict} the {TARGET_REF_MS:.0f} ms target"
     )
     write_report(args.out, report)

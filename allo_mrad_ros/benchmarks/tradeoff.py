@@ -2,8 +2,8 @@
 
 On an ALLO-like sequence (``allo-synth generate --preset bench``):
 
-1. **Sweep on the validation split**: reference render scale (1, 1/2, 1/4, 1/8), query
-   processing scale (1, 1/2, 1/4), directional shadows on/off, celestial bodies always vs only in
+1. **Sweep on the validation split**: reference scale (1, 1/2, 1/4, 1/8), process
+   scale (1, 1/2, 1/4), directional shadows on/off, celestial bodies always vs only in
    view, grid 4 vs 6, the two noise-removal variants, the two score scalings. Latency per
    frame is render plus detect, measured interleaved frame by frame so every setting sees
    the same machine load. Frames run in split order, grouped by day, so a renderer reuses
@@ -32,153 +32,39 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from allo_mrad_ros.detector import METHODS, MradParams, profile
-from allo_mrad_ros.geometry import pose_matrix
-from allo_mrad_ros.metrics import MetricsAccumulator, bootstrap_ap_difference, frame_counts
-from allo_mrad_ros.processing import earth_and_moon, with_sun
-from allo_mrad_ros.render import ReferenceRenderer
+from allo_mrad_ros.benchmarks.tradeoff_report import (
+    _describe_default_on_test,
+    _describe_gap,
+    _gap_with_interval,
+    _most_accurate,
+    choose_default,
+    describe_speedup_tier,
+    format_table,
+    plot_pareto,
+    plot_robustness,
+    reprint,
+)
+from allo_mrad_ros.benchmarks.tradeoff_settings import (
+    Outcome,
+    Setting,
+    perturbed,
+    sweep_settings,
+    true_pose,
+)
+from allo_mrad_ros.detector import profile
+from allo_mrad_ros.metrics import frame_counts
+from allo_mrad_ros.pipeline import Pipeline, ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence
-
-
-@dataclass(frozen=True)
-class RenderKey:
-    """What makes two references differ: the renderer's settings (sweep baseline values)."""
-
-    scale: float = 0.25
-    shadows: bool = True
-    cull_bodies: bool = True
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One point of the sweep: how the reference is rendered and how MRAD runs."""
-
-    name: str
-    render: RenderKey = RenderKey()
-    params: MradParams = field(default_factory=MradParams)
-    method: str = "MRAD"
-
-    @property
-    def conforms(self) -> bool:
-        """Whether the outputs follow mrad.md (only those may become the default)."""
-        return self.params.pixel_score == "regions"
-
-
-def sweep_settings(base: MradParams) -> list[Setting]:
-    """The swept settings: each knob alone around ``base``, then the speed knobs combined
-    with each accuracy knob (grid 6, cell_spread), so fast and accurate can meet."""
-    full, eighth = RenderKey(), RenderKey(0.125)
-    eighth_flat = RenderKey(0.125, False)
-    half = base.replace(process_scale=0.5)
-    settings = [
-        Setting("baseline", full, base),
-        Setting("ref scale 1", RenderKey(1.0), base),
-        Setting("ref scale 1/2", RenderKey(0.5), base),
-        Setting("ref scale 1/8", eighth, base),
-        Setting("query scale 1/2", full, half),
-        Setting("query scale 1/4", full, base.replace(process_scale=0.25)),
-        Setting("no shadows", RenderKey(0.25, False), base),
-        Setting("bodies always", RenderKey(0.25, True, False), base),
-        Setting("grid 6", full, base.replace(grid=6)),
-        Setting("cell_spread", full, base.replace(noise_removal="cell_spread")),
-        Setting("per_image scaling", full, base.replace(score_scaling="per_image")),
-        Setting("ref 1/8, no shadows", eighth_flat, base),
-        Setting("ref 1/8, query 1/2, no shadows", eighth_flat, half),
-        Setting("paper-faithful", RenderKey(1.0), profile("paper")),
-    ]
-    for label, accurate in (
-        ("grid 6", base.replace(grid=6)),
-        ("grid 6, cell_spread", base.replace(grid=6, noise_removal="cell_spread")),
-    ):
-        fast = accurate.replace(process_scale=0.5)
-        fastest = accurate.replace(process_scale=0.25)
-        if label != "grid 6":
-            settings.append(Setting(label, full, accurate))
-        settings += [
-            Setting(f"{label}, ref 1/8", eighth, accurate),
-            Setting(f"{label}, query 1/2", full, fast),
-            Setting(f"{label}, ref 1/8, query 1/2", eighth, fast),
-            Setting(f"{label}, ref 1/8, query 1/2, no shadows", eighth_flat, fast),
-            Setting(f"{label}, ref 1/8, query 1/4", eighth, fastest),
-            Setting(f"{label}, ref 1/8, query 1/4, no shadows", eighth_flat, fastest),
-        ]
-    # Not mrad.md's output (score kept outside the regions): shown, never chosen.
-    blurred = base.replace(grid=6, pixel_score="blurred")
-    settings += [
-        Setting("grid 6, pixel score blurred (not mrad.md)", full, blurred),
-        Setting(
-            "grid 6, pixel score blurred, ref 1/8, query 1/2 (not mrad.md)",
-            eighth,
-            blurred.replace(process_scale=0.5),
-        ),
-    ]
-    return settings
-
-
-@dataclass
-class Outcome:
-    """Latencies and metrics of one setting over a split."""
-
-    setting: Setting
-    latency_ms: list[float] = field(default_factory=list)
-    render_ms: list[float] = field(default_factory=list)
-    detect_ms: list[float] = field(default_factory=list)
-    metrics: MetricsAccumulator = field(default_factory=MetricsAccumulator)
-    counts: list[np.ndarray] = field(default_factory=list)
-
-    def row(self) -> dict:
-        """The report row."""
-        m = self.metrics.compute().as_dict()
-        s = self.setting
-        return {
-            "setting": s.name,
-            "method": s.method,
-            "ref_scale": s.render.scale,
-            "shadows": s.render.shadows,
-            "cull_bodies": s.render.cull_bodies,
-            "params": s.params.to_dict(),
-            "conforms_to_mrad_md": s.conforms,
-            "frames": len(self.latency_ms),
-            "latency_ms_median": float(np.median(self.latency_ms)),
-            "latency_ms_p95": float(np.percentile(self.latency_ms, 95)),
-            "render_ms_median": float(np.median(self.render_ms)),
-            "detect_ms_median": float(np.median(self.detect_ms)),
-            **m,
-        }
-
-
-def true_pose(frame: Frame) -> np.ndarray:
-    """The pose the image was rendered from (``true_*`` columns), else the reported one."""
-    keys = ("true_tx", "true_ty", "true_tz", "true_qx", "true_qy", "true_qz", "true_qw")
-    if all(frame.extra.get(k) for k in keys):
-        values = [float(frame.extra[k]) for k in keys]
-        return pose_matrix(values[:3], values[3:])
-    return frame.T_station_camera
-
-
-def perturbed(pose: np.ndarray, rotation_deg: float, translation_m: float, seed: int) -> np.ndarray:
-    """``pose`` turned by exactly ``rotation_deg`` and moved by exactly ``translation_m``,
-    about and along directions drawn from ``seed``."""
-    rng = np.random.default_rng(seed)
-    axis = rng.normal(size=3)
-    direction = rng.normal(size=3)
-    out = pose.copy()
-    turn = Rotation.from_rotvec(math.radians(rotation_deg) * axis / np.linalg.norm(axis))
-    out[:3, :3] = pose[:3, :3] @ turn.as_matrix()
-    out[:3, 3] = pose[:3, 3] + translation_m * direction / np.linalg.norm(direction)
-    return out
+from allo_mrad_ros.view import View
 
 
 class Sweep:
@@ -186,19 +72,14 @@ class Sweep:
 
     def __init__(self, sequence: AlloSequence) -> None:
         self.sequence = sequence
-        self._renderers: dict[RenderKey, ReferenceRenderer] = {}
+        self._providers: dict[RenderSettings, ReferenceProvider] = {}
 
-    def renderer(self, key: RenderKey) -> ReferenceRenderer:
-        """The (cached) renderer of a render key."""
-        if key not in self._renderers:
-            self._renderers[key] = ReferenceRenderer(
-                self.sequence.meta.mesh,
-                self.sequence.meta.camera,
-                scale=key.scale,
-                shadows=key.shadows,
-                cull_bodies=key.cull_bodies,
-            )
-        return self._renderers[key]
+    def provider(self, render: RenderSettings) -> ReferenceProvider:
+        """The (cached) reference provider of some render settings."""
+        if render not in self._providers:
+            meta = self.sequence.meta
+            self._providers[render] = ReferenceProvider(meta.mesh, meta.camera, render)
+        return self._providers[render]
 
     def run(
         self,
@@ -209,27 +90,24 @@ class Sweep:
     ) -> list[Outcome]:
         """Evaluate every setting on every frame; returns one outcome per setting."""
         outcomes = [Outcome(s) for s in settings]
+        pipelines = [Pipeline(self.provider(s.render), s.config) for s in settings]
         keys = list(dict.fromkeys(s.render for s in settings))
         for frame in tqdm(frames, desc=label, unit="frame", leave=False):
             image = self.sequence.load_image(frame)
             truth = self.sequence.load_mask(frame)
-            pose = pose_of(frame)
+            # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
+            view = View.from_row(
+                pose_of(frame), frame.sun_direction, frame.sun_strength, frame.earth, frame.moon
+            )
             references, render_ms = {}, {}
             for key in keys:
                 start = time.perf_counter()
-                # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
-                bodies = with_sun(earth_and_moon(frame.earth, frame.moon), frame.sun_direction)
-                references[key] = (
-                    self.renderer(key)
-                    .render(pose, frame.sun_direction, frame.sun_strength, bodies)
-                    .rgb
-                )
+                references[key] = self.provider(key).render(view)
                 render_ms[key] = 1e3 * (time.perf_counter() - start)
-            for outcome in outcomes:
+            for outcome, pipeline in zip(outcomes, pipelines, strict=True):
                 s = outcome.setting
-                start = time.perf_counter()
-                result = METHODS[s.method](image, references[s.render], s.params)
-                detect = 1e3 * (time.perf_counter() - start)
+                results, detect_ms = pipeline.detect(image, references[s.render])
+                result, detect = results[s.method], detect_ms[s.method]
                 outcome.render_ms.append(render_ms[s.render])
                 outcome.detect_ms.append(detect)
                 outcome.latency_ms.append(render_ms[s.render] + detect)
@@ -239,200 +117,9 @@ class Sweep:
 
     def close(self) -> None:
         """Release the GL contexts."""
-        for renderer in self._renderers.values():
-            renderer.close()
-        self._renderers.clear()
-
-
-def pareto_front(rows: Iterable[dict]) -> list[dict]:
-    """Rows that no other row beats on both median latency and P.AP."""
-    rows = list(rows)
-    return [
-        r
-        for r in rows
-        if not any(
-            o["latency_ms_median"] <= r["latency_ms_median"]
-            and o["p_ap"] >= r["p_ap"]
-            and (o["latency_ms_median"] < r["latency_ms_median"] or o["p_ap"] > r["p_ap"])
-            for o in rows
-        )
-    ]
-
-
-def _candidates(rows: Iterable[dict]) -> list[dict]:
-    """The rows that may become the default: MRAD with outputs that follow mrad.md."""
-    return [r for r in rows if r["conforms_to_mrad_md"] and r["method"] == "MRAD"]
-
-
-def _most_accurate(rows: Sequence[dict]) -> dict:
-    """The candidate row with the highest P.AP."""
-    return max(_candidates(rows), key=lambda r: r["p_ap"])
-
-
-def most_accurate_with_speedup(rows: Sequence[dict], speedup: float) -> dict | None:
-    """The most accurate candidate row at least ``speedup`` times faster than the most
-    accurate candidate of all (None if no row is that fast)."""
-    best = _most_accurate(rows)
-    fast = [
-        r
-        for r in _candidates(rows)
-        if r["latency_ms_median"] * speedup <= best["latency_ms_median"]
-    ]
-    return max(fast, key=lambda r: r["p_ap"]) if fast else None
-
-
-def describe_speedup_tier(rows: Sequence[dict], speedup: float) -> str:
-    """One line naming :func:`most_accurate_with_speedup` and its P.AP gap."""
-    best, fast = _most_accurate(rows), most_accurate_with_speedup(rows, speedup)
-    if fast is None:
-        return f"no setting is {speedup:g}x faster than the most accurate ({best['setting']})"
-    return (
-        f"most accurate setting at least {speedup:g}x faster than the most accurate: "
-        f"{fast['setting']} ({fast['latency_ms_median']:.1f} ms, "
-        f"{best['latency_ms_median'] / fast['latency_ms_median']:.1f}x), "
-        f"{100 * (best['p_ap'] - fast['p_ap']):.1f} P.AP points below it"
-    )
-
-
-def reprint(report: dict, speedup: float) -> None:
-    """Print the tables and the summary lines of a saved ``speed_vs_error.json``."""
-    default = report["default_setting"]
-    print(f"validation ({report.get('validation_sequence', report['sequence'])}, val split)")
-    print(format_table(report["rows"], default))
-    print(f"* chosen default ({report['choice_rule']}): {default}\n")
-    print(f"test ({report['sequence']}, test split)")
-    print(format_table(report["test_rows"], default))
-    print(_describe_default_on_test(report["test_summary"]))
-    mrad_test = [r for r in report["test_rows"] if r["method"] == "MRAD"]
-    print(describe_speedup_tier(mrad_test, speedup))
-
-
-def choose_default(rows: Sequence[dict], ap_margin: float) -> dict:
-    """The fastest Pareto-front row within ``ap_margin`` P.AP points of the best, among the
-    rows whose outputs follow mrad.md."""
-    rows = _candidates(rows)
-    best = max(r["p_ap"] for r in rows)
-    eligible = [r for r in pareto_front(rows) if r["p_ap"] >= best - ap_margin / 100.0]
-    return min(eligible, key=lambda r: r["latency_ms_median"])
-
-
-def format_table(rows: Sequence[dict], default: str | None = None) -> str:
-    """The printed table (metrics in percent)."""
-    lines = [
-        f"{'setting':<62}{'ms p50':>8}{'ms p95':>8}{'render':>8}{'detect':>8}"
-        f"{'P.AP':>7}{'I.AUROC':>9}{'P.FPR95':>9}{'P.AUROC':>9}"
-    ]
-    for r in rows:
-        mark = " *" if r["setting"] == default else ""
-        name = r["setting"] if r["method"] == "MRAD" else f"{r['method']} ({r['setting']})"
-        lines.append(
-            f"{name + mark:<62}{r['latency_ms_median']:>8.1f}{r['latency_ms_p95']:>8.1f}"
-            f"{r['render_ms_median']:>8.1f}{r['detect_ms_median']:>8.1f}"
-            f"{100 * r['p_ap']:>7.1f}{100 * r['i_auroc']:>9.1f}{100 * r['p_fpr95']:>9.1f}"
-            f"{100 * r['p_auroc']:>9.1f}"
-        )
-    return "\n".join(lines)
-
-
-def plot_pareto(rows: Sequence[dict], default: str, path: Path, title: str) -> None:
-    """Scatter of median latency against P.AP with the Pareto front and the default."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    conforming = [r for r in rows if r.get("conforms_to_mrad_md", True)]
-    front = {r["setting"] for r in pareto_front(conforming)}
-    fig, ax = plt.subplots(figsize=(9, 6))
-    for r in rows:
-        chosen = r["setting"] == default
-        ax.scatter(
-            r["latency_ms_median"],
-            100 * r["p_ap"],
-            s=80 if chosen else 40,
-            c="tab:red" if chosen else ("tab:blue" if r["setting"] in front else "tab:gray"),
-            zorder=3,
-        )
-        ax.annotate(
-            r["setting"],
-            (r["latency_ms_median"], 100 * r["p_ap"]),
-            fontsize=7,
-            xytext=(4, 3),
-            textcoords="offset points",
-        )
-    ordered = sorted(
-        (r for r in rows if r["setting"] in front), key=lambda r: r["latency_ms_median"]
-    )
-    ax.plot(
-        [r["latency_ms_median"] for r in ordered],
-        [100 * r["p_ap"] for r in ordered],
-        "--",
-        c="tab:blue",
-        lw=1,
-        label="Pareto front",
-    )
-    ax.set_xscale("log")
-    ax.set_xlabel("median latency per frame, render + detect (ms, log scale)")
-    ax.set_ylabel("P.AP (%)")
-    ax.set_title(title)
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def plot_robustness(rows: Sequence[dict], path: Path) -> None:
-    """P.AP against rotation error and against translation error."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    rot = [r for r in rows if r["translation_cm"] == 0]
-    trans = [r for r in rows if r["rotation_deg"] == 0]
-    left.plot([r["rotation_deg"] for r in rot], [100 * r["p_ap"] for r in rot], "o-")
-    right.plot([r["translation_cm"] for r in trans], [100 * r["p_ap"] for r in trans], "o-")
-    left.set_xlabel("reference rotation error (deg)")
-    right.set_xlabel("reference translation error (cm)")
-    left.set_ylabel("P.AP (%)")
-    for ax in (left, right):
-        ax.grid(alpha=0.3)
-    fig.suptitle("MRAD default: P.AP against reference pose error (test split)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def _gap_with_interval(outcomes: Sequence[Outcome], setting: str, reference: str) -> dict:
-    """P.AP points by which ``setting`` trails ``reference``, with a paired bootstrap 95 %
-    interval over frames (coarse bins of 1/2: the interval, not the point, uses them)."""
-    by_name = {o.setting.name: o for o in outcomes if o.setting.method == "MRAD"}
-    ours, theirs = by_name[setting], by_name[reference]
-    points = 100.0 * (theirs.metrics.compute().p_ap - ours.metrics.compute().p_ap)
-    draws = 100.0 * bootstrap_ap_difference(np.stack(ours.counts), np.stack(theirs.counts))
-    low, high = np.percentile(draws, [2.5, 97.5]) if draws.size else (math.nan, math.nan)
-    return {"points": points, "interval_95": [float(low), float(high)]}
-
-
-def _describe_gap(points: float, interval_95: Sequence[float], reference: str) -> str:
-    low, high = interval_95
-    return (
-        f"{points:.1f} P.AP points below the most accurate setting ({reference}; "
-        f"95 % paired-bootstrap interval {low:.1f} to {high:.1f})"
-    )
-
-
-def _describe_default_on_test(summary: dict) -> str:
-    """The summary line of the default on test, from the report's ``test_summary``."""
-    gap = _describe_gap(
-        summary["ap_gap_points"], summary["ap_gap_interval_95"], summary["best_setting"]
-    )
-    return (
-        f"default on test: P.AP {100 * summary['default_p_ap']:.1f}, {gap}, "
-        f"{summary['speedup_vs_best']:.1f}x faster than it"
-    )
+        for provider in self._providers.values():
+            provider.close()
+        self._providers.clear()
 
 
 def _split(sequence: AlloSequence, name: str, limit: int | None) -> list[Frame]:

@@ -7,9 +7,9 @@ One parameter varies at a time around the baseline (the chosen profile with its 
 - kernel: local-std window of 5, 10, 20, 30 % of the cell;
 - blur SD: 2, 5, 10 px.
 
-Each frame's reference is rendered once and reused by every parameter set (through
-``FrameProcessor.process(reference=...)``), and identical parameter sets (the baseline
-appears in every sweep) are run once.
+Each frame's reference is rendered once and reused by every parameter set (one
+:class:`~allo_mrad_ros.pipeline.Pipeline` per set, sharing the reference provider), and
+identical parameter sets (the baseline appears in every sweep) are run once.
 """
 
 from __future__ import annotations
@@ -24,19 +24,20 @@ from typing import Any
 import numpy as np
 
 from allo_mrad_ros.detector import MradParams
-from allo_mrad_ros.metrics import AlloMetrics, MetricsAccumulator
-from allo_mrad_ros.processing import FrameProcessor
-from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
-from rosbag_tools.evaluate import (
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.evaluation.evaluate import (
     MethodOutcome,
-    RendererSetup,
     Tally,
-    build_renderer,
-    frame_counts,
+    WorkerSetup,
+    check_run_options,
     merged_accumulator,
+    release_worker_state,
+    start_worker,
 )
-from rosbag_tools.frames import EvalFrame, FrameSource, open_source
-from rosbag_tools.parallel import RunClock, run_frames
+from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
+from allo_mrad_ros.evaluation.sources import EvalFrame, FrameSource, RunFacts, open_sequence
+from allo_mrad_ros.metrics import AlloMetrics, MetricsAccumulator
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
 
 GRIDS = (1, 2, 3, 4, 6, 8)
 TOLERANCE_PERCENT = (25, 50, 100, 150, 200)
@@ -44,7 +45,7 @@ KERNEL_FRACTIONS = (0.05, 0.10, 0.20, 0.30)
 BLUR_SIGMAS = (2.0, 5.0, 10.0)
 
 
-class AblationError(RuntimeError):
+class AblationError(InvalidInput):
     """An ablation cannot run (bad option) or a frame failed (the message names it)."""
 
 
@@ -101,16 +102,11 @@ class AblationRow:
 
 
 @dataclass
-class AblationResult:
+class AblationResult(RunFacts):
     """The whole table and the run's facts."""
 
-    input: str
-    kind: str
-    name: str
-    split: str | None
-    frames: int
     baseline: MradParams
-    ref_scale: float
+    reference_scale: float
     rows: list[AblationRow] = field(default_factory=list)
     configs: int = 0
     render_ms_median: float = 0.0
@@ -118,53 +114,28 @@ class AblationResult:
     jobs: int = 1
 
 
-_STATE: dict[str, Any] = {}
+_PIPELINES: list[Pipeline] = []
 
 
-def _init_ablation(setup: RendererSetup, param_sets: tuple[MradParams, ...]) -> None:
-    _release()
-    renderer = build_renderer(setup)
-    _STATE["renderer"] = renderer
-    _STATE["processors"] = [FrameProcessor(renderer, p, ("MRAD",)) for p in param_sets]
-
-
-def _release() -> None:
-    renderer = _STATE.pop("renderer", None)
-    _STATE.clear()
-    if renderer is not None:
-        renderer.close()
+def _start_ablation(setup: WorkerSetup, param_sets: tuple[MradParams, ...]) -> None:
+    base = start_worker(setup)
+    _PIPELINES[:] = [base.with_config(setup.config.replace(params=p)) for p in param_sets]
 
 
 def _ablate_frame(frame: EvalFrame) -> tuple[bool, float, list[MethodOutcome]]:
-    processors: list[FrameProcessor] = _STATE["processors"]
     try:
         reference, render_ms = frame.reference, 0.0
         if reference is None:
             start = time.perf_counter()
-            reference = processors[0].render_reference(
-                frame.T_station_camera, frame.sun_direction, frame.sun_strength, frame.bodies
-            )
+            reference = _PIPELINES[0].provider.render(frame.view)
             render_ms = 1e3 * (time.perf_counter() - start)
         outcomes = []
-        for processor in processors:
-            result = processor.process(
-                frame.image,
-                frame.T_station_camera,
-                frame.sun_direction,
-                frame.sun_strength,
-                frame.bodies,
-                reference=reference,
-            )
-            mrad = result.results["MRAD"]
+        for pipeline in _PIPELINES:
+            results, timings = pipeline.detect(frame.image, reference)
             outcomes.append(
-                MethodOutcome(
-                    counts=frame_counts(mrad.score, frame.mask),
-                    area=float(mrad.area),
-                    anomalous=bool(mrad.anomalous),
-                    timings_ms={"total": result.timings_ms["MRAD"]},
-                )
+                MethodOutcome.of(results["MRAD"], frame.mask, {"total": timings["MRAD"]})
             )
-    except Exception as error:
+    except (ValueError, RuntimeError) as error:
         raise AblationError(f"frame {frame.name} (index {frame.index}): {error}") from None
     return frame.is_anomalous, render_ms, outcomes
 
@@ -172,9 +143,7 @@ def _ablate_frame(frame: EvalFrame) -> tuple[bool, float, list[MethodOutcome]]:
 def ablate(
     source: FrameSource | str | PathLike[str],
     *,
-    base: MradParams | None = None,
-    ref_scale: float = DEFAULT_SCALE,
-    shadows: bool = DEFAULT_SHADOWS,
+    config: PipelineConfig | None = None,
     split: str | None = None,
     limit: int | None = None,
     jobs: int = 1,
@@ -182,42 +151,26 @@ def ablate(
 ) -> AblationResult:
     """Run the Table II sweeps over a split of a sequence or bag.
 
-    Parameters
-    ----------
-    source : FrameSource or path-like
-        Input (see :func:`rosbag_tools.frames.open_source`).
-    base : MradParams, optional
-        Baseline parameters (default: the project defaults, the paper's optimum).
-    ref_scale, shadows
-        Reference rendering, as for ``evaluate``.
-    split : str, optional
-        Split to use; None means ``test`` if present, else every frame.
-    limit : int, optional
-        Use at most this many frames, evenly spread over the split.
-    jobs : int
-        Worker processes.
-    progress : bool
-        Show a progress bar.
-
-    Returns
-    -------
-    AblationResult
+    ``source``, ``split``, ``limit``, ``jobs`` and ``progress`` are as for
+    :func:`~allo_mrad_ros.evaluation.evaluate.evaluate`; ``config`` gives the reference
+    rendering and the baseline parameters (default: the project defaults; its methods are
+    ignored, the sweeps are of MRAD).
 
     Raises
     ------
     AblationError
         For a frame that fails (naming it) or an invalid option.
     """
-    base = base or MradParams()
-    if not (0 < ref_scale <= 1):
-        raise AblationError(f"ref_scale must be in (0, 1], got {ref_scale!r}")
+    config = (config or PipelineConfig()).replace(methods=("MRAD",))
+    base = config.params
+    check_run_options(jobs, limit)
     if not isinstance(source, FrameSource):
-        source = open_source(source)
+        source = open_sequence(source)
     chosen_split = split if split is not None else source.default_split()
     indices = source.select(chosen_split, limit)
     points = sweep_points(base)
     unique = list(dict.fromkeys(p.params for p in points))
-    setup = RendererSetup(source.mesh, source.camera, ref_scale, shadows)
+    setup = WorkerSetup(source.mesh, source.camera, config)
     tallies = [Tally() for _ in unique]
     times: list[list[float]] = [[] for _ in unique]
     render_times: list[float] = []
@@ -225,7 +178,7 @@ def ablate(
     results: Iterator = run_frames(
         source.frames(indices),
         len(indices),
-        initializer=_init_ablation,
+        initializer=_start_ablation,
         initargs=(setup, tuple(unique)),
         work=_ablate_frame,
         jobs=jobs,
@@ -241,7 +194,8 @@ def ablate(
                 times[i].append(outcome.timings_ms["total"])
     finally:
         if jobs == 1:
-            _release()
+            release_worker_state()
+            _PIPELINES.clear()
     metrics: dict[MradParams, AlloMetrics] = {}
     medians: dict[MradParams, float] = defaultdict(float)
     for i, params in enumerate(unique):
@@ -253,13 +207,9 @@ def ablate(
         for p in points
     ]
     return AblationResult(
-        input=str(source.path),
-        kind=source.kind,
-        name=source.name,
-        split=chosen_split,
-        frames=len(indices),
+        **vars(RunFacts.of(source, chosen_split, indices)),
         baseline=base,
-        ref_scale=ref_scale,
+        reference_scale=config.render.reference_scale,
         rows=rows,
         configs=len(unique),
         render_ms_median=float(np.median(render_times)) if render_times else 0.0,

@@ -24,8 +24,10 @@ from typing import Any
 
 from tqdm import tqdm
 
+from allo_mrad_ros.errors import BackendError
 
-class ParallelError(RuntimeError):
+
+class ParallelError(BackendError):
     """A worker failed on a frame (the message names the frame)."""
 
 

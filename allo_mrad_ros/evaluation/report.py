@@ -20,11 +20,13 @@ import cv2
 import numpy as np
 from matplotlib.figure import Figure
 
+from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.metrics import AlloMetrics
 
 if TYPE_CHECKING:
-    from rosbag_tools.ablate import AblationResult
-    from rosbag_tools.evaluate import EvaluationResult
+    from allo_mrad_ros.evaluation.ablate import AblationResult
+    from allo_mrad_ros.evaluation.evaluate import EvaluationResult
 
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
 METRIC_TITLES = ("I.AUROC", "P.AUROC", "P.AP", "P.FPR95")
@@ -32,7 +34,7 @@ _TRUTH_COLOUR = (60, 220, 60)
 _DETECTION_COLOUR = np.array([230, 40, 40], dtype=np.float32)
 
 
-class ReportError(RuntimeError):
+class ReportError(BackendError):
     """A report cannot be written (the message names the file)."""
 
 
@@ -61,6 +63,10 @@ def _metrics_row(label: str, metrics: Mapping[str, float]) -> str:
     return f"| {label} | {cells} |"
 
 
+def _params_text(params: MradParams) -> str:
+    return ", ".join(f"{k}={v}" for k, v in params.to_dict().items())
+
+
 def _write_text(path: Path, text: str) -> None:
     temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
@@ -73,6 +79,13 @@ def _write_text(path: Path, text: str) -> None:
 
 def _write_json(path: Path, data: Mapping[str, Any]) -> None:
     _write_text(path, json.dumps(_clean(data), indent=2, allow_nan=False) + "\n")
+
+
+def _write_tables(out: Path, stem: str, data: Mapping[str, Any], text: str) -> list[Path]:
+    """Write ``<stem>.json`` and ``<stem>.md`` into ``out``; return both paths."""
+    _write_json(out / f"{stem}.json", data)
+    _write_text(out / f"{stem}.md", text)
+    return [out / f"{stem}.json", out / f"{stem}.md"]
 
 
 def _save(figure: Figure, path: Path) -> None:
@@ -108,9 +121,9 @@ def evaluation_json(result: EvaluationResult) -> dict[str, Any]:
             "wall_s": result.wall_s,
             "jobs": config.jobs,
         },
-        "params": config.params.to_dict(),
-        "ref_scale": config.ref_scale,
-        "shadows": config.shadows,
+        "params": config.pipeline.params.to_dict(),
+        "reference_scale": config.pipeline.render.reference_scale,
+        "shadows": config.pipeline.render.shadows,
     }
 
 
@@ -174,15 +187,16 @@ def evaluation_markdown(result: EvaluationResult) -> str:
         "method's row its detection, `total` all methods together; `METHOD/stage` rows are "
         "the detector's inner stages.",
         "",
-        *_latency_rows(result.latency_ms, tuple(config.methods)),
+        *_latency_rows(result.latency_ms, config.pipeline.methods),
         "",
         f"Throughput: {result.frames_per_second:.2f} frames/s with {config.jobs} job(s) "
         f"({result.frames} frames in {result.wall_s:.1f} s, all methods).",
         "",
         "## Settings",
         "",
-        f"- reference scale {config.ref_scale}, shadows {'on' if config.shadows else 'off'}",
-        "- MRAD parameters: " + ", ".join(f"{k}={v}" for k, v in config.params.to_dict().items()),
+        f"- reference scale {config.pipeline.render.reference_scale}, "
+        f"shadows {'on' if config.pipeline.render.shadows else 'off'}",
+        "- MRAD parameters: " + _params_text(config.pipeline.params),
         "",
         "Figures: `roc.png`, `pr.png`, `overlays.png` (green: ground-truth anomaly outline, "
         "red: detected pixels).",
@@ -245,7 +259,7 @@ def plot_overlays(result: EvaluationResult, out: Path) -> Path | None:
     rows = result.overlays
     if not rows:
         return None
-    methods = list(result.config.methods)
+    methods = list(result.config.pipeline.methods)
     height, width = rows[0].overlay.image.shape[:2]
     columns = 1 + len(methods)
     scale = 2.4 / max(width, 1)
@@ -285,9 +299,8 @@ def write_evaluation_report(result: EvaluationResult, out: str | PathLike[str]) 
         If a file cannot be written.
     """
     out = _prepare(out)
-    _write_json(out / "metrics.json", evaluation_json(result))
-    _write_text(out / "metrics.md", evaluation_markdown(result))
-    written = [out / "metrics.json", out / "metrics.md", *plot_curves(result, out)]
+    written = _write_tables(out, "metrics", evaluation_json(result), evaluation_markdown(result))
+    written += plot_curves(result, out)
     overlays = plot_overlays(result, out)
     if overlays is not None:
         written.append(overlays)
@@ -302,7 +315,7 @@ def ablation_json(result: AblationResult) -> dict[str, Any]:
         "split": result.split,
         "input": {"path": result.input, "kind": result.kind, "name": result.name},
         "baseline": result.baseline.to_dict(),
-        "ref_scale": result.ref_scale,
+        "reference_scale": result.reference_scale,
         "rows": [
             {
                 "sweep": row.sweep,
@@ -340,10 +353,10 @@ def ablation_markdown(result: AblationResult) -> str:
     lines += [
         "",
         f"Reference rendered once per frame (median {result.render_ms_median:.1f} ms, "
-        f"scale {result.ref_scale}) and reused by all {result.configs} parameter sets; "
+        f"scale {result.reference_scale}) and reused by all {result.configs} parameter sets; "
         f"{result.wall_s:.1f} s with {result.jobs} job(s).",
         "",
-        "Baseline: " + ", ".join(f"{k}={v}" for k, v in result.baseline.to_dict().items()),
+        "Baseline: " + _params_text(result.baseline),
         "",
     ]
     return "\n".join(lines)
@@ -354,14 +367,7 @@ def _metric_values(metrics: AlloMetrics) -> list[float]:
 
 
 def write_ablation_report(result: AblationResult, out: str | PathLike[str]) -> list[Path]:
-    """Write ``ablation.md`` and ``ablation.json``; return the files.
-
-    Raises
-    ------
-    ReportError
-        If a file cannot be written.
-    """
-    out = _prepare(out)
-    _write_json(out / "ablation.json", ablation_json(result))
-    _write_text(out / "ablation.md", ablation_markdown(result))
-    return [out / "ablation.json", out / "ablation.md"]
+    """Write ``ablation.md`` and ``ablation.json``; return the files (ReportError if not)."""
+    return _write_tables(
+        _prepare(out), "ablation", ablation_json(result), ablation_markdown(result)
+    )

@@ -6,14 +6,12 @@ when a :class:`ReferenceRenderer` is built.
 
 from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
-from allo_mrad_ros.render.renderer import (
-    DEFAULT_SCALE,
-    DEFAULT_SHADOWS,
+from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render.values import (
     LABEL_ANOMALY,
     LABEL_SPACE,
     LABEL_STATION,
     ExtraObject,
-    ReferenceRenderer,
     RenderResult,
 )
 

@@ -16,6 +16,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from allo_mrad_ros.errors import BackendError
+
 BACKENDS = ("egl", "osmesa")
 ENV_BACKEND = "ALLO_MRAD_GL_BACKEND"
 _LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
@@ -26,8 +28,11 @@ INSTALL_HINT = (
 )
 
 
-class RendererError(RuntimeError):
-    """The renderer could not start, or was given an invalid model, pose or parameter."""
+class RendererError(BackendError):
+    """No OpenGL context could start, the backend is unsupported, or the renderer is closed.
+
+    Invalid models, poses and parameters raise :class:`~allo_mrad_ros.errors.InvalidInput`.
+    """
 
 
 def gpu_present() -> bool:

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
-from allo_mrad_ros.render.backend import RendererError
+from allo_mrad_ros.errors import InvalidInput
 
 # Linear base colours used when a body gives none, keyed by lower-case name.
 DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
@@ -53,12 +53,12 @@ class CelestialBody:
     def __post_init__(self) -> None:
         centre = np.asarray(self.centre, dtype=np.float64)
         if centre.shape != (3,) or not np.all(np.isfinite(centre)):
-            raise RendererError(f"body {self.name!r}: centre must be 3 finite numbers")
+            raise InvalidInput(f"body {self.name!r}: centre must be 3 finite numbers")
         if not math.isfinite(self.radius) or self.radius <= 0:
-            raise RendererError(f"body {self.name!r}: radius must be positive, got {self.radius!r}")
+            raise InvalidInput(f"body {self.name!r}: radius must be positive, got {self.radius!r}")
         colour = self.resolved_colour
         if len(colour) != 3 or not all(0.0 <= c <= 1.0 for c in colour):
-            raise RendererError(f"body {self.name!r}: colour must be 3 values in [0, 1]")
+            raise InvalidInput(f"body {self.name!r}: colour must be 3 values in [0, 1]")
         object.__setattr__(self, "_centre", centre)
 
     @property
@@ -151,5 +151,5 @@ def as_bodies(bodies: Sequence[CelestialBody | Sequence]) -> list[CelestialBody]
         elif isinstance(body, (tuple, list)) and 3 <= len(body) <= 5:
             result.append(CelestialBody(*body))
         else:
-            raise RendererError(f"not a celestial body: {body!r}")
+            raise InvalidInput(f"not a celestial body: {body!r}")
     return result

@@ -17,7 +17,7 @@ import numpy as np
 import trimesh
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
-from allo_mrad_ros.render.backend import RendererError
+from allo_mrad_ros.errors import InvalidInput
 
 _LOG = logging.getLogger(__name__)
 # A station spanning more than this is probably in millimetres or centimetres.
@@ -122,11 +122,11 @@ def _as_scene(source: ModelSource) -> trimesh.Scene:
         return trimesh.Scene(source)
     path = Path(source)
     if not path.is_file():
-        raise RendererError(f"station model file not found: {path}")
+        raise InvalidInput(f"station model file not found: {path}")
     try:
         return trimesh.load(path, force="scene")
     except Exception as error:  # trimesh raises many types for unreadable files
-        raise RendererError(f"cannot load station model {path}: {error}") from error
+        raise InvalidInput(f"cannot load station model {path}: {error}") from error
 
 
 def _merge(name: str, parts: Sequence[dict]) -> MeshGroup:
@@ -172,7 +172,7 @@ def load_model(
 
     Raises
     ------
-    RendererError
+    InvalidInput
         If a file is missing or unreadable, or the model contains no triangles.
     """
     if isinstance(sources, (str, PathLike, trimesh.Trimesh, trimesh.Scene)):
@@ -188,7 +188,7 @@ def load_model(
                 continue
             transform = np.asarray(transform, dtype=np.float64)
             if not np.all(np.isfinite(transform)) or not np.all(np.isfinite(mesh.vertices)):
-                raise RendererError(f"station model part {geometry_name!r} has non-finite values")
+                raise InvalidInput(f"station model part {geometry_name!r} has non-finite values")
             part = _part_arrays(mesh, transform, two_sided)
             material = part["material"]
             key = (
@@ -199,7 +199,7 @@ def load_model(
             groups.setdefault(key, []).append(part)
             names.setdefault(key, (material.name if material is not None else None) or "default")
     if not groups:
-        raise RendererError("station model contains no triangles")
+        raise InvalidInput("station model contains no triangles")
     merged = [_merge(names[key], parts) for key, parts in groups.items()]
     extent = float(np.ptp(np.vstack([g.positions for g in merged]), axis=0).max())
     if extent > _SUSPICIOUS_EXTENT_M:

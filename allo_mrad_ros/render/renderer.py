@@ -11,13 +11,13 @@ import contextlib
 import math
 from collections import OrderedDict
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from types import ModuleType
 
 import numpy as np
 import trimesh
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import optical_to_opengl_pose, validate_transform
 from allo_mrad_ros.render.backend import (
     INSTALL_HINT,
@@ -33,12 +33,24 @@ from allo_mrad_ros.render.bodies import (
     pull_within,
     sphere_in_view,
 )
+from allo_mrad_ros.render.gl_patches import (
+    bounded_scene_class,
+    install_program_cache,
+    install_shadow_map_cache,
+)
+from allo_mrad_ros.render.meshes import body_mesh, mesh_from_groups
 from allo_mrad_ros.render.model import MeshGroup, ModelSource, load_model
-
-# Per-pixel classes, as in ALLO's masks.
-LABEL_SPACE = 0
-LABEL_STATION = 1  # the station and the celestial bodies
-LABEL_ANOMALY = 2  # default class of extra objects
+from allo_mrad_ros.render.values import (
+    LABEL_SPACE,
+    LABEL_STATION,
+    ExtraObject,
+    RenderResult,
+    finite_number,
+    object_pose,
+    segment_colour,
+    unit_vector,
+    z_towards,
+)
 
 # Shipped defaults, chosen on the validation split by `make bench` (README, speed against error).
 DEFAULT_SCALE = 0.125
@@ -52,114 +64,7 @@ SPOT_INTENSITY = 25.0
 SPOT_CONE_DEG = 80.0  # ALLO: full cone angle of the arm's spot lamp
 AMBIENT = 0.01
 SHADOW_MAP_SIZE = 2048
-# Icosphere subdivisions of body spheres: level 4 keeps the silhouette within 0.1 % of the
-# radius (under a pixel for a Moon filling the image).
-_BODY_SUBDIVISIONS = 4
 _EXTRA_CACHE_SIZE = 16
-
-
-@dataclass(frozen=True)
-class ExtraObject:
-    """An object added for one render only, e.g. an anomaly placed by the generator.
-
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh or trimesh.Scene
-        The object in its own frame, metres. Thin open sheets are fine: extra objects are
-        always drawn two-sided.
-    pose : array_like, shape (4, 4)
-        Object frame in the station frame; rotation, translation and positive scale.
-    label : int
-        Class written to the label image (0..255, default :data:`LABEL_ANOMALY`).
-    name : str
-        Name in :attr:`RenderResult.instance_names` (default ``extra<i>``).
-    """
-
-    mesh: trimesh.Trimesh | trimesh.Scene
-    pose: np.ndarray
-    label: int = LABEL_ANOMALY
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class RenderResult:
-    """One rendered reference frame.
-
-    Attributes
-    ----------
-    rgb : numpy.ndarray
-        (h, w, 3) uint8 image.
-    depth : numpy.ndarray or None
-        (h, w) float32 distance along the optical axis in metres, 0 where nothing was hit.
-        Bodies pulled inside the far plane report their pulled distance.
-    labels : numpy.ndarray or None
-        (h, w) uint8 class per pixel: 0 space, 1 station and celestial bodies, extra objects
-        their ``label`` (2 by default).
-    instances : numpy.ndarray or None
-        (h, w) int32 object index per pixel into :attr:`instance_names`.
-    instance_names : tuple of str
-        ``("space", "station", <bodies in view>..., <extra objects>...)``.
-    bodies_in_view : tuple of str
-        Names of the celestial bodies that intersected the frustum and were drawn.
-    intrinsics : CameraIntrinsics
-        The intrinsics of the output image (the input ones at the output scale).
-    """
-
-    rgb: np.ndarray
-    depth: np.ndarray | None
-    labels: np.ndarray | None
-    instances: np.ndarray | None
-    instance_names: tuple[str, ...]
-    bodies_in_view: tuple[str, ...]
-    intrinsics: CameraIntrinsics
-
-
-def _number(value: float, name: str, low: float = -math.inf, low_inclusive: bool = True) -> float:
-    """Return ``value`` as a finite float not below ``low`` (strictly above if exclusive)."""
-    number = float(value)
-    too_low = number < low if low_inclusive else number <= low
-    if not math.isfinite(number) or too_low:
-        bound = "" if low == -math.inf else f" and {'>=' if low_inclusive else '>'} {low}"
-        raise RendererError(f"{name} must be finite{bound}, got {value!r}")
-    return number
-
-
-def _unit_vector(value: object, name: str) -> np.ndarray:
-    vector = np.asarray(value, dtype=np.float64)
-    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
-        raise RendererError(f"{name} must be 3 finite numbers, got {value!r}")
-    norm = float(np.linalg.norm(vector))
-    if norm < 1e-12:
-        raise RendererError(f"{name} must not be zero")
-    return vector / norm
-
-
-def _object_pose(value: object, name: str) -> np.ndarray:
-    """A finite 4x4 affine pose with positive determinant (scaling is allowed)."""
-    pose = np.asarray(value, dtype=np.float64)
-    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-        raise RendererError(f"{name} pose must be a finite 4x4 matrix")
-    if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]) or np.linalg.det(pose[:3, :3]) <= 0:
-        raise RendererError(f"{name} pose must be affine with a positive determinant")
-    return pose
-
-
-def _z_towards(direction: np.ndarray, position: np.ndarray | None = None) -> np.ndarray:
-    """A pose whose local +z axis is ``direction`` (pyrender lights shine along -z)."""
-    z = direction
-    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    if position is not None:
-        pose[:3, 3] = position
-    return pose
-
-
-def _segment_colour(index: int) -> np.ndarray:
-    # 24-bit object index spread over RGB; the 8-bit colour buffer returns it exactly.
-    return np.array([index & 0xFF, (index >> 8) & 0xFF, (index >> 16) & 0xFF], dtype=np.float64)
 
 
 class ReferenceRenderer:
@@ -195,7 +100,9 @@ class ReferenceRenderer:
     Raises
     ------
     RendererError
-        If no OpenGL backend starts, the model is missing or empty, or a parameter is invalid.
+        If no OpenGL backend starts.
+    InvalidInput
+        If the model is missing or empty, or a parameter is invalid.
 
     Notes
     -----
@@ -219,18 +126,18 @@ class ReferenceRenderer:
         cull_bodies: bool = True,
     ) -> None:
         if not isinstance(intrinsics, CameraIntrinsics):
-            raise RendererError(f"intrinsics must be a CameraIntrinsics, got {type(intrinsics)}")
-        scale = _number(scale, "scale", 0.0, low_inclusive=False)
+            raise InvalidInput(f"intrinsics must be a CameraIntrinsics, got {type(intrinsics)}")
+        scale = finite_number(scale, "scale", 0.0, low_inclusive=False)
         if scale > 4.0:
-            raise RendererError(f"scale must be at most 4, got {scale}")
-        self._znear = _number(znear, "znear", 0.0, low_inclusive=False)
-        self._zfar = _number(zfar, "zfar", self._znear, low_inclusive=False)
-        self._sun_intensity = _number(sun_intensity, "sun_intensity", 0.0)
-        spot_intensity = _number(spot_intensity, "spot_intensity", 0.0)
-        ambient = _number(ambient, "ambient", 0.0)
-        cone = _number(spot_cone_deg, "spot_cone_deg", 0.0, low_inclusive=False)
+            raise InvalidInput(f"scale must be at most 4, got {scale}")
+        self._znear = finite_number(znear, "znear", 0.0, low_inclusive=False)
+        self._zfar = finite_number(zfar, "zfar", self._znear, low_inclusive=False)
+        self._sun_intensity = finite_number(sun_intensity, "sun_intensity", 0.0)
+        spot_intensity = finite_number(spot_intensity, "spot_intensity", 0.0)
+        ambient = finite_number(ambient, "ambient", 0.0)
+        cone = finite_number(spot_cone_deg, "spot_cone_deg", 0.0, low_inclusive=False)
         if cone >= 180.0:
-            raise RendererError(f"spot_cone_deg must be < 180, got {cone}")
+            raise InvalidInput(f"spot_cone_deg must be < 180, got {cone}")
         self.intrinsics = intrinsics
         self.output_intrinsics = intrinsics.scaled(scale)
         self.scale = scale
@@ -247,7 +154,7 @@ class ReferenceRenderer:
         self._pr: ModuleType = import_pyrender(self.backend)
         pr = self._pr
         self._planes = frustum_planes(self.output_intrinsics)
-        self._scene = _bounded_scene_class(pr)(
+        self._scene = bounded_scene_class(pr)(
             bg_color=(0.0, 0.0, 0.0, 1.0), ambient_light=(ambient, ambient, ambient)
         )
         positions = np.vstack([g.positions for g in groups])
@@ -290,71 +197,17 @@ class ReferenceRenderer:
                 f"{INSTALL_HINT}"
             ) from error
         share_egl_display(self._gl)
-        _install_program_cache(pr, self._gl)
-        _install_shadow_map_cache(pr, self._gl)
+        install_program_cache(pr, self._gl)
+        install_shadow_map_cache(pr, self._gl)
 
     # ------------------------------------------------------------------ scene content
-    def _material(self, group: MeshGroup) -> object:
-        pr = self._pr
-        m = group.material
-        if m is None:
-            colour = (1.0, 1.0, 1.0, 1.0) if group.colours is not None else (0.5, 0.5, 0.5, 1.0)
-            return pr.MetallicRoughnessMaterial(
-                baseColorFactor=colour, metallicFactor=0.0, roughnessFactor=0.8, alphaMode="OPAQUE"
-            )
-        colour = np.asarray(m.baseColorFactor if m.baseColorFactor is not None else [1.0] * 4)
-        if np.issubdtype(colour.dtype, np.integer):
-            colour = colour / 255.0
-        return pr.MetallicRoughnessMaterial(
-            name=m.name,
-            baseColorFactor=colour,
-            baseColorTexture=m.baseColorTexture if group.uv is not None else None,
-            metallicFactor=1.0 if m.metallicFactor is None else float(m.metallicFactor),
-            roughnessFactor=1.0 if m.roughnessFactor is None else float(m.roughnessFactor),
-            emissiveFactor=m.emissiveFactor,
-            alphaMode=m.alphaMode or "OPAQUE",
-            # Two-sided parts already carry reversed faces (see model.load_model).
-            doubleSided=False,
-        )
-
     def _mesh_from_groups(self, groups: Sequence[MeshGroup]) -> object:
-        pr = self._pr
-        primitives = [
-            pr.Primitive(
-                positions=g.positions,
-                normals=g.normals,
-                texcoord_0=g.uv,
-                color_0=g.colours,
-                indices=g.faces,
-                material=self._material(g),
-                mode=pr.constants.GLTF.TRIANGLES,
-            )
-            for g in groups
-        ]
-        return pr.Mesh(primitives=primitives)
+        return mesh_from_groups(self._pr, groups)
 
     def _body_mesh(self, body: CelestialBody) -> object:
         key = (body.resolved_colour, body.is_emissive)
         if key not in self._body_meshes:
-            pr = self._pr
-            colour = (*body.resolved_colour, 1.0)
-            if body.is_emissive:
-                material = pr.MetallicRoughnessMaterial(
-                    baseColorFactor=(0.0, 0.0, 0.0, 1.0),
-                    emissiveFactor=body.resolved_colour,
-                    metallicFactor=0.0,
-                    roughnessFactor=1.0,
-                    alphaMode="OPAQUE",
-                )
-            else:
-                material = pr.MetallicRoughnessMaterial(
-                    baseColorFactor=colour,
-                    metallicFactor=0.0,
-                    roughnessFactor=1.0,
-                    alphaMode="OPAQUE",
-                )
-            sphere = trimesh.creation.icosphere(subdivisions=_BODY_SUBDIVISIONS, radius=1.0)
-            self._body_meshes[key] = pr.Mesh.from_trimesh(sphere, material=material, smooth=True)
+            self._body_meshes[key] = body_mesh(self._pr, body)
         return self._body_meshes[key]
 
     def _extra_mesh(self, mesh: trimesh.Trimesh | trimesh.Scene) -> object:
@@ -364,11 +217,11 @@ class ReferenceRenderer:
             self._extra_meshes.move_to_end(key)
             return self._extra_meshes[key][1]
         if not isinstance(mesh, (trimesh.Trimesh, trimesh.Scene)):
-            raise RendererError(f"extra object mesh must be a trimesh mesh, got {type(mesh)}")
+            raise InvalidInput(f"extra object mesh must be a trimesh mesh, got {type(mesh)}")
         try:
             groups = load_model(mesh, two_sided=True)
-        except RendererError as error:
-            raise RendererError(f"extra object: {error}") from error
+        except InvalidInput as error:
+            raise InvalidInput(f"extra object: {error}") from error
         pr_mesh = self._mesh_from_groups(groups)
         self._extra_meshes[key] = (mesh, pr_mesh)  # holding the mesh keeps id() unique
         if len(self._extra_meshes) > _EXTRA_CACHE_SIZE:
@@ -451,8 +304,8 @@ class ReferenceRenderer:
         if self._gl is None:
             raise RendererError("renderer is closed")
         gl_pose = optical_to_opengl_pose(T_station_camera)
-        sun_dir = _unit_vector(sun_direction, "sun_direction")
-        strength = _number(sun_strength, "sun_strength", 0.0)
+        sun_dir = unit_vector(sun_direction, "sun_direction")
+        strength = finite_number(sun_strength, "sun_strength", 0.0)
         extras = [e if isinstance(e, ExtraObject) else ExtraObject(*e) for e in extra_objects]
         in_view = self.visible_bodies(T_station_camera, bodies)
 
@@ -460,12 +313,12 @@ class ReferenceRenderer:
         scene = self._scene
         scene.set_pose(self._camera_node, gl_pose)
         scene.set_pose(self._spot_node, gl_pose)
-        scene.set_pose(self._sun_node, _z_towards(sun_dir))
+        scene.set_pose(self._sun_node, z_towards(sun_dir))
         self._sun_node.light.intensity = self._sun_intensity * strength
 
         names = ["space", "station"]
         classes = [LABEL_SPACE, LABEL_STATION]
-        seg_map = {self._station_node: _segment_colour(1)}
+        seg_map = {self._station_node: segment_colour(1)}
         added = []
         try:
             for body, centre, radius in in_view:
@@ -473,19 +326,19 @@ class ReferenceRenderer:
                 pose[:3, 3] = centre
                 node = scene.add(self._body_mesh(body), pose=pose, name=f"body:{body.name}")
                 added.append(node)
-                seg_map[node] = _segment_colour(len(names))
+                seg_map[node] = segment_colour(len(names))
                 names.append(body.name)
                 classes.append(LABEL_STATION)
             caster_bounds = self._station_bounds.copy()
             for i, extra in enumerate(extras):
                 label = int(extra.label)
                 if not 0 <= label <= 255:
-                    raise RendererError(f"extra object label must be in 0..255, got {label}")
-                pose = _object_pose(extra.pose, f"extra object {i}")
+                    raise InvalidInput(f"extra object label must be in 0..255, got {label}")
+                pose = object_pose(extra.pose, f"extra object {i}")
                 mesh = self._extra_mesh(extra.mesh)
                 node = scene.add(mesh, pose=pose, name=f"extra:{i}")
                 added.append(node)
-                seg_map[node] = _segment_colour(len(names))
+                seg_map[node] = segment_colour(len(names))
                 names.append(extra.name or f"extra{i}")
                 classes.append(label)
                 corners = trimesh.bounds.corners(mesh.bounds) @ pose[:3, :3].T + pose[:3, 3]
@@ -545,121 +398,3 @@ class ReferenceRenderer:
         # At interpreter shutdown the GL library may already be gone.
         with contextlib.suppress(Exception):
             self.close()
-
-
-_SCENE_CLASSES: dict[int, type] = {}
-
-
-def _bounded_scene_class(pr: ModuleType) -> type:
-    """A pyrender Scene whose bounds (used only to fit shadow maps) can be pinned."""
-    if id(pr) not in _SCENE_CLASSES:
-
-        class BoundedScene(pr.Scene):
-            caster_bounds: np.ndarray | None = None
-
-            @property
-            def bounds(self) -> np.ndarray:
-                if self.caster_bounds is not None:
-                    return self.caster_bounds
-                return super().bounds
-
-        _SCENE_CLASSES[id(pr)] = BoundedScene
-    return _SCENE_CLASSES[id(pr)]
-
-
-def _install_program_cache(pr: ModuleType, offscreen: object) -> None:
-    """Make pyrender reuse compiled shader programs across frames.
-
-    pyrender keys its program cache by ``OpenGL.contextdata.getContext()``, which under
-    OSMesa (and EGL) returns a new ctypes pointer object on every call; those never compare
-    equal, so every primitive's shaders were recompiled on every frame and the cache grew
-    without bound. Each ReferenceRenderer owns one context, so the key needs no context.
-    """
-    renderer = getattr(offscreen, "_renderer", None)
-    if renderer is None or not hasattr(renderer, "_program_cache"):
-        return
-    base = pr.shader_program.ShaderProgramCache
-
-    class StableProgramCache(base):
-        def __init__(self) -> None:
-            super().__init__()
-            self._by_source: dict[tuple, object] = {}
-
-        def get_program(
-            self,
-            vertex_shader: str,
-            fragment_shader: str,
-            geometry_shader: str | None = None,
-            defines: dict | None = None,
-        ) -> object:
-            key = (
-                vertex_shader,
-                fragment_shader,
-                geometry_shader,
-                tuple(sorted((defines or {}).items())),
-            )
-            if key not in self._by_source:
-                self._by_source[key] = super().get_program(
-                    vertex_shader, fragment_shader, geometry_shader, defines
-                )
-            return self._by_source[key]
-
-        def clear(self) -> None:
-            super().clear()
-            self._by_source = {}
-
-    renderer._program_cache.clear()
-    renderer._program_cache = StableProgramCache()
-
-
-def _shadow_map_inputs(renderer: object, scene: object, light_node: object, flags: int) -> tuple:
-    """Everything a light's shadow map depends on.
-
-    The flags, the shadow texture, the light camera (its pose and projection follow from the
-    light's pose and the scene bounds) and every mesh that reaches the light camera's view
-    volume, with its pose. Meshes wholly outside that volume are clipped from the map: the
-    Sun disc, Earth and Moon, which move with the camera, never invalidate it. Meshes are
-    held by reference, so an entry never matches a new mesh that reused a freed object's id.
-    """
-    view, projection = renderer._get_light_cam_matrices(scene, light_node, flags)
-    to_clip = projection @ view
-    casters = []
-    for node in scene.mesh_nodes:
-        if not node.mesh.is_visible:
-            continue
-        pose = scene.get_pose(node)
-        corners = trimesh.bounds.corners(node.mesh.bounds)
-        clip = np.c_[corners, np.ones(8)] @ (to_clip @ pose).T
-        ndc = clip[:, :3] / clip[:, 3:]
-        if ((ndc > 1.0).all(axis=0) | (ndc < -1.0).all(axis=0)).any():
-            continue
-        casters.append((node.mesh, pose.tobytes()))
-    return (int(flags), light_node.light.shadow_texture, to_clip.tobytes(), frozenset(casters))
-
-
-def _install_shadow_map_cache(pr: ModuleType, offscreen: object) -> None:
-    """Skip a light's shadow-map pass when nothing it depends on has changed.
-
-    The Sun moves about a degree a day relative to the station, so consecutive frames of a
-    stream share its shadow map; the pass renders the casters into a 2048x2048 depth map
-    and is most of what shadows cost at the default reference size. The forward pass reads
-    the map from the light's texture, which persists in the context between frames.
-    """
-    renderer = getattr(offscreen, "_renderer", None)
-    if renderer is None or not hasattr(renderer, "_shadow_mapping_pass"):
-        return
-    render_shadow_map = renderer._shadow_mapping_pass
-    drawn: dict[object, tuple] = {}
-
-    def shadow_mapping_pass(scene: object, light_node: object, flags: int) -> None:
-        if not isinstance(light_node.light, pr.DirectionalLight):
-            render_shadow_map(scene, light_node, flags)
-            return
-        inputs = _shadow_map_inputs(renderer, scene, light_node, flags)
-        if drawn.get(light_node) == inputs:
-            return
-        drawn.pop(light_node, None)  # a pass that fails leaves the texture in doubt
-        render_shadow_map(scene, light_node, flags)
-        drawn[light_node] = inputs
-
-    renderer._shadow_mapping_pass = shadow_mapping_pass

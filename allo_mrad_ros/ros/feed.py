@@ -23,6 +23,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Bool
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import matrix_to_quaternion
 from allo_mrad_ros.ros.messages import fill_camera_info, fill_image, stamp_to_ns
@@ -56,7 +57,7 @@ class CameraFeed:
     def __init__(
         self,
         intrinsics: CameraIntrinsics,
-        frame_id: str = "arm_camera_optical",
+        frame_id: str = interface.CAMERA_FRAME,
         keep_messages: bool = True,
     ) -> None:
         self.node = rclpy.create_node("mrad_camera_feed")
@@ -64,10 +65,11 @@ class CameraFeed:
         self.intrinsics = intrinsics
         self.frame_id = frame_id
         sensor = qos_profile_sensor_data
-        self.pub_image = self.node.create_publisher(Image, "/arm_camera/image_raw", sensor)
-        self.pub_info = self.node.create_publisher(CameraInfo, "/arm_camera/camera_info", sensor)
-        self.pub_pose = self.node.create_publisher(PoseStamped, "/arm_camera/pose", 50)
-        self.pub_sun = self.node.create_publisher(Vector3Stamped, "/allo/sun_direction", 10)
+        publish = self.node.create_publisher
+        self.pub_image = publish(Image, interface.IMAGE_TOPIC, sensor)
+        self.pub_info = publish(CameraInfo, interface.CAMERA_INFO_TOPIC, sensor)
+        self.pub_pose = publish(PoseStamped, interface.POSE_TOPIC, 50)
+        self.pub_sun = publish(Vector3Stamped, interface.SUN_DIRECTION_TOPIC, 10)
         self.received: dict[str, dict[int, object]] = defaultdict(dict)
         self.arrival: dict[str, dict[int, float]] = defaultdict(dict)
         self.diagnostics: list[DiagnosticArray] = []
@@ -128,7 +130,7 @@ class CameraFeed:
         if pose is not None:
             msg = PoseStamped()
             msg.header.stamp = info.header.stamp
-            msg.header.frame_id = "station"
+            msg.header.frame_id = interface.STATION_FRAME
             msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = pose[:3, 3].tolist()
             q = matrix_to_quaternion(pose[:3, :3])
             o = msg.pose.orientation
@@ -140,7 +142,7 @@ class CameraFeed:
         self.pub_sun.publish(sun_msg)
         self.pub_info.publish(info)
         if image is None:
-            image = fill_image(Image(), info.header, rgb, "rgb8")
+            image = fill_image(Image(), info.header, rgb, interface.RGB8)
             image.header.frame_id = self.frame_id
         else:
             image.header.stamp = info.header.stamp

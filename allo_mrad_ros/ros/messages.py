@@ -12,9 +12,11 @@ from typing import Any
 
 import numpy as np
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import PoseError, pose_matrix
-from allo_mrad_ros.render import CelestialBody, RendererError
+from allo_mrad_ros.render import CelestialBody
 
 # Encodings the node accepts for the camera image: name -> (channels, dtype, to-RGB order).
 _COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, tuple[int, ...] | None]] = {
@@ -28,7 +30,7 @@ _COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, tuple[int, ...] | None]] = {
 }
 
 
-class MessageError(ValueError):
+class MessageError(InvalidInput):
     """A message cannot be converted; ``cause`` groups errors for once-per-cause logging."""
 
     def __init__(self, cause: str, message: str) -> None:
@@ -36,22 +38,8 @@ class MessageError(ValueError):
         self.cause = cause
 
 
-def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.ndarray:
-    """Decode a ``sensor_msgs/Image`` into an H x W x 3 RGB array (uint8 or uint16).
-
-    Parameters
-    ----------
-    msg : sensor_msgs/Image
-        The camera image.
-    expected_size : (width, height), optional
-        The size announced by ``camera_info``; a different size is an error.
-
-    Raises
-    ------
-    MessageError
-        With ``cause`` ``encoding``, ``size``, ``step`` or ``data`` and a message that
-        names the field and the values.
-    """
+def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
+    """H x W x C pixels of a ``sensor_msgs/Image`` in RGB order, native byte order."""
     encoding = str(msg.encoding).lower()
     if encoding not in _COLOUR_ENCODINGS:
         raise MessageError(
@@ -84,12 +72,46 @@ def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.n
         dtype = dtype.newbyteorder("<")
     rows = data.reshape(height, step)[:, :row_bytes]
     pixels = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
-    if channels == 1:
-        pixels = np.repeat(pixels, 3, axis=2)
-    elif order is not None:
+    if order is not None:
         pixels = pixels[..., list(order)]
     if pixels.dtype.byteorder not in ("=", "|"):
         pixels = pixels.astype(pixels.dtype.newbyteorder("="))
+    return pixels
+
+
+def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode a ``sensor_msgs/Image`` into an H x W x 3 RGB array (uint8 or uint16).
+
+    Parameters
+    ----------
+    msg : sensor_msgs/Image
+        The camera image.
+    expected_size : (width, height), optional
+        The size announced by ``camera_info``; a different size is an error.
+
+    Raises
+    ------
+    MessageError
+        With ``cause`` ``encoding``, ``size``, ``step`` or ``data`` and a message that
+        names the field and the values.
+    """
+    pixels = _decode(msg, expected_size)
+    if pixels.shape[2] == 1:
+        pixels = np.repeat(pixels, 3, axis=2)
+    return np.ascontiguousarray(pixels)
+
+
+def image_to_array(msg: Any) -> np.ndarray:
+    """Decode a ``sensor_msgs/Image`` keeping its channels: H x W for mono, else H x W x 3 RGB.
+
+    Raises
+    ------
+    MessageError
+        As :func:`image_to_rgb`.
+    """
+    pixels = _decode(msg, None)
+    if pixels.shape[2] == 1:
+        return np.ascontiguousarray(pixels[..., 0])
     return np.ascontiguousarray(pixels)
 
 
@@ -152,22 +174,23 @@ def stamp_to_ns(stamp: Any) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
+def _matrix(position: Any, rotation: Any, what: str) -> np.ndarray:
+    try:
+        return pose_matrix(
+            [position.x, position.y, position.z], [rotation.x, rotation.y, rotation.z, rotation.w]
+        )
+    except PoseError as error:
+        raise MessageError("pose", f"{what} is invalid: {error}") from error
+
+
 def pose_to_matrix(pose: Any) -> np.ndarray:
     """The 4x4 transform of a ``geometry_msgs/Pose`` (raises MessageError ``pose``)."""
-    p, q = pose.position, pose.orientation
-    try:
-        return pose_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
-    except PoseError as error:
-        raise MessageError("pose", f"pose is invalid: {error}") from error
+    return _matrix(pose.position, pose.orientation, "pose")
 
 
 def transform_to_matrix(transform: Any) -> np.ndarray:
     """The 4x4 transform of a ``geometry_msgs/Transform``."""
-    t, q = transform.translation, transform.rotation
-    try:
-        return pose_matrix([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
-    except PoseError as error:
-        raise MessageError("pose", f"transform is invalid: {error}") from error
+    return _matrix(transform.translation, transform.rotation, "transform")
 
 
 def vector_to_direction(vector: Any) -> np.ndarray:
@@ -186,7 +209,10 @@ def markers_to_bodies(markers: Sequence[Any]) -> list[CelestialBody]:
     """
     bodies = []
     for marker in markers:
-        if int(marker.type) != 2 or int(marker.action) not in (0, 1):  # SPHERE, ADD/MODIFY
+        if int(marker.type) != interface.MARKER_SPHERE or int(marker.action) not in (
+            interface.MARKER_ADD,
+            interface.MARKER_MODIFY,
+        ):
             continue
         p = marker.pose.position
         try:
@@ -195,6 +221,6 @@ def markers_to_bodies(markers: Sequence[Any]) -> list[CelestialBody]:
                     name=str(marker.ns), centre=(p.x, p.y, p.z), radius=marker.scale.x / 2
                 )
             )
-        except (ValueError, RendererError) as error:
+        except ValueError as error:
             raise MessageError("bodies", f"celestial body {marker.ns!r}: {error}") from error
     return bodies

@@ -11,7 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
+from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, coerce_value
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 
 DETECTOR_PREFIX = "mrad."
@@ -55,7 +57,9 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
             ),
             read_only=True,
         ),
-        "station_frame": NodeParameter("station", _text("TF frame of the station model"), True),
+        "station_frame": NodeParameter(
+            interface.STATION_FRAME, _text("TF frame of the station model"), True
+        ),
         "camera_frame": NodeParameter(
             "", _text("TF frame of the camera optical frame; empty: the image's frame_id"), True
         ),
@@ -112,8 +116,6 @@ def validate(name: str, parameter: NodeParameter, value: Any) -> Any:
         Naming the parameter and the value.
     """
     spec = parameter.spec
-    if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
     if spec.kind is list:
         vector = list(value) if isinstance(value, list | tuple) else None
         if (
@@ -131,8 +133,9 @@ def validate(name: str, parameter: NodeParameter, value: Any) -> Any:
         return value
     if spec.kind is bool and not isinstance(value, bool):
         raise ValueError(f"{name} must be true or false, got {value!r}")
-    spec.check(name, value)
-    return value
+    if spec.kind in (int, float) and isinstance(value, str):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    return coerce_value(name, spec, value)
 
 
 def detector_params_from(values: dict[str, Any]) -> MradParams:
@@ -143,3 +146,46 @@ def detector_params_from(values: dict[str, Any]) -> MradParams:
         if name.startswith(DETECTOR_PREFIX)
     }
     return MradParams(**fields)
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """The node's validated settings, one immutable snapshot (replaced on a change).
+
+    Every field is named as its parameter; ``pipeline`` gathers ``reference_scale``,
+    ``shadows``, ``render_backend`` and the ``mrad.*`` parameters.
+    """
+
+    pose_source: str
+    station_frame: str
+    camera_frame: str
+    pose_tolerance_s: float
+    mesh: str
+    sun_direction: tuple[float, float, float]
+    sun_strength: float
+    publish_reference: bool
+    publish_overlay: bool
+    diagnostics_period_s: float
+    pipeline: PipelineConfig
+
+
+def node_config_from(values: dict[str, Any]) -> NodeConfig:
+    """A :class:`NodeConfig` from validated parameter values (raises ValueError)."""
+    render = RenderSettings(
+        reference_scale=values["reference_scale"],
+        shadows=values["shadows"],
+        render_backend=values["render_backend"],
+    )
+    return NodeConfig(
+        pose_source=values["pose_source"],
+        station_frame=values["station_frame"],
+        camera_frame=values["camera_frame"],
+        pose_tolerance_s=float(values["pose_tolerance_s"]),
+        mesh=values["mesh"],
+        sun_direction=tuple(float(v) for v in values["sun_direction"]),
+        sun_strength=float(values["sun_strength"]),
+        publish_reference=values["publish_reference"],
+        publish_overlay=values["publish_overlay"],
+        diagnostics_period_s=float(values["diagnostics_period_s"]),
+        pipeline=PipelineConfig(render, detector_params_from(values)),
+    )

@@ -19,6 +19,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_msgs.msg import Bool
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.ros.messages import stamp_to_ns
 
 
@@ -51,8 +52,8 @@ class OutputRecorder:
         self,
         node: Node,
         on_frame: Callable[[RecordedFrame], None],
-        node_name: str = "/mrad_detector",
-        image_topic: str = "/arm_camera/image_raw",
+        node_name: str = "/" + interface.NODE_NAME,
+        image_topic: str = interface.IMAGE_TOPIC,
     ) -> None:
         self._on_frame = on_frame
         self._pending: dict[int, dict[str, Image]] = {}

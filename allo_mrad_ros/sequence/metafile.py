@@ -9,7 +9,7 @@ from pathlib import Path
 import yaml
 
 from ..camera import CameraIntrinsics
-from .model import FORMAT_V1, SequenceError, SequenceMeta
+from .model import FORMAT_V1, SequenceError, SequenceMeta, read_text
 from .png import write_atomic
 
 _REQUIRED = ("format", "camera", "rate_hz")
@@ -53,12 +53,7 @@ def read_meta(path: Path) -> SequenceMeta:
     SequenceError
         Naming the file, the line and the key at fault.
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SequenceError("file not found", file=path) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise SequenceError(f"cannot read file: {error}", file=path) from None
+    text = read_text(path)
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
         data = yaml.safe_load(text)

@@ -14,6 +14,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from allo_mrad_ros.errors import InvalidInput
+
 from ..camera import CameraIntrinsics
 from ..geometry import pose_matrix
 
@@ -58,7 +60,7 @@ COLUMNS = (
 """The columns of ``frames.csv`` in the order the writer emits them."""
 
 
-class SequenceError(ValueError):
+class SequenceError(InvalidInput):
     """A sequence on disk, or a value about to be written to one, is not valid.
 
     Parameters
@@ -124,6 +126,16 @@ class SequenceError(ValueError):
             column=self.column if self.column is not None else column,
             line=self.line if self.line is not None else line,
         )
+
+
+def read_text(path: Path) -> str:
+    """A sequence file's UTF-8 text (raises SequenceError naming the file)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SequenceError("file not found", file=path) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise SequenceError(f"cannot read file: {error}", file=path) from None
 
 
 def _check_frame_id(value: object, key: str) -> None:

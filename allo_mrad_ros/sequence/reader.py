@@ -70,15 +70,8 @@ class Sequence:
         return error.located(row=frame.index + 1, column=column)
 
     def _check_shape(self, array: np.ndarray, path: Path, frame: Frame, column: str) -> None:
-        camera = self.meta.camera
-        if array.shape[:2] != (camera.height, camera.width):
-            raise SequenceError(
-                f"size {array.shape[1]}x{array.shape[0]} differs from {META_FILE} "
-                f"camera {camera.width}x{camera.height}",
-                file=path,
-                row=frame.index + 1,
-                column=column,
-            )
+        height, width = array.shape[:2]
+        _check_size(width, height, self.meta, path, frame, column)
 
     def load_image(self, frame: Frame) -> np.ndarray:
         """Decode the frame's image.
@@ -93,22 +86,20 @@ class Sequence:
         SequenceError
             If the file cannot be read or its size differs from ``sequence.yaml``.
         """
-        try:
-            image = load_rgb(frame.image)
-        except SequenceError as error:
-            raise self._located(error, frame, "image") from None
-        self._check_shape(image, frame.image, frame, "image")
-        return image
+        return self._load_rgb(frame, frame.image, "image")
 
     def load_reference(self, frame: Frame) -> np.ndarray | None:
         """Decode the frame's pre-rendered reference (RGB uint8) or return None if it has none."""
         if frame.reference is None:
             return None
+        return self._load_rgb(frame, frame.reference, "reference")
+
+    def _load_rgb(self, frame: Frame, path: Path, what: str) -> np.ndarray:
         try:
-            image = load_rgb(frame.reference)
+            image = load_rgb(path)
         except SequenceError as error:
-            raise self._located(error, frame, "reference") from None
-        self._check_shape(image, frame.reference, frame, "reference")
+            raise self._located(error, frame, what) from None
+        self._check_shape(image, path, frame, what)
         return image
 
     def load_mask(self, frame: Frame) -> np.ndarray | None:
@@ -153,18 +144,23 @@ class Sequence:
         return mask
 
 
-def _check_header(
-    header: PngHeader, path: Path, frame: Frame, column: str, meta: SequenceMeta
+def _check_size(
+    width: int, height: int, meta: SequenceMeta, path: Path, frame: Frame, column: str
 ) -> None:
     camera = meta.camera
-    if (header.width, header.height) != (camera.width, camera.height):
+    if (width, height) != (camera.width, camera.height):
         raise SequenceError(
-            f"size {header.width}x{header.height} differs from {META_FILE} camera "
-            f"{camera.width}x{camera.height}",
+            f"size {width}x{height} differs from {META_FILE} camera {camera.width}x{camera.height}",
             file=path,
             row=frame.index + 1,
             column=column,
         )
+
+
+def _check_header(
+    header: PngHeader, path: Path, frame: Frame, column: str, meta: SequenceMeta
+) -> None:
+    _check_size(header.width, header.height, meta, path, frame, column)
     good = header.is_grey8 if column == "mask" else header.is_rgb8
     if not good:
         expected = "8-bit single channel" if column == "mask" else "8-bit RGB or RGBA"

@@ -23,6 +23,7 @@ from .model import (
     UNIT_NORM_TOLERANCE,
     Frame,
     SequenceError,
+    read_text,
 )
 
 
@@ -161,12 +162,7 @@ def read_frames(path: Path, root: Path) -> list[Frame]:
     SequenceError
         Naming the file, the 1-based data row (and its line) and the column at fault.
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SequenceError("file not found", file=path) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise SequenceError(f"cannot read file: {error}", file=path) from None
+    text = read_text(path)
     reader = csv.reader(io.StringIO(text, newline=""))
     try:
         header = next(reader)

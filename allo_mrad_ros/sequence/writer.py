@@ -16,18 +16,20 @@ from types import TracebackType
 
 import numpy as np
 
+from .checks import (
+    _body,
+    _unit,
+    _vector,
+    extra_columns,
+    frame_label,
+)
 from .metafile import relative_posix, write_meta
 from .model import (
-    ANOMALOUS,
     COLUMNS,
     FRAMES_FILE,
-    LABELS,
-    MASK_ANOMALY,
     MAX_STAMP_NS,
     META_FILE,
-    NORMAL,
     SPLITS,
-    UNIT_NORM_TOLERANCE,
     Frame,
     SequenceError,
     SequenceMeta,
@@ -36,33 +38,6 @@ from .png import bad_mask_values, encode_png, read_png_header, write_atomic
 from .table import format_float, frame_from_record, write_frames_text
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
-_COLUMN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-
-
-def _vector(values: object, length: int, name: str) -> np.ndarray:
-    array = np.asarray(values, dtype=np.float64)
-    if array.shape != (length,):
-        raise SequenceError(f"{name} must have {length} elements, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise SequenceError(f"{name} must be finite, got {array.tolist()}")
-    return array
-
-
-def _unit(values: object, length: int, name: str) -> np.ndarray:
-    array = _vector(values, length, name)
-    norm = float(np.linalg.norm(array))
-    if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
-        raise SequenceError(f"{name} must be a unit vector, got norm {norm:.6f}")
-    return array
-
-
-def _body(values: object, name: str) -> np.ndarray | None:
-    if values is None:
-        return None
-    array = _vector(values, 4, name)
-    if array[3] <= 0:
-        raise SequenceError(f"{name} radius must be positive, got {array[3]}")
-    return array
 
 
 class SequenceWriter:
@@ -318,8 +293,8 @@ class SequenceWriter:
             raise SequenceError(f"sun_strength must be finite and >= 0, got {sun_strength!r}")
         earth = _body(earth, "earth")
         moon = _body(moon, "moon")
-        label = self._label(label, anomaly, mask)
-        extra_text = self._extra_text(extra or {})
+        label = frame_label(label, anomaly, mask)
+        extra_text = extra_columns(extra or {})
         # Validate every input before writing any file, so a rejected frame leaves nothing.
         files = {
             column: self._prepare(data, split, camera, name, f"{column}s")
@@ -370,35 +345,6 @@ class SequenceWriter:
         self._last_stamp = stamp_ns
         self._next_stamp = stamp_ns + self._period_ns
         return frame
-
-    def _label(self, label: str | None, anomaly: str, mask: object) -> str:
-        if not isinstance(anomaly, str) or anomaly != anomaly.strip() or "\n" in anomaly:
-            raise SequenceError(f"anomaly must be a name without surrounding spaces: {anomaly!r}")
-        from_mask = None
-        if mask is not None and not isinstance(mask, (str, PathLike)):
-            from_mask = ANOMALOUS if np.any(np.asarray(mask) == MASK_ANOMALY) else NORMAL
-        if label is None:
-            label = from_mask or (ANOMALOUS if anomaly else NORMAL)
-        if label not in LABELS:
-            raise SequenceError(f"label must be one of {', '.join(LABELS)}; got {label!r}")
-        if from_mask is not None and label != from_mask:
-            raise SequenceError(f"label {label!r} contradicts the mask (it is {from_mask!r})")
-        if label == ANOMALOUS and not anomaly:
-            raise SequenceError("an anomalous frame needs the anomaly object type name")
-        if label == NORMAL and anomaly:
-            raise SequenceError(f"a normal frame must have no anomaly name, got {anomaly!r}")
-        return label
-
-    @staticmethod
-    def _extra_text(extra: Mapping[str, object]) -> dict[str, str]:
-        text = {}
-        for key, value in extra.items():
-            if not isinstance(key, str) or not _COLUMN.match(key) or key in COLUMNS:
-                raise SequenceError(f"invalid or reserved extra column name {key!r}")
-            text[key] = format_float(value) if isinstance(value, float) else str(value)
-            if "\n" in text[key] or "\r" in text[key]:
-                raise SequenceError(f"extra column {key!r} value must be one line")
-        return text
 
     def close(self) -> None:
         """Write ``sequence.yaml`` and then ``frames.csv``; copy the mesh if asked.

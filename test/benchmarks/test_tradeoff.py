@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from allo_mrad_ros.benchmarks.tradeoff import (
+from allo_mrad_ros.benchmarks.tradeoff_report import (
     choose_default,
     describe_speedup_tier,
     most_accurate_with_speedup,
     pareto_front,
-    perturbed,
-    sweep_settings,
 )
+from allo_mrad_ros.benchmarks.tradeoff_settings import perturbed, sweep_settings
 from allo_mrad_ros.detector import profile
 from allo_mrad_ros.geometry import look_at
 
@@ -71,7 +70,7 @@ def test_sweep_covers_the_issue_knobs_and_names_are_unique():
     settings = sweep_settings(profile("baseline"))
     names = [s.name for s in settings]
     assert len(names) == len(set(names))
-    assert {s.render.scale for s in settings} == {1.0, 0.5, 0.25, 0.125}
+    assert {s.render.reference_scale for s in settings} == {1.0, 0.5, 0.25, 0.125}
     assert {s.params.process_scale for s in settings} == {1.0, 0.5, 0.25}
     assert {s.render.shadows for s in settings} == {True, False}
     assert {s.render.cull_bodies for s in settings} == {True, False}

@@ -1,4 +1,4 @@
-"""allo-bag evaluate and ablate: report numbers equal a direct FrameProcessor + MetricsAccumulator
+"""allo-bag evaluate and ablate: report numbers equal a direct render + detect + MetricsAccumulator
 computation, from a sequence and from its bag, in one process and in two."""
 
 from __future__ import annotations
@@ -13,15 +13,18 @@ import numpy as np
 import pytest
 from rosbag_fixtures import write_tiny_sequence
 
+from allo_mrad_ros.detector import METHODS as DETECTORS
 from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.evaluation.ablate import ablate, sweep_points
+from allo_mrad_ros.evaluation.parallel import ParallelError, run_frames
+from allo_mrad_ros.evaluation.sources import FrameSourceError, spread
 from allo_mrad_ros.metrics import MetricsAccumulator
-from allo_mrad_ros.processing import FrameProcessor
+from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, params_from
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.sequence import SequenceWriter, read_sequence
-from rosbag_tools.ablate import ablate, sweep_points
-from rosbag_tools.cli import main, parse_params
-from rosbag_tools.frames import FrameSourceError, open_source, spread
-from rosbag_tools.parallel import ParallelError, run_frames
+from allo_mrad_ros.sky import with_sun
+from rosbag_tools.bag_source import open_source
+from rosbag_tools.cli import main
 from rosbag_tools.writer import write_bag
 
 METHODS = ("MRAD", "PAD", "RXD")
@@ -50,27 +53,27 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
     meta = sequence.meta
     chosen = frames if frames is not None else sequence.split("test")
     renderer = ReferenceRenderer(meta.mesh, meta.camera, scale=REF_SCALE)
-    processor = FrameProcessor(renderer, params, methods)
     accumulators = {m: MetricsAccumulator() for m in methods}
     by_type: dict[str, dict[str, MetricsAccumulator]] = {}
     try:
         for frame in chosen:
             mask = sequence.load_mask(frame)
-            out = processor.process(
-                sequence.load_image(frame),
-                frame.T_station_camera,
-                frame.sun_direction,
-                frame.sun_strength,
-                _bodies(frame),
-                reference=sequence.load_reference(frame) if references else None,
-            )
-            for name, result in out.results.items():
+            image = sequence.load_image(frame)
+            if references:
+                reference = sequence.load_reference(frame)
+            else:
+                bodies = with_sun(_bodies(frame), frame.sun_direction)
+                reference = renderer.render(
+                    frame.T_station_camera, frame.sun_direction, frame.sun_strength, bodies
+                ).rgb
+            results = {name: DETECTORS[name](image, reference, params) for name in methods}
+            for name, result in results.items():
                 accumulators[name].update(result.score, result.area, mask)
             # Per type: that type's frames plus every normal frame.
             types = [frame.anomaly] if frame.is_anomalous else None
             for anomaly in types or {f.anomaly for f in chosen if f.is_anomalous}:
                 group = by_type.setdefault(anomaly, {m: MetricsAccumulator() for m in methods})
-                for name, result in out.results.items():
+                for name, result in results.items():
                     group[name].update(result.score, result.area, mask)
     finally:
         renderer.close()
@@ -94,7 +97,15 @@ def _same(a: dict, b: dict) -> None:
 def test_evaluate_report_equals_a_direct_computation(data, capsys):
     out = data / "report"
     code = main(
-        ["evaluate", str(data / "seq"), "--out", str(out), "--ref-scale", str(REF_SCALE), "--quiet"]
+        [
+            "evaluate",
+            str(data / "seq"),
+            "--out",
+            str(out),
+            "--reference-scale",
+            str(REF_SCALE),
+            "--quiet",
+        ]
     )
     assert code == 0
     printed = capsys.readouterr().out
@@ -126,7 +137,7 @@ def test_evaluate_report_equals_a_direct_computation(data, capsys):
 
 def test_bag_input_and_two_jobs_give_the_same_numbers(data):
     out = data / "report_bag"
-    args = ["evaluate", str(data / "bag"), "--out", str(out), "--ref-scale", str(REF_SCALE)]
+    args = ["evaluate", str(data / "bag"), "--out", str(out), "--reference-scale", str(REF_SCALE)]
     assert main([*args, "--jobs", "2", "--quiet", "--overlays", "0"]) == 0
     report = json.loads((out / "metrics.json").read_text())
     overall, per_type = _direct(data / "seq", MradParams())
@@ -139,7 +150,7 @@ def test_bag_input_and_two_jobs_give_the_same_numbers(data):
 
 def test_options_split_limit_methods_and_parameters(data):
     out = data / "report_train"
-    args = ["evaluate", str(data / "seq"), "--out", str(out), "--ref-scale", str(REF_SCALE)]
+    args = ["evaluate", str(data / "seq"), "--out", str(out), "--reference-scale", str(REF_SCALE)]
     args += ["--split", "test", "--limit", "3", "--methods", "MRAD", "--set", "grid=2"]
     args += ["--set", "tolerance=30", "--quiet"]
     assert main(args) == 0
@@ -181,7 +192,7 @@ def test_sequence_references_replace_rendering(data, tmp_path):
         renderer.close()
     out = tmp_path / "report"
     args = ["evaluate", str(root), "--out", str(out), "--use-sequence-references", "--quiet"]
-    assert main([*args, "--ref-scale", str(REF_SCALE)]) == 0
+    assert main([*args, "--reference-scale", str(REF_SCALE)]) == 0
     report = json.loads((out / "metrics.json").read_text())
     assert report["latency_ms"]["render"]["median"] == 0.0
     overall, _ = _direct(root, MradParams(), references=True)
@@ -195,7 +206,7 @@ def test_ablation_table_rows_and_baseline(data, capsys):
     assert [p.value for p in points if p.sweep == "blur SD"] == [2.0, 5.0, 10.0]
     assert sum(p.is_baseline for p in points) == 4
     out = data / "ablation"
-    args = ["ablate", str(data / "seq"), "--out", str(out), "--ref-scale", str(REF_SCALE)]
+    args = ["ablate", str(data / "seq"), "--out", str(out), "--reference-scale", str(REF_SCALE)]
     assert main([*args, "--limit", "3", "--quiet"]) == 0
     assert "| grid | no grid |" in capsys.readouterr().out
     table = json.loads((out / "ablation.json").read_text())
@@ -212,7 +223,8 @@ def test_ablation_table_rows_and_baseline(data, capsys):
     _same({k: no_grid[k] for k in keys}, direct_no_grid["MRAD"])
     assert "Table II" in (out / "ablation.md").read_text()
     # The API returns the same rows.
-    result = ablate(data / "seq", ref_scale=REF_SCALE, limit=3, progress=False)
+    config = PipelineConfig(RenderSettings(reference_scale=REF_SCALE))
+    result = ablate(data / "seq", config=config, limit=3, progress=False)
     assert [r.metrics.as_dict()["p_ap"] for r in result.rows] == [r["p_ap"] for r in table["rows"]]
 
 
@@ -229,7 +241,7 @@ def test_bag_without_its_mesh_needs_mesh_option(data, tmp_path, capsys):
     assert frame.anomaly == "box" and frame.is_anomalous and frame.image.shape == (90, 160, 3)
     sequence = read_sequence(data / "seq")
     np.testing.assert_array_equal(frame.image, sequence.load_image(sequence.frames[3]))
-    np.testing.assert_array_equal(frame.T_station_camera, sequence.frames[3].T_station_camera)
+    np.testing.assert_array_equal(frame.view.T_station_camera, sequence.frames[3].T_station_camera)
     with pytest.raises(FrameSourceError, match="needs a sequence folder"):
         open_source(data / "bag", use_references=True)
     with pytest.raises(FrameSourceError, match="no reference"):
@@ -261,7 +273,7 @@ def test_limit_spreads_frames_over_the_split():
 
 
 def test_parameter_parsing_errors_are_usage_errors(data, capsys):
-    assert parse_params("accurate", ["grid=3"]) == MradParams(process_scale=1.0, grid=3)
+    assert params_from("accurate", ["grid=3"]) == MradParams(process_scale=1.0, grid=3)
     for bad in (
         ["--set", "grid=two"],
         ["--set", "nope=1"],

@@ -11,6 +11,7 @@ import pytest
 import trimesh
 
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
+from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import PoseError, look_at, pose_matrix
 from allo_mrad_ros.render import (
     LABEL_ANOMALY,
@@ -349,14 +350,14 @@ def test_switching_backend_after_opengl_import_is_refused(box_renderer, monkeypa
     ],
 )
 def test_bad_models_raise(model, message):
-    with pytest.raises(RendererError, match=message):
+    with pytest.raises(InvalidInput, match=message):
         ReferenceRenderer(model, K_SMALL)
 
 
 def test_unreadable_model_file_raises(tmp_path):
     path = tmp_path / "station.glb"
     path.write_bytes(b"not a gltf file")
-    with pytest.raises(RendererError, match="cannot load"):
+    with pytest.raises(InvalidInput, match="cannot load"):
         ReferenceRenderer(path, K_SMALL)
 
 
@@ -369,15 +370,15 @@ def test_bad_poses_and_parameters_raise(box_renderer, camera_pose):
         pose_matrix([0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0])
     with pytest.raises(PoseError, match="rotation"):
         box_renderer.render(np.diag([2.0, 1.0, 1.0, 1.0]), SUN)
-    with pytest.raises(RendererError, match="sun_direction"):
+    with pytest.raises(InvalidInput, match="sun_direction"):
         box_renderer.render(camera_pose, (0.0, 0.0, 0.0))
-    with pytest.raises(RendererError, match="sun_strength"):
+    with pytest.raises(InvalidInput, match="sun_strength"):
         box_renderer.render(camera_pose, SUN, sun_strength=-1.0)
-    with pytest.raises(RendererError, match="pose"):
+    with pytest.raises(InvalidInput, match="pose"):
         box_renderer.render(camera_pose, SUN, extra_objects=[(_box_model(), np.eye(3))])
-    with pytest.raises(RendererError, match="label"):
+    with pytest.raises(InvalidInput, match="label"):
         box_renderer.render(camera_pose, SUN, extra_objects=[(_box_model(), np.eye(4), 300)])
-    with pytest.raises(RendererError, match="radius"):
+    with pytest.raises(InvalidInput, match="radius"):
         CelestialBody("moon", (0.0, 0.0, 100.0), 0.0)
 
 
@@ -398,7 +399,7 @@ def test_bad_intrinsics_raise(kwargs):
 
 @pytest.mark.parametrize("scale", [0.0, -0.25, float("nan"), 5.0])
 def test_bad_scale_raises(scale):
-    with pytest.raises(RendererError, match="scale"):
+    with pytest.raises(InvalidInput, match="scale"):
         ReferenceRenderer(_box_model(), K_SMALL, scale=scale)
 
 

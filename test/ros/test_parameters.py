@@ -25,7 +25,7 @@ def node():
 
 def test_overrides_reach_the_detector(node):
     assert node.get_parameter("mrad.grid").value == 6
-    assert node._detector_params.grid == 6
+    assert node._config.pipeline.params.grid == 6
 
 
 @pytest.mark.parametrize(
@@ -53,7 +53,7 @@ def test_invalid_changes_are_rejected_with_the_reason_and_the_old_value_stays(
 def test_valid_change_is_applied(node):
     (result,) = node.set_parameters([Parameter("mrad.tolerance", value=75.0)])
     assert result.successful
-    assert node._detector_params.tolerance == 75.0
+    assert node._config.pipeline.params.tolerance == 75.0
 
 
 def test_tf_requested_without_tf2_falls_back_to_topic():
@@ -67,7 +67,7 @@ def test_tf_requested_without_tf2_falls_back_to_topic():
     rclpy.init()
     try:
         created = MradDetectorNode(parameter_overrides=[Parameter("pose_source", value="tf")])
-        assert created._pose_source == "topic"
+        assert created._pose_source.kind == "topic"
         created.destroy_node()
     finally:
         rclpy.shutdown()

@@ -21,6 +21,7 @@ from rosbags.highlevel import AnyReader
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence import FRAMES_FILE, SequenceMeta, SequenceWriter, read_sequence
+from rosbag_tools.bag_meta import decode_splits, encode_splits, file_sha256
 from rosbag_tools.cli import main
 from rosbag_tools.info import InfoError, bag_info, format_info
 from rosbag_tools.topics import (
@@ -32,15 +33,9 @@ from rosbag_tools.topics import (
     TopicNames,
     typestore_for,
 )
-from rosbag_tools.writer import (
-    BagWriteError,
-    decode_splits,
-    encode_splits,
-    file_sha256,
-    write_bag,
-)
+from rosbag_tools.writer import BagWriteError, write_bag
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 CAMERA = CameraIntrinsics(width=32, height=24, fx=40.0, fy=41.0, cx=15.5, cy=11.5)
 FRAMES = 6
 T = TopicNames()

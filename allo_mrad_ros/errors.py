@@ -1,0 +1,28 @@
+"""The one exception hierarchy of the package.
+
+Every error the package raises on purpose derives from :class:`AlloError`, so a caller can
+catch all of them in one clause, and from one of two kinds:
+
+* :class:`InvalidInput` (a :class:`ValueError`): the caller's data or options are wrong (a
+  parameter out of range, a malformed file, message or frame); retrying will not help, the
+  message names what to fix;
+* :class:`BackendError` (a :class:`RuntimeError`): the machine could not do the work (no
+  OpenGL context, a worker process died, a disk write failed).
+
+Each module keeps one exception type of its own (``SequenceError``, ``RendererError``, ...)
+derived from one of these, so messages stay specific while handlers stay simple.
+"""
+
+from __future__ import annotations
+
+
+class AlloError(Exception):
+    """Base of every error raised by ``allo_mrad_ros`` and ``rosbag_tools``."""
+
+
+class InvalidInput(AlloError, ValueError):
+    """The input (data, parameters, options) is invalid; the message names the problem."""
+
+
+class BackendError(AlloError, RuntimeError):
+    """A resource the work needs failed (OpenGL, worker processes, storage)."""

@@ -1,0 +1,61 @@
+"""The package's ROS interface: topic names, frame ids and image encodings, in one place.
+
+The node subscribes to these inputs, ``allo-bag write``/``play`` record and publish them,
+the demo and the test feed publish them, and the launch file remaps them, so a played bag
+needs no remapping. Plain strings only: importing this module needs no ROS installation.
+
+=====================  ==================================  ==============================
+input                  topic                               type
+=====================  ==================================  ==============================
+image                  ``/arm_camera/image_raw``           sensor_msgs/Image
+camera info            ``/arm_camera/camera_info``         sensor_msgs/CameraInfo
+pose (``topic``)       ``/arm_camera/pose``                geometry_msgs/PoseStamped
+Sun direction          ``/allo/sun_direction``             geometry_msgs/Vector3Stamped
+Sun strength           ``/allo/sun_strength``              std_msgs/Float32
+celestial bodies       ``/allo/celestial_bodies``          visualization_msgs/MarkerArray
+=====================  ==================================  ==============================
+
+Outputs are private to the node (``~/score`` 32FC1, ``~/mask`` mono8, ``~/anomaly`` Bool,
+``~/reference`` and ``~/overlay`` rgb8) plus ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+NODE_NAME = "mrad_detector"
+
+# Inputs (also the topics `allo-bag write` records, so a played bag needs no remapping).
+IMAGE_TOPIC = "/arm_camera/image_raw"
+CAMERA_INFO_TOPIC = "/arm_camera/camera_info"
+POSE_TOPIC = "/arm_camera/pose"
+SUN_DIRECTION_TOPIC = "/allo/sun_direction"
+SUN_STRENGTH_TOPIC = "/allo/sun_strength"
+BODIES_TOPIC = "/allo/celestial_bodies"
+# Ground truth recorded in bags (not read by the node).
+MASK_TOPIC = "/allo/ground_truth/mask"
+LABEL_TOPIC = "/allo/ground_truth/label"
+TF_TOPIC = "/tf"
+TF_STATIC_TOPIC = "/tf_static"
+
+# The node's outputs, relative to its private namespace.
+SCORE_OUTPUT = "~/score"
+MASK_OUTPUT = "~/mask"
+ANOMALY_OUTPUT = "~/anomaly"
+REFERENCE_OUTPUT = "~/reference"
+OVERLAY_OUTPUT = "~/overlay"
+DIAGNOSTICS_TOPIC = "/diagnostics"
+
+# Frame ids.
+STATION_FRAME = "station"
+CAMERA_FRAME = "arm_camera_optical"
+HARDWARE_ID = "arm_camera"
+
+# Image encodings the package writes.
+RGB8 = "rgb8"
+MONO8 = "mono8"
+SCORE_ENCODING = "32FC1"
+
+# visualization_msgs/Marker constants used for celestial bodies.
+MARKER_SPHERE = 2
+MARKER_ADD = 0
+MARKER_MODIFY = 1
+MARKER_DELETE = 2

@@ -1,0 +1,127 @@
+"""Patches to pyrender's offscreen renderer: bounded scenes, shader cache, shadow-map reuse.
+
+Installed on one renderer's GL context at construction; nothing here changes pixels."""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+import numpy as np
+import trimesh
+
+_SCENE_CLASSES: dict[int, type] = {}
+
+
+def bounded_scene_class(pr: ModuleType) -> type:
+    """A pyrender Scene whose bounds (used only to fit shadow maps) can be pinned."""
+    if id(pr) not in _SCENE_CLASSES:
+
+        class BoundedScene(pr.Scene):
+            caster_bounds: np.ndarray | None = None
+
+            @property
+            def bounds(self) -> np.ndarray:
+                if self.caster_bounds is not None:
+                    return self.caster_bounds
+                return super().bounds
+
+        _SCENE_CLASSES[id(pr)] = BoundedScene
+    return _SCENE_CLASSES[id(pr)]
+
+
+def install_program_cache(pr: ModuleType, offscreen: object) -> None:
+    """Make pyrender reuse compiled shader programs across frames.
+
+    pyrender keys its program cache by ``OpenGL.contextdata.getContext()``, which under
+    OSMesa (and EGL) returns a new ctypes pointer object on every call; those never compare
+    equal, so every primitive's shaders were recompiled on every frame and the cache grew
+    without bound. Each ReferenceRenderer owns one context, so the key needs no context.
+    """
+    renderer = getattr(offscreen, "_renderer", None)
+    if renderer is None or not hasattr(renderer, "_program_cache"):
+        return
+    base = pr.shader_program.ShaderProgramCache
+
+    class StableProgramCache(base):
+        def __init__(self) -> None:
+            super().__init__()
+            self._by_source: dict[tuple, object] = {}
+
+        def get_program(
+            self,
+            vertex_shader: str,
+            fragment_shader: str,
+            geometry_shader: str | None = None,
+            defines: dict | None = None,
+        ) -> object:
+            key = (
+                vertex_shader,
+                fragment_shader,
+                geometry_shader,
+                tuple(sorted((defines or {}).items())),
+            )
+            if key not in self._by_source:
+                self._by_source[key] = super().get_program(
+                    vertex_shader, fragment_shader, geometry_shader, defines
+                )
+            return self._by_source[key]
+
+        def clear(self) -> None:
+            super().clear()
+            self._by_source = {}
+
+    renderer._program_cache.clear()
+    renderer._program_cache = StableProgramCache()
+
+
+def _shadow_map_inputs(renderer: object, scene: object, light_node: object, flags: int) -> tuple:
+    """Everything a light's shadow map depends on.
+
+    The flags, the shadow texture, the light camera (its pose and projection follow from the
+    light's pose and the scene bounds) and every mesh that reaches the light camera's view
+    volume, with its pose. Meshes wholly outside that volume are clipped from the map: the
+    Sun disc, Earth and Moon, which move with the camera, never invalidate it. Meshes are
+    held by reference, so an entry never matches a new mesh that reused a freed object's id.
+    """
+    view, projection = renderer._get_light_cam_matrices(scene, light_node, flags)
+    to_clip = projection @ view
+    casters = []
+    for node in scene.mesh_nodes:
+        if not node.mesh.is_visible:
+            continue
+        pose = scene.get_pose(node)
+        corners = trimesh.bounds.corners(node.mesh.bounds)
+        clip = np.c_[corners, np.ones(8)] @ (to_clip @ pose).T
+        ndc = clip[:, :3] / clip[:, 3:]
+        if ((ndc > 1.0).all(axis=0) | (ndc < -1.0).all(axis=0)).any():
+            continue
+        casters.append((node.mesh, pose.tobytes()))
+    return (int(flags), light_node.light.shadow_texture, to_clip.tobytes(), frozenset(casters))
+
+
+def install_shadow_map_cache(pr: ModuleType, offscreen: object) -> None:
+    """Skip a light's shadow-map pass when nothing it depends on has changed.
+
+    The Sun moves about a degree a day relative to the station, so consecutive frames of a
+    stream share its shadow map; the pass renders the casters into a 2048x2048 depth map
+    and is most of what shadows cost at the default reference size. The forward pass reads
+    the map from the light's texture, which persists in the context between frames.
+    """
+    renderer = getattr(offscreen, "_renderer", None)
+    if renderer is None or not hasattr(renderer, "_shadow_mapping_pass"):
+        return
+    render_shadow_map = renderer._shadow_mapping_pass
+    drawn: dict[object, tuple] = {}
+
+    def shadow_mapping_pass(scene: object, light_node: object, flags: int) -> None:
+        if not isinstance(light_node.light, pr.DirectionalLight):
+            render_shadow_map(scene, light_node, flags)
+            return
+        inputs = _shadow_map_inputs(renderer, scene, light_node, flags)
+        if drawn.get(light_node) == inputs:
+            return
+        drawn.pop(light_node, None)  # a pass that fails leaves the texture in doubt
+        render_shadow_map(scene, light_node, flags)
+        drawn[light_node] = inputs
+
+    renderer._shadow_mapping_pass = shadow_mapping_pass

@@ -1,0 +1,60 @@
+"""What one reference is rendered from: the camera pose, the Sun and the bodies in the sky.
+
+A :class:`View` is built once at the system's edge (a ROS message, a sequence row, a bag
+frame) and travels whole from there to the renderer, so no stage passes loose
+``(pose, sun_direction, sun_strength, bodies)`` tuples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.sky import earth_and_moon, with_sun
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """The camera pose and lighting of one frame (station frame).
+
+    Parameters
+    ----------
+    T_station_camera : numpy.ndarray
+        4x4 pose of the camera optical frame in the station frame.
+    sun_direction : numpy.ndarray
+        Vector towards the Sun (normalised by the renderer).
+    sun_strength : float
+        Relative Sun intensity, >= 0.
+    bodies : tuple of CelestialBody
+        The bodies given (Earth, Moon, ...); :attr:`sky_bodies` adds the Sun's disc.
+    """
+
+    T_station_camera: np.ndarray
+    sun_direction: np.ndarray
+    sun_strength: float = 1.0
+    bodies: tuple[CelestialBody, ...] = field(default=())
+
+    @classmethod
+    def from_row(
+        cls,
+        T_station_camera: np.ndarray,
+        sun_direction: Sequence[float],
+        sun_strength: float,
+        earth: Sequence[float] | None,
+        moon: Sequence[float] | None,
+    ) -> View:
+        """The view of a sequence frame, whose Earth and Moon are ``(x, y, z, r)`` or None."""
+        return cls(
+            T_station_camera,
+            np.array(sun_direction),
+            float(sun_strength),
+            earth_and_moon(earth, moon),
+        )
+
+    @property
+    def sky_bodies(self) -> tuple[CelestialBody, ...]:
+        """Every body the reference shows: :attr:`bodies` plus the Sun's disc."""
+        return with_sun(self.bodies, self.sun_direction)

@@ -1,0 +1,166 @@
+"""ROS message conversions without DDS: message objects are plain namespaces with the fields."""
+
+from __future__ import annotations
+
+import array
+from types import SimpleNamespace as Msg
+
+import numpy as np
+import pytest
+
+from allo_mrad_ros import interface
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.geometry import pose_matrix
+from allo_mrad_ros.ros import messages
+from allo_mrad_ros.ros.messages import MessageError
+
+
+def _image(pixels: np.ndarray, encoding: str, step_pad: int = 0, bigendian: bool = False):
+    height, width = pixels.shape[:2]
+    rows = pixels.reshape(height, -1).view(np.uint8)
+    padded = np.zeros((height, rows.shape[1] + step_pad), np.uint8)
+    padded[:, : rows.shape[1]] = rows
+    return Msg(
+        encoding=encoding,
+        width=width,
+        height=height,
+        step=padded.shape[1],
+        is_bigendian=bigendian,
+        data=padded.tobytes(),
+    )
+
+
+RNG = np.random.default_rng(3)
+RGB = RNG.integers(0, 256, (5, 7, 3), dtype=np.uint8)
+
+
+@pytest.mark.parametrize(
+    ("encoding", "pixels", "expected"),
+    [
+        ("rgb8", RGB, RGB),
+        ("bgr8", RGB[..., ::-1].copy(), RGB),
+        ("rgba8", np.dstack([RGB, np.full((5, 7), 9, np.uint8)]), RGB),
+        ("bgra8", np.dstack([RGB[..., ::-1], np.full((5, 7), 9, np.uint8)]), RGB),
+        ("mono8", RGB[..., :1].copy(), np.repeat(RGB[..., :1], 3, axis=2)),
+    ],
+)
+def test_colour_encodings_decode_to_rgb_with_row_padding(encoding, pixels, expected):
+    decoded = messages.image_to_rgb(_image(pixels, encoding, step_pad=3), (7, 5))
+    np.testing.assert_array_equal(decoded, expected)
+    assert decoded.flags.c_contiguous
+
+
+def test_sixteen_bit_images_honour_the_byte_order():
+    values = RNG.integers(0, 65536, (4, 6, 3)).astype(np.uint16)
+    big = _image(values.astype(">u2"), "rgb16", bigendian=True)
+    little = _image(values.astype("<u2"), "rgb16", bigendian=False)
+    for msg in (big, little):
+        decoded = messages.image_to_rgb(msg)
+        np.testing.assert_array_equal(decoded, values)
+        assert decoded.dtype.byteorder in ("=", "|")
+
+
+def test_image_to_array_keeps_mono_two_dimensional():
+    mask = RNG.integers(0, 3, (5, 7), dtype=np.uint8)
+    np.testing.assert_array_equal(messages.image_to_array(_image(mask[..., None], "mono8")), mask)
+    assert messages.image_to_array(_image(RGB, "rgb8")).shape == (5, 7, 3)
+
+
+@pytest.mark.parametrize(
+    ("change", "cause"),
+    [
+        ({"encoding": "yuv422"}, "encoding"),
+        ({"width": 0}, "size"),
+        ({"step": 3}, "step"),
+        ({"data": b"\x00" * 10}, "data"),
+    ],
+)
+def test_malformed_images_name_the_field(change, cause):
+    msg = _image(RGB, "rgb8")
+    for key, value in change.items():
+        setattr(msg, key, value)
+    with pytest.raises(MessageError) as error:
+        messages.image_to_rgb(msg)
+    assert error.value.cause == cause
+
+
+def test_size_other_than_camera_info_is_refused():
+    with pytest.raises(MessageError, match="differs from camera_info 8x5"):
+        messages.image_to_rgb(_image(RGB, "rgb8"), (8, 5))
+
+
+def test_fill_image_round_trips_and_keeps_the_header():
+    header = Msg(frame_id="cam")
+    msg = messages.fill_image(Msg(), header, RGB, interface.RGB8)
+    assert msg.header is header and msg.step == 21 and isinstance(msg.data, array.array)
+    np.testing.assert_array_equal(messages.image_to_rgb(msg), RGB)
+    score = RNG.random((3, 4)).astype(np.float32)
+    filled = messages.fill_image(Msg(), None, score, interface.SCORE_ENCODING)
+    restored = np.frombuffer(filled.data, np.float32).reshape(3, 4)
+    np.testing.assert_array_equal(restored, score)
+
+
+def test_camera_info_round_trip_and_bad_intrinsics():
+    camera = CameraIntrinsics(640, 480, 500.0, 510.0, 319.5, 239.5)
+    msg = messages.fill_camera_info(Msg(header=Msg()), camera, "cam")
+    assert messages.intrinsics_from_camera_info(msg) == camera and msg.header.frame_id == "cam"
+    msg.k = [0.0] * 9
+    with pytest.raises(MessageError, match="camera_info") as error:
+        messages.intrinsics_from_camera_info(msg)
+    assert error.value.cause == "camera_info"
+
+
+def _xyz(x, y, z):
+    return Msg(x=x, y=y, z=z)
+
+
+def test_poses_and_transforms_give_the_same_matrix():
+    position, quaternion = (1.0, -2.0, 3.0), (0.1, 0.2, 0.3, 0.9)
+    expected = pose_matrix(position, quaternion)
+    q = Msg(x=quaternion[0], y=quaternion[1], z=quaternion[2], w=quaternion[3])
+    pose = Msg(position=_xyz(*position), orientation=q)
+    transform = Msg(translation=_xyz(*position), rotation=q)
+    np.testing.assert_allclose(messages.pose_to_matrix(pose), expected)
+    np.testing.assert_allclose(messages.transform_to_matrix(transform), expected)
+    bad = Msg(position=_xyz(*position), orientation=Msg(x=0.0, y=0.0, z=0.0, w=0.0))
+    with pytest.raises(MessageError, match="pose is invalid") as error:
+        messages.pose_to_matrix(bad)
+    assert error.value.cause == "pose"
+
+
+def test_sun_vector_is_normalised_and_zero_is_refused():
+    np.testing.assert_allclose(messages.vector_to_direction(_xyz(0.0, 3.0, 4.0)), [0, 0.6, 0.8])
+    for vector in (_xyz(0.0, 0.0, 0.0), _xyz(float("nan"), 1.0, 0.0)):
+        with pytest.raises(MessageError, match="sun direction"):
+            messages.vector_to_direction(vector)
+
+
+def _marker(ns, kind=interface.MARKER_SPHERE, action=interface.MARKER_ADD, diameter=2.0):
+    return Msg(
+        ns=ns,
+        type=kind,
+        action=action,
+        pose=Msg(position=_xyz(1.0, 2.0, 3.0)),
+        scale=_xyz(diameter, diameter, diameter),
+    )
+
+
+def test_sphere_markers_become_bodies_and_others_are_ignored():
+    markers = [
+        _marker("earth"),
+        _marker("moon", action=interface.MARKER_DELETE),
+        _marker("cube", kind=1),
+        _marker("sun", action=interface.MARKER_MODIFY, diameter=4.0),
+    ]
+    bodies = messages.markers_to_bodies(markers)
+    assert [(b.name, b.centre, b.radius) for b in bodies] == [
+        ("earth", (1.0, 2.0, 3.0), 1.0),
+        ("sun", (1.0, 2.0, 3.0), 2.0),
+    ]
+    with pytest.raises(MessageError, match="'moon'") as error:
+        messages.markers_to_bodies([_marker("moon", diameter=-1.0)])
+    assert error.value.cause == "bodies"
+
+
+def test_stamp_to_ns():
+    assert messages.stamp_to_ns(Msg(sec=3, nanosec=7)) == 3_000_000_007
