@@ -97,6 +97,11 @@ class SynthConfig:
         Relative Sun strengths and their probabilities.
     colour_probability : float
         Probability that an anomalous frame recolours its object (ALLO's colour variant).
+    scale_probability : float
+        Probability that an anomalous frame scales its object (ALLO's scale variant).
+    scales : tuple of float
+        The scale factors of that variant (ALLO: 0.3, 0.5, 0.7). A scaled object that
+        cannot be placed visibly is placed at the next larger scale, finally at 1.
     anomaly_types : tuple of str or None
         Object types to use; None for all (:data:`~.objects.ANOMALY_TYPES`).
     camera_distance_m : tuple of float
@@ -137,6 +142,8 @@ class SynthConfig:
     sun_strengths: tuple[float, ...] = DEFAULT_SUN_STRENGTHS
     sun_weights: tuple[float, ...] = DEFAULT_SUN_WEIGHTS
     colour_probability: float = 0.2
+    scale_probability: float = 0.2
+    scales: tuple[float, ...] = (0.3, 0.5, 0.7)
     anomaly_types: tuple[str, ...] | None = None
     camera_distance_m: tuple[float, float] = (12.0, 30.0)
     min_camera_clearance_m: float = 7.0
@@ -181,6 +188,11 @@ class SynthConfig:
         _finite(self.max_occluded_fraction, "max_occluded_fraction", 0.0, 1.0)
         self._check_sun()
         _finite(self.colour_probability, "colour_probability", 0.0, 1.0)
+        _finite(self.scale_probability, "scale_probability", 0.0, 1.0)
+        if not isinstance(self.scales, tuple) or not self.scales:
+            raise SynthError(f"scales must be a non-empty tuple, got {self.scales!r}")
+        for scale in self.scales:
+            _finite(scale, "scales", 0.05, 1.0)
         if self.anomaly_types is not None:
             from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 

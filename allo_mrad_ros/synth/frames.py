@@ -235,53 +235,65 @@ class FrameSynthesizer:
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, RenderResult, dict[str, object]]:
         config = self.config
-        obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour)
-        worn = worn_object(obj.scene, stream(plan.seed, STREAM_WEAR, plan.index), config.realism)
         need = math.ceil(config.min_anomaly_fraction * config.width * config.height)
         bodies = sky.bodies()
         tries = 0
         reasons: dict[str, int] = {}
-        for depth in self._depth_order(plan.depth_m):
-            for _ in range(config.camera_attempts):
-                T = self._camera(base, rng)
-                for _ in range(config.max_retries):
-                    tries += 1
-                    pose = placement.propose(
-                        T, rng, config.object_distance_m, config.box_half_width_m, depth
-                    )
-                    candidate = placement.check(
-                        obj,
-                        pose,
-                        T,
-                        self.intrinsics,
-                        self.occupancy,
-                        config.max_occluded_fraction,
-                        depth,
-                    )
-                    reason = candidate.rejected or self._too_small(obj, pose, T, sky, need)
-                    if not reason:
-                        extras = [ExtraObject(worn, pose, LABEL_ANOMALY, plan.anomaly)]
-                        result = self._query.render(
-                            T,
-                            light.sun_direction,
-                            light.sun_strength,
-                            bodies,
-                            extras,
-                            labels=True,
+        # A scale variant too small to be seen is placed at the next larger scale, finally 1.
+        scales = [plan.scale, *sorted(s for s in {*config.scales, 1.0} if s > plan.scale)]
+        for scale in scales:
+            obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour, scale)
+            if self._area_bound(obj) < need:
+                reasons["scale"] = reasons.get("scale", 0) + 1
+                continue
+            wear = stream(plan.seed, STREAM_WEAR, plan.index)
+            worn = worn_object(obj.scene, wear, config.realism)
+            for depth in self._depth_order(plan.depth_m):
+                for _ in range(config.camera_attempts):
+                    T = self._camera(base, rng)
+                    for _ in range(config.max_retries):
+                        tries += 1
+                        pose = placement.propose(
+                            T, rng, config.object_distance_m, config.box_half_width_m, depth
                         )
-                        pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
-                        if pixels >= need:
-                            return (
+                        candidate = placement.check(
+                            obj,
+                            pose,
+                            T,
+                            self.intrinsics,
+                            self.occupancy,
+                            config.max_occluded_fraction,
+                            depth,
+                        )
+                        reason = candidate.rejected or self._too_small(obj, pose, T, sky, need)
+                        if not reason:
+                            extras = [ExtraObject(worn, pose, LABEL_ANOMALY, plan.anomaly)]
+                            result = self._query.render(
                                 T,
-                                result,
-                                self._anomaly_extra(plan, obj, candidate, pixels, tries),
+                                light.sun_direction,
+                                light.sun_strength,
+                                bodies,
+                                extras,
+                                labels=True,
                             )
-                        reason = "small"
-                    reasons[reason] = reasons.get(reason, 0) + 1
+                            pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
+                            if pixels >= need:
+                                extra = self._anomaly_extra(plan, obj, candidate, pixels, tries)
+                                return T, result, extra
+                            reason = "small"
+                        reasons[reason] = reasons.get(reason, 0) + 1
         raise SynthError(
             f"frame {plan.index} ({plan.anomaly}, camera {plan.split}/{plan.camera}): no "
             f"placement met the rules in {tries} tries ({reasons})"
         )
+
+    def _area_bound(self, obj: AnomalyObject) -> float:
+        """Upper bound of the object's image area (pixels) at the nearest placement."""
+        config = self.config
+        nearest = config.object_distance_m + min(config.depths_m)
+        nearest = max(0.5, nearest - math.sqrt(3.0) * config.box_half_width_m)
+        largest = np.sort(obj.extents)[::-1]
+        return float(largest[0] * largest[1] * (self.intrinsics.fx / nearest) ** 2)
 
     def _too_small(
         self, obj: AnomalyObject, pose: np.ndarray, T: np.ndarray, sky: Sky, need: int
@@ -310,6 +322,8 @@ class FrameSynthesizer:
         extra: dict[str, object] = {
             "object_seed": obj.seed,
             "colour": obj.colour,
+            "scale": obj.scale,
+            "requested_scale": plan.scale,
             "depth_m": candidate.depth_m,
             "requested_depth_m": plan.depth_m,
             "anomaly_pixels": pixels,

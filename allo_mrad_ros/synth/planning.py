@@ -47,6 +47,8 @@ class FramePlan:
         Requested depth offset of the object (0 for normal frames).
     colour : str
         ``default`` or a colour variant name.
+    scale : float
+        Scale of the object (1 unless the frame is a scale variant).
     object_seed : int
         Seed the object is built from.
     seed : int
@@ -63,6 +65,7 @@ class FramePlan:
     colour: str
     object_seed: int
     seed: int
+    scale: float = 1.0
 
     @property
     def is_anomalous(self) -> bool:
@@ -121,6 +124,8 @@ def plan_frames(config: SynthConfig, seed: int) -> list[FramePlan]:
         recolour = rng.random(spec.frames) < config.colour_probability
         colour_index = rng.integers(len(colours), size=spec.frames)
         object_seeds = rng.integers(0, 2**31 - 1, spec.frames)
+        rescale = rng.random(spec.frames) < config.scale_probability
+        scale_index = rng.integers(len(config.scales), size=spec.frames)
         order = sorted(range(spec.frames), key=lambda i: (days[i], cameras[i], i))
         for i in order:
             anomalous = bool(kinds[i])
@@ -138,6 +143,7 @@ def plan_frames(config: SynthConfig, seed: int) -> list[FramePlan]:
                     else DEFAULT_COLOUR,
                     object_seed=int(object_seeds[i]) if anomalous else 0,
                     seed=seed,
+                    scale=float(config.scales[scale_index[i]]) if anomalous and rescale[i] else 1.0,
                 )
             )
     return plans
