@@ -87,15 +87,12 @@ def _material(
     image = None
     factor = np.clip(colour, 0.0, 1.0)
     if texture is not None:
-        # glTF multiplies the factor by the sRGB-decoded texture; the texture is scaled to a
-        # peak of 1 and its peak moved into the factor (clipped at 1: very bright materials
-        # end up a little darker on average, as worn white paint does).
-        peak = float(texture.max())
-        factor = np.clip(colour * peak, 0.0, 1.0)
-        linear = np.clip(texture / peak, 0.0, 1.0)
+        # The colour is baked into the (sRGB) texture and the factor left at 1, so only the
+        # brightest texels of a bright material clip, not the whole part.
+        linear = np.clip(texture[..., None] * np.asarray(colour)[None, None], 0.0, 1.0)
         srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
-        grey = np.rint(255.0 * srgb).astype(np.uint8)
-        image = Image.fromarray(np.repeat(grey[..., None], 3, axis=2), mode="RGB")
+        image = Image.fromarray(np.rint(255.0 * srgb).astype(np.uint8), mode="RGB")
+        factor = np.ones(3)
     return PBRMaterial(
         name=name,
         baseColorFactor=(*factor, 1.0),
