@@ -86,7 +86,7 @@ def _scene(frame):
     extras = []
     if frame.is_anomalous:
         e = frame.extra
-        obj = build_anomaly(frame.anomaly, int(e["object_seed"]), e["colour"])
+        obj = build_anomaly(frame.anomaly, int(e["object_seed"]), e["colour"], float(e["scale"]))
         extras.append(ExtraObject(obj.scene, _pose(e, "obj")))
     return sky, extras
 
@@ -135,7 +135,7 @@ def test_anomalous_frames_meet_the_visibility_rule(sequence, occupancy):
         optical = T[:3, :3].T @ (P[:3, 3] - T[:3, 3])
         u, v = k.fx * optical[0] / optical[2] + k.cx, k.fy * optical[1] / optical[2] + k.cy
         assert optical[2] > 0 and -0.5 <= u <= k.width - 0.5 and -0.5 <= v <= k.height - 0.5
-        obj = build_anomaly(frame.anomaly, int(e["object_seed"]), e["colour"])
+        obj = build_anomaly(frame.anomaly, int(e["object_seed"]), e["colour"], float(e["scale"]))
         points = obj.surface_points @ P[:3, :3].T + P[:3, 3]
         assert not occupancy.intersects(points)
         assert not occupancy.occluded(T[:3, 3], P[:3, 3][None])[0]
