@@ -312,3 +312,16 @@ def test_new_realism_settings_are_validated():
     ):
         with pytest.raises(SynthError):
             RealismConfig(**change)
+
+
+def test_camera_effects_are_deterministic_and_modest():
+    rng_image = np.random.default_rng(1)
+    clean = np.zeros((90, 160, 3), np.uint8)
+    clean[20:70, 40:120] = rng_image.integers(40, 200, (50, 80, 3))
+    a, ea = apply_camera(clean, np.random.default_rng(5), RealismConfig())
+    b, eb = apply_camera(clean, np.random.default_rng(5), RealismConfig())
+    assert np.array_equal(a, b) and ea == eb
+    assert not np.array_equal(a, clean)
+    assert np.abs(a.astype(float) - clean).mean() < 15.0
+    off, _ = apply_camera(clean, np.random.default_rng(5), RealismConfig(enabled=False))
+    assert np.array_equal(off, clean)
