@@ -24,6 +24,7 @@ FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools", "mrad_oracle", "rosbag_fixtures"
 # requirements-distro*.txt (the pip part of the distro route) for modules rosdep has no key for.
 MODULE_PROVIDERS = {
     "OpenGL": "python3-opengl",
+    "PIL": "python3-pil",
     "cv2": "python3-opencv",
     "matplotlib": "python3-matplotlib",
     "numpy": "python3-numpy",
