@@ -203,3 +203,39 @@ def test_mesh_argument_describes_what_happens_when_not_given():
 
     mesh = next(a for a in ARGUMENTS if a.name == "mesh")
     assert "not given: the parameter file's mesh" in mesh.description
+
+
+def test_rviz_topics_are_relative_so_they_follow_the_launch_namespace():
+    """RViz runs in the node's namespace: its topics must resolve there, to the node's."""
+    from allo_mrad_ros import interface
+
+    document = yaml.safe_load((REPO / "config" / "mrad.rviz").read_text())
+    displays = document["Visualization Manager"]["Displays"]
+    topics = [d["Topic"]["Value"] for d in displays if "Topic" in d]
+    outputs = {
+        f"{interface.NODE_NAME}/{o[2:]}"
+        for o in (
+            interface.OVERLAY_OUTPUT,
+            interface.MASK_OUTPUT,
+            interface.SCORE_OUTPUT,
+            interface.REFERENCE_OUTPUT,
+        )
+    }
+    assert set(topics) == outputs | {interface.BODIES_INPUT}
+    assert not any(topic.startswith("/") for topic in topics)
+
+
+def test_relative_inputs_resolve_at_the_root_to_the_topics_allo_bag_plays():
+    from allo_mrad_ros import interface
+    from rosbag_tools.topics import DEFAULT_TOPICS
+
+    pairs = {
+        interface.IMAGE_INPUT: DEFAULT_TOPICS.image,
+        interface.CAMERA_INFO_INPUT: DEFAULT_TOPICS.camera_info,
+        interface.POSE_INPUT: DEFAULT_TOPICS.pose,
+        interface.SUN_DIRECTION_INPUT: DEFAULT_TOPICS.sun_direction,
+        interface.SUN_STRENGTH_INPUT: DEFAULT_TOPICS.sun_strength,
+        interface.BODIES_INPUT: DEFAULT_TOPICS.bodies,
+    }
+    for relative, played in pairs.items():
+        assert not relative.startswith("/") and "/" + relative == played

@@ -64,9 +64,7 @@ ARGUMENTS: tuple[LaunchArgument, ...] = (
         "pose_topic", "camera pose (pose_source topic)", input_topic=interface.POSE_INPUT
     ),
     LaunchArgument("sun_topic", "Sun direction", input_topic=interface.SUN_DIRECTION_INPUT),
-    LaunchArgument(
-        "sun_strength_topic", "Sun strength", input_topic=interface.SUN_STRENGTH_INPUT
-    ),
+    LaunchArgument("sun_strength_topic", "Sun strength", input_topic=interface.SUN_STRENGTH_INPUT),
     LaunchArgument(
         "bodies_topic", "celestial bodies (MarkerArray)", input_topic=interface.BODIES_INPUT
     ),
