@@ -229,16 +229,14 @@ def _plumb_bob(d):
 
 def test_plumb_bob_camera_with_distortion_is_refused_for_raw_images():
     info = _plumb_bob([-0.28, 0.07, 0.0002, -0.0001, 0.0])
-    with pytest.raises(MessageError, match="image_rect.*rectified_input:=true") as caught:
+    with pytest.raises(MessageError, match=r"image_rect.*rectified_input:=true") as caught:
         messages.camera_intrinsics(info, rectified=False)
     assert caught.value.cause == "distortion"
     assert "plumb_bob" in str(caught.value)
 
 
 def test_plumb_bob_camera_rectified_uses_p_and_zero_distortion_uses_k():
-    rectified = messages.camera_intrinsics(
-        _plumb_bob([-0.28, 0.07, 0.0, 0.0, 0.0]), rectified=True
-    )
+    rectified = messages.camera_intrinsics(_plumb_bob([-0.28, 0.07, 0.0, 0.0, 0.0]), rectified=True)
     assert (rectified.fx, rectified.fy, rectified.cx, rectified.cy) == (480.0, 481.0, 318.0, 242.0)
     raw = messages.camera_intrinsics(_plumb_bob([0.0] * 5), rectified=False)
     assert (raw.fx, raw.fy, raw.cx, raw.cy) == (500.0, 502.0, 320.5, 240.5)

@@ -135,6 +135,7 @@ def test_connected_boxes_and_their_outline_marker():
     assert sorted(boxes) == [(3, 2, 6, 3), (20, 10, 2, 2)]
     marker = region_marker(Header(frame_id="cam"), [(3, 2, 6, 3)])
     segments = [
-        ((a.x, a.y), (b.x, b.y)) for a, b in zip(marker.points[::2], marker.points[1::2])
+        ((a.x, a.y), (b.x, b.y))
+        for a, b in zip(marker.points[::2], marker.points[1::2], strict=True)
     ]
     assert segments == [((3, 2), (9, 2)), ((9, 2), (9, 5)), ((9, 5), (3, 5)), ((3, 5), (3, 2))]
