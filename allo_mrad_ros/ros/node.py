@@ -18,6 +18,7 @@ Topic names come from :mod:`allo_mrad_ros.interface`.
 
 from __future__ import annotations
 
+import copy
 import sys
 import threading
 import time
@@ -175,8 +176,12 @@ class MradDetectorNode(Node):
     def _setup_io(self, state: QoSProfile) -> None:
         # Relative names: they resolve in the node's namespace; QoS overridable at start
         # (qos_overrides.<resolved topic>.subscription.<policy>, read-only parameters).
-        inputs = qos_profile_sensor_data
         overrides = QoSOverridingOptions.with_default_policies()
+
+        def inputs() -> QoSProfile:
+            # A copy each: an override sets the policy on the profile object it is given.
+            return copy.copy(qos_profile_sensor_data)
+
         image_type, image_topic = Image, interface.IMAGE_INPUT
         if self._config.image_transport == "compressed":
             # image_transport's rule: the remapped, resolved base topic + "/compressed".
@@ -184,13 +189,13 @@ class MradDetectorNode(Node):
             image_type = CompressedImage
         self._image_topic = self.resolve_topic_name(image_topic)
         self.create_subscription(
-            image_type, image_topic, self._on_image, inputs, qos_overriding_options=overrides
+            image_type, image_topic, self._on_image, inputs(), qos_overriding_options=overrides
         )
         self.create_subscription(
             CameraInfo,
             interface.CAMERA_INFO_INPUT,
             self._on_camera_info,
-            inputs,
+            inputs(),
             qos_overriding_options=overrides,
         )
         self.create_subscription(Vector3Stamped, interface.SUN_DIRECTION_INPUT, self._on_sun, state)
