@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import cv2
@@ -24,6 +24,7 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Bool
+from visualization_msgs.msg import ImageMarker
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
@@ -31,6 +32,17 @@ from allo_mrad_ros.geometry import matrix_to_quaternion
 from allo_mrad_ros.ros.messages import fill_camera_info, fill_image, stamp_to_ns
 
 IMAGE_OUTPUTS = ("mask", "score", "overlay")
+# Every output of the node (``~/<name>``) and its message type.
+OUTPUT_TYPES: dict[str, type] = {
+    "mask": Image,
+    "score": Image,
+    "overlay": Image,
+    "anomaly": Bool,
+    "result": DiagnosticArray,
+    "regions": ImageMarker,
+    "reference": Image,
+    "reference/camera_info": CameraInfo,
+}
 
 
 def start_node(log_path: Path, *parameters: str, namespace: str = "") -> subprocess.Popen:
@@ -127,9 +139,23 @@ class CameraFeed:
     def subscribe(self, topic: str, kind: type = Image) -> None:
         """Also record output ``topic`` (``~/<topic>`` of the node) of message type ``kind``."""
         if topic not in self.subscriptions:
-            self.subscriptions[topic] = self.node.create_subscription(
-                kind, f"{self.output_prefix}/{topic}", self._recorder(topic), 10
+            callback = (
+                (lambda m: self.anomaly_flags.append(m.data))
+                if kind is Bool
+                else self._recorder(topic)
             )
+            self.subscriptions[topic] = self.node.create_subscription(
+                kind, f"{self.output_prefix}/{topic}", callback, 10
+            )
+
+    def set_outputs(self, topics: Iterable[str]) -> None:
+        """Subscribe to ``~/mask`` and ``topics`` (names of :data:`OUTPUT_TYPES`) only."""
+        wanted = {"mask", *topics}
+        for topic in list(self.subscriptions):
+            if topic not in wanted:
+                self.unsubscribe(topic)
+        for topic in sorted(wanted):
+            self.subscribe(topic, OUTPUT_TYPES[topic])
 
     def unsubscribe(self, topic: str) -> None:
         """Stop recording output ``topic``."""
