@@ -64,7 +64,9 @@ class Diagnostics:
             counters = dict(self._counters)
         counters["frames_received"] = self._received()
         status = DiagnosticStatus(
-            name=f"{self._node.get_name()}: pipeline", hardware_id=interface.HARDWARE_ID
+            # Fully qualified (less the root slash): two cameras' nodes stay apart.
+            name=f"{self._node.get_fully_qualified_name().lstrip('/')}: pipeline",
+            hardware_id=interface.HARDWARE_ID,
         )
         values = {"rate_hz": f"{self.stages.rate_hz():.2f}", "pose_source": self.pose_source}
         for stage, (p50, p95) in self.stages.percentiles().items():
