@@ -14,6 +14,7 @@ import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.photometric import align_statistics, fit_cell_affine
 from allo_mrad_ros.detector.statistics import cell_statistics, regularised_precision
 
 
@@ -23,6 +24,8 @@ def cross_score(
     grid: int,
     abs_floor: float,
     rel_floor: float,
+    photometric: str = "none",
+    max_gain: float = 2.0,
 ) -> np.ndarray:
     """Return the cross RXD score of every query pixel against its reference cell.
 
@@ -34,6 +37,11 @@ def cross_score(
         Cells per side.
     abs_floor, rel_floor : float
         Covariance regularisation (see :func:`regularised_precision`).
+    photometric : {"none", "cell_affine"}
+        ``cell_affine`` first maps each reference cell's statistics through the gain and
+        offset fitted by :func:`~allo_mrad_ros.detector.photometric.fit_cell_affine`.
+    max_gain : float
+        Gain limit of the ``cell_affine`` fit.
 
     Returns
     -------
@@ -41,6 +49,11 @@ def cross_score(
         H x W float32 raw score of the query, finite.
     """
     ref_stats = cell_statistics(reference, grid)
+    if photometric == "cell_affine":
+        gain, offset = fit_cell_affine(query, reference, grid, max_gain)
+        ref_stats = align_statistics(ref_stats, gain, offset)
+    elif photometric != "none":
+        raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
     query_stats = cell_statistics(query, grid)
     ref_precision = regularised_precision(ref_stats.cov, abs_floor, rel_floor)
     query_precision = regularised_precision(query_stats.cov, abs_floor, rel_floor)

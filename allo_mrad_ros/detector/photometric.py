@@ -1,0 +1,104 @@
+"""Stage 1a': photometric alignment of the reference's cell statistics to the query.
+
+A camera never matches a render's exposure, tone curve, white balance or light fall-off.
+Within one cell such a difference is close to a per-channel gain and offset, so each cell's
+reference colours are mapped onto the query's by ``y = gain * x + offset`` fitted to their
+quantile-quantile plot: the query's and the reference's per-channel quantiles (10 % .. 90 %)
+are paired and a Theil-Sen line (median of pairwise slopes) is fitted through them. Quantiles
+ignore where pixels are, so the fit needs no pixel alignment (the reference may be rendered
+at another resolution or pose), and the median slope ignores the few quantiles an anomaly
+moves: an object covering less than about a quarter of a cell does not bend the fit.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from allo_mrad_ros.detector.grid import cell_slices
+from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.statistics import CellStatistics
+
+QUANTILES = np.linspace(0.1, 0.9, 9)
+# Below this spread (8-bit units) a cell's quantiles carry no slope: the gain stays 1 and
+# only the offset is fitted (a flat cell's covariance is the regularisation floor anyway).
+_MIN_SPREAD = 4.0
+
+
+class PhotometricError(ValueError):
+    """The photometric fit cannot run on these inputs."""
+
+
+def cell_quantiles(image: np.ndarray, grid: int) -> np.ndarray:
+    """Per-cell, per-channel quantiles :data:`QUANTILES` of an image, on the 0..255 scale.
+
+    Returns
+    -------
+    numpy.ndarray
+        (G*G, 3, len(QUANTILES)) float64.
+    """
+    pixels = to_float32(image)
+    slices = cell_slices(pixels.shape[0], pixels.shape[1], grid)
+    out = np.empty((len(slices), 3, QUANTILES.size))
+    for index, cell in enumerate(slices):
+        values = pixels[cell].reshape(-1, 3)
+        out[index] = np.quantile(values, QUANTILES, axis=0).T
+    return out
+
+
+def fit_cell_affine(
+    query: np.ndarray, reference: np.ndarray, grid: int, max_gain: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fit ``query ~ gain * reference + offset`` per cell and channel.
+
+    The larger image is first resized (area averaging) to the smaller one's size, so both
+    quantile sets describe the same level of detail.
+
+    Parameters
+    ----------
+    query, reference : numpy.ndarray
+        Validated H x W x 3 images with the same aspect ratio.
+    grid : int
+        Cells per side.
+    max_gain : float
+        Gains are clipped to ``[1 / max_gain, max_gain]`` (>= 1).
+
+    Returns
+    -------
+    gain, offset : numpy.ndarray
+        (G*G, 3) float64 each; the offset is in 8-bit units.
+    """
+    if not max_gain >= 1.0:
+        raise PhotometricError(f"max_gain must be at least 1, got {max_gain!r}")
+    query, reference = _same_size(query, reference)
+    q = cell_quantiles(query, grid)
+    r = cell_quantiles(reference, grid)
+    i, j = np.triu_indices(QUANTILES.size, k=1)
+    dq, dr = q[..., j] - q[..., i], r[..., j] - r[..., i]
+    # Pairs with a flat reference carry no slope; they are left out of the median.
+    valid = dr > 0.25
+    slopes = np.where(valid, dq / np.where(valid, dr, 1.0), np.nan)
+    spread = r[..., -1] - r[..., 0]
+    has_slope = (spread >= _MIN_SPREAD) & valid.any(axis=-1)
+    with np.errstate(all="ignore"):
+        median_slope = np.nanmedian(np.where(has_slope[..., None], slopes, 1.0), axis=-1)
+    gain = np.clip(np.where(has_slope, median_slope, 1.0), 1.0 / max_gain, max_gain)
+    offset = np.median(q - gain[..., None] * r, axis=-1)
+    return gain, offset
+
+
+def align_statistics(stats: CellStatistics, gain: np.ndarray, offset: np.ndarray) -> CellStatistics:
+    """The statistics of ``gain * x + offset`` (per channel) for cell statistics of ``x``."""
+    mean = gain * stats.mean + offset
+    cov = stats.cov * gain[:, :, None] * gain[:, None, :]
+    return CellStatistics(mean=mean, cov=cov, count=stats.count)
+
+
+def _same_size(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    hq, wq = query.shape[:2]
+    hr, wr = reference.shape[:2]
+    if hq * wq > hr * wr:
+        return cv2.resize(query, (wr, hr), interpolation=cv2.INTER_AREA), reference
+    if hr * wr > hq * wq:
+        return query, cv2.resize(reference, (wq, hq), interpolation=cv2.INTER_AREA)
+    return query, reference
