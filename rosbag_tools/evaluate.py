@@ -25,6 +25,7 @@ import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import METHODS, MradParams
+from allo_mrad_ros.localisation import ObjectOverlap, object_overlap, summarise
 from allo_mrad_ros.metrics import (
     POSITIVE_CLASS,
     AlloMetrics,
@@ -126,6 +127,7 @@ class MethodOutcome:
     area: float
     anomalous: bool
     timings_ms: dict[str, float]
+    overlap: ObjectOverlap | None = None
 
 
 @dataclass
@@ -222,6 +224,7 @@ def _evaluate_frame(job: tuple[EvalFrame, bool]) -> FrameOutcome:
                 area=float(result.area),
                 anomalous=bool(result.anomalous),
                 timings_ms=dict(result.timings_ms),
+                overlap=object_overlap(result.mask, frame.mask) if frame.is_anomalous else None,
             )
             for name, result in processed.results.items()
         }
@@ -376,6 +379,7 @@ def evaluate(
     tallies: dict[str, dict[str, Tally]] = {m: defaultdict(Tally) for m in config.methods}
     samples: dict[str, list[float]] = defaultdict(list)
     overlays: list[FrameOutcome] = []
+    overlaps: dict[tuple[str, str], list[ObjectOverlap]] = defaultdict(list)
     frames_by_group: dict[str, int] = defaultdict(int)
     chosen: dict[str, int] = defaultdict(int)
     clock = RunClock()
@@ -395,6 +399,8 @@ def evaluate(
             frames_by_group[outcome.group] += 1
             for name, method in outcome.methods.items():
                 tallies[name][outcome.group].add(method, outcome.truth_anomalous)
+                if method.overlap is not None:
+                    overlaps[outcome.group, name].append(method.overlap)
                 for stage, value in method.timings_ms.items():
                     samples[f"{name}/{stage}"].append(value)
             for stage, value in outcome.timings_ms.items():
@@ -425,6 +431,7 @@ def evaluate(
                 .as_dict()
                 for name in config.methods
             },
+            "localisation": {name: summarise(overlaps[anomaly, name]) for name in config.methods},
         }
     return EvaluationResult(
         input=str(source.path),
