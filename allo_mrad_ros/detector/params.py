@@ -108,9 +108,9 @@ class MradParams:
     process_scale: float = 0.5
     pixel_score: PixelScore = "continuous"
     score_sigma: float = 1.0
-    growth: Growth = "tolerance"
-    seed_score: float = 50.0
-    photometric: Photometric = "none"
+    growth: Growth = "hysteresis"
+    seed_score: float = 30.0
+    photometric: Photometric = "cell_affine"
     max_gain: float = 2.0
     bit_depth: int = 16
 

@@ -17,11 +17,11 @@ import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
-from allo_mrad_ros.detector.statistics import CellStatistics
 
 QUANTILES = np.linspace(0.1, 0.9, 9)
-# Below this spread (8-bit units) a cell's quantiles carry no slope: the gain stays 1 and
-# only the offset is fitted (a flat cell's covariance is the regularisation floor anyway).
+SATURATED = 250.0
+# Below this spread (8-bit units) a cell's quantiles carry no slope: such a cell takes the
+# frame's median gain of the cells that have one (an exposure change is mostly global), or 1.
 _MIN_SPREAD = 4.0
 
 
@@ -82,16 +82,35 @@ def fit_cell_affine(
     has_slope = (spread >= _MIN_SPREAD) & valid.any(axis=-1)
     with np.errstate(all="ignore"):
         median_slope = np.nanmedian(np.where(has_slope[..., None], slopes, 1.0), axis=-1)
-    gain = np.clip(np.where(has_slope, median_slope, 1.0), 1.0 / max_gain, max_gain)
+    gain = np.clip(median_slope, 1.0 / max_gain, max_gain)
+    frame_gain = np.ones(3)
+    for channel in range(3):
+        if has_slope[:, channel].any():
+            frame_gain[channel] = np.median(gain[has_slope[:, channel], channel])
+    gain = np.where(has_slope, gain, frame_gain[None, :])
     offset = np.median(q - gain[..., None] * r, axis=-1)
     return gain, offset
 
 
-def align_statistics(stats: CellStatistics, gain: np.ndarray, offset: np.ndarray) -> CellStatistics:
-    """The statistics of ``gain * x + offset`` (per channel) for cell statistics of ``x``."""
-    mean = gain * stats.mean + offset
-    cov = stats.cov * gain[:, :, None] * gain[:, None, :]
-    return CellStatistics(mean=mean, cov=cov, count=stats.count)
+def saturation_variance(reference: np.ndarray, grid: int, max_gain: float) -> np.ndarray:
+    """Extra reference variance per cell and channel for clipped (saturated) pixels.
+
+    A saturated render pixel only says "at least white": under a camera's gain down to
+    ``1 / max_gain`` and its vignetting the same surface may show anywhere from white down to
+    ``255 / max_gain``. Each channel's variance gains ``fraction_saturated * (range / 2)^2``
+    with ``range = 255 * (1 - 1 / max_gain)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (G*G, 3) float64 variances in 8-bit units squared.
+    """
+    pixels = to_float32(reference)
+    saturated = (pixels >= SATURATED).astype(np.float32)
+    slices = cell_slices(pixels.shape[0], pixels.shape[1], grid)
+    fraction = np.array([saturated[cell].reshape(-1, 3).mean(axis=0) for cell in slices])
+    half_range = 0.5 * 255.0 * (1.0 - 1.0 / max_gain)
+    return fraction.astype(np.float64) * half_range**2
 
 
 def _same_size(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

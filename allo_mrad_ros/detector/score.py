@@ -14,7 +14,7 @@ import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
-from allo_mrad_ros.detector.photometric import align_statistics, fit_cell_affine
+from allo_mrad_ros.detector.photometric import fit_cell_affine, saturation_variance
 from allo_mrad_ros.detector.statistics import cell_statistics, regularised_precision
 
 
@@ -49,22 +49,43 @@ def cross_score(
         H x W float32 raw score of the query, finite.
     """
     ref_stats = cell_statistics(reference, grid)
-    if photometric == "cell_affine":
-        gain, offset = fit_cell_affine(query, reference, grid, max_gain)
-        ref_stats = align_statistics(ref_stats, gain, offset)
-    elif photometric != "none":
-        raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
     query_stats = cell_statistics(query, grid)
-    ref_precision = regularised_precision(ref_stats.cov, abs_floor, rel_floor)
-    query_precision = regularised_precision(query_stats.cov, abs_floor, rel_floor)
+    if photometric == "none":
+        ref_precision = regularised_precision(ref_stats.cov, abs_floor, rel_floor)
+        query_precision = regularised_precision(query_stats.cov, abs_floor, rel_floor)
+        ref_mean = ref_stats.mean
+    elif photometric == "cell_affine":
+        # Score in the reference's photometric units (x_ref = (x - offset) / gain), so the
+        # regularisation floors mean the same whatever the query's exposure: a darker
+        # query does not hide its anomalies under a floor sized for the render.
+        gain, offset = fit_cell_affine(query, reference, grid, max_gain)
+        ref_mean = gain * ref_stats.mean + offset
+        inverse = 1.0 / gain
+        in_ref_units = query_stats.cov * inverse[:, :, None] * inverse[:, None, :]
+        ref_cov = ref_stats.cov.copy()
+        diagonal = np.arange(3)
+        ref_cov[:, diagonal, diagonal] += saturation_variance(reference, grid, max_gain)
+        ref_precision = _to_query_units(
+            regularised_precision(ref_cov, abs_floor, rel_floor), inverse
+        )
+        query_precision = _to_query_units(
+            regularised_precision(in_ref_units, abs_floor, rel_floor), inverse
+        )
+    else:
+        raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
     return _evaluate(
         to_float32(query),
         grid,
-        ref_stats.mean,
+        ref_mean,
         ref_precision,
         query_stats.mean,
         query_precision,
     )
+
+
+def _to_query_units(precision: np.ndarray, inverse_gain: np.ndarray) -> np.ndarray:
+    # A precision P on x_ref = (x - o) / g is D^-1 P D^-1 on x, D = diag(g).
+    return precision * inverse_gain[:, :, None] * inverse_gain[:, None, :]
 
 
 def rx_score(image: np.ndarray, abs_floor: float, rel_floor: float) -> np.ndarray:
