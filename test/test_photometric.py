@@ -80,7 +80,7 @@ def test_cell_affine_gain_is_clipped_and_flat_cells_take_the_frame_gain():
     reference[:, :20] = np.linspace(20, 80, 40)[:, None, None]  # left cells have a spread
     reference[:, 20:] = 60  # right cells are flat
     query = np.clip(reference.astype(np.float64) * 3.0, 0, 255).astype(np.uint8)
-    gain, offset = fit_cell_affine(query, reference, 2, 2.0)
+    gain, _ = fit_cell_affine(query, reference, 2, 2.0)
     np.testing.assert_allclose(gain, 2.0)  # 3x clipped to max_gain
     with pytest.raises(PhotometricError, match="max_gain must be at least 1"):
         fit_cell_affine(query, reference, 2, 0.5)

@@ -64,8 +64,9 @@ def vignette(image: np.ndarray, corner: float = 0.5) -> np.ndarray:
     """Radial fall-off ``1 - (1 - corner) * (r / r_corner)^2``: ``corner`` at the corners."""
     x = _check(image)
     h, w = x.shape[:2]
+    cy, cx = (h - 1) / 2, (w - 1) / 2
     yy, xx = np.mgrid[0:h, 0:w]
-    r2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / (((h - 1) / 2) ** 2 + ((w - 1) / 2) ** 2)
+    r2 = ((yy - cy) ** 2 + (xx - cx) ** 2) / (cy**2 + cx**2)
     return _to_uint8(x * (1.0 - (1.0 - corner) * r2)[..., None])
 
 

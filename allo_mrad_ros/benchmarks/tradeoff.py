@@ -63,68 +63,120 @@ class RenderKey:
 
 @dataclass(frozen=True)
 class Setting:
-    """One point of the sweep: how the reference is rendered and how MRAD runs."""
+    """One point of the sweep: how the reference is rendered and how MRAD runs.
+
+    ``binary`` ranks pixels by the method's 0/255 mask instead of its score map (how the
+    paper evaluated its thresholded PAD and RXD maps).
+    """
 
     name: str
     render: RenderKey = RenderKey()
     params: MradParams = field(default_factory=MradParams)
     method: str = "MRAD"
+    binary: bool = False
 
     @property
     def conforms(self) -> bool:
         """Whether the outputs follow mrad.md (only those may become the default)."""
-        return self.params.pixel_score == "regions"
+        return self.params.pixel_score in ("continuous", "regions") and not self.binary
+
+
+# Parameters that change the pixel score map (and so P.AP); the others shape only the mask.
+MAP_KNOBS = (
+    "grid",
+    "photometric",
+    "max_gain",
+    "score_sigma",
+    "process_scale",
+    "score_scaling",
+    "score_ref",
+    "abs_floor",
+    "rel_floor",
+    "pixel_score",
+)
+
+# The shipped defaults before issue 11 (README "Speed against error", first rerun).
+PREVIOUS_DEFAULT = MradParams(
+    grid=6,
+    noise_removal="cell_spread",
+    process_scale=0.5,
+    pixel_score="regions",
+    photometric="none",
+    growth="tolerance",
+    score_sigma=0.0,
+)
 
 
 def sweep_settings(base: MradParams) -> list[Setting]:
-    """The swept settings: each knob alone around ``base``, then the speed knobs combined
-    with each accuracy knob (grid 6, cell_spread), so fast and accurate can meet."""
-    full, eighth = RenderKey(), RenderKey(0.125)
-    eighth_flat = RenderKey(0.125, False)
-    half = base.replace(process_scale=0.5)
+    """The swept settings around ``base`` (the default profile).
+
+    Map knobs (grid, photometric model, smoothing, query scale, reference scale) decide P.AP;
+    mask knobs (growth rule, thresholds, blur, noise rule) decide only the mask and the
+    image score, so they are swept at the base's map settings and chosen by I.AUROC.
+    """
+    eighth, eighth_flat = RenderKey(0.125), RenderKey(0.125, False)
     settings = [
-        Setting("baseline", full, base),
-        Setting("ref scale 1", RenderKey(1.0), base),
-        Setting("ref scale 1/2", RenderKey(0.5), base),
-        Setting("ref scale 1/8", eighth, base),
-        Setting("query scale 1/2", full, half),
-        Setting("query scale 1/4", full, base.replace(process_scale=0.25)),
-        Setting("no shadows", RenderKey(0.25, False), base),
-        Setting("bodies always", RenderKey(0.25, True, False), base),
-        Setting("grid 6", full, base.replace(grid=6)),
-        Setting("cell_spread", full, base.replace(noise_removal="cell_spread")),
-        Setting("per_image scaling", full, base.replace(score_scaling="per_image")),
-        Setting("ref 1/8, no shadows", eighth_flat, base),
-        Setting("ref 1/8, query 1/2, no shadows", eighth_flat, half),
+        Setting("previous default (sparse map)", eighth, PREVIOUS_DEFAULT),
+        Setting(
+            "previous default, continuous map",
+            eighth,
+            PREVIOUS_DEFAULT.replace(pixel_score="continuous"),
+        ),
         Setting("paper-faithful", RenderKey(1.0), profile("paper")),
     ]
-    for label, accurate in (
-        ("grid 6", base.replace(grid=6)),
-        ("grid 6, cell_spread", base.replace(grid=6, noise_removal="cell_spread")),
-    ):
-        fast = accurate.replace(process_scale=0.5)
-        fastest = accurate.replace(process_scale=0.25)
-        if label != "grid 6":
-            settings.append(Setting(label, full, accurate))
-        settings += [
-            Setting(f"{label}, ref 1/8", eighth, accurate),
-            Setting(f"{label}, query 1/2", full, fast),
-            Setting(f"{label}, ref 1/8, query 1/2", eighth, fast),
-            Setting(f"{label}, ref 1/8, query 1/2, no shadows", eighth_flat, fast),
-            Setting(f"{label}, ref 1/8, query 1/4", eighth, fastest),
-            Setting(f"{label}, ref 1/8, query 1/4, no shadows", eighth_flat, fastest),
-        ]
-    # Not mrad.md's output (score kept outside the regions): shown, never chosen.
-    blurred = base.replace(grid=6, pixel_score="blurred")
+    for photometric in ("none", "cell_affine"):
+        for grid in (1, 3, 4, 6, 8):
+            settings.append(
+                Setting(
+                    f"grid {grid}, {photometric}",
+                    eighth,
+                    base.replace(grid=grid, photometric=photometric),
+                )
+            )
+    affine = base.replace(photometric="cell_affine")
     settings += [
-        Setting("grid 6, pixel score blurred (not mrad.md)", full, blurred),
+        Setting("cell_affine, score_sigma 0", eighth, affine.replace(score_sigma=0.0)),
+        Setting("cell_affine, score_sigma 2", eighth, affine.replace(score_sigma=2.0)),
+        Setting("cell_affine, query 1", eighth, affine.replace(process_scale=1.0)),
+        Setting("cell_affine, query 1/4", eighth, affine.replace(process_scale=0.25)),
+        Setting("cell_affine, ref 1/4", RenderKey(0.25), affine),
+        Setting("cell_affine, ref 1/8 no shadows", eighth_flat, affine),
         Setting(
-            "grid 6, pixel score blurred, ref 1/8, query 1/2 (not mrad.md)",
+            "cell_affine, mask: tolerance growth",
             eighth,
-            blurred.replace(process_scale=0.5),
+            affine.replace(growth="tolerance", noise_removal="cell_spread"),
+        ),
+        Setting("cell_affine, mask: seed 50", eighth, affine.replace(seed_score=50.0)),
+        Setting(
+            "cell_affine, mask: min 15, seed 30",
+            eighth,
+            affine.replace(min_score=15.0, seed_score=30.0),
+        ),
+        Setting("cell_affine, mask: blur 2", eighth, affine.replace(blur_sigma=2.0)),
+        Setting(
+            "cell_affine, mask: no noise rule",
+            eighth,
+            affine.replace(noise_removal="none"),
         ),
     ]
-    return settings
+    unique = {}
+    for setting in settings:  # base may coincide with a grid row: keep the first name
+        key = (setting.render, setting.params, setting.method, setting.binary)
+        unique.setdefault(key, setting)
+    return list(unique.values())
+
+
+def choose_mask(rows: Sequence[dict], chosen: dict) -> dict:
+    """Among the candidate rows sharing ``chosen``'s map (same reference and map knobs, so
+    the same P.AP), the one with the best I.AUROC (``chosen`` on a tie)."""
+
+    def map_key(r: dict) -> tuple:
+        knobs = (r["params"][k] for k in MAP_KNOBS)
+        return (r["ref_scale"], r["shadows"], r["cull_bodies"], *knobs)
+
+    same_map = [r for r in _candidates(rows) if map_key(r) == map_key(chosen)]
+    best = max(r["i_auroc"] for r in same_map)
+    return chosen if chosen["i_auroc"] >= best else max(same_map, key=lambda r: r["i_auroc"])
 
 
 @dataclass
@@ -150,6 +202,7 @@ class Outcome:
             "cull_bodies": s.render.cull_bodies,
             "params": s.params.to_dict(),
             "conforms_to_mrad_md": s.conforms,
+            "binary": s.binary,
             "frames": len(self.latency_ms),
             "latency_ms_median": float(np.median(self.latency_ms)),
             "latency_ms_p95": float(np.percentile(self.latency_ms, 95)),
@@ -233,8 +286,9 @@ class Sweep:
                 outcome.render_ms.append(render_ms[s.render])
                 outcome.detect_ms.append(detect)
                 outcome.latency_ms.append(render_ms[s.render] + detect)
-                outcome.metrics.update(result.score, result.area, truth)
-                outcome.counts.append(frame_counts(result.score, truth))
+                score = result.mask.astype(np.float32) if s.binary else result.score
+                outcome.metrics.update(score, result.area, truth)
+                outcome.counts.append(frame_counts(score, truth))
         return outcomes
 
     def close(self) -> None:
@@ -320,16 +374,18 @@ def format_table(rows: Sequence[dict], default: str | None = None) -> str:
     """The printed table (metrics in percent)."""
     lines = [
         f"{'setting':<62}{'ms p50':>8}{'ms p95':>8}{'render':>8}{'detect':>8}"
-        f"{'P.AP':>7}{'I.AUROC':>9}{'P.FPR95':>9}{'P.AUROC':>9}"
+        f"{'P.AP':>7}{'AUPR':>7}{'I.AUROC':>9}{'FPR95':>7}{'interp':>7}{'P.AUROC':>9}"
     ]
     for r in rows:
         mark = " *" if r["setting"] == default else ""
-        name = r["setting"] if r["method"] == "MRAD" else f"{r['method']} ({r['setting']})"
+        method = r["method"] + (" binary" if r.get("binary") else "")
+        name = r["setting"] if r["method"] == "MRAD" else f"{method} ({r['setting']})"
         lines.append(
             f"{name + mark:<62}{r['latency_ms_median']:>8.1f}{r['latency_ms_p95']:>8.1f}"
             f"{r['render_ms_median']:>8.1f}{r['detect_ms_median']:>8.1f}"
-            f"{100 * r['p_ap']:>7.1f}{100 * r['i_auroc']:>9.1f}{100 * r['p_fpr95']:>9.1f}"
-            f"{100 * r['p_auroc']:>9.1f}"
+            f"{100 * r['p_ap']:>7.1f}{100 * r.get('p_aupr', math.nan):>7.1f}"
+            f"{100 * r['i_auroc']:>9.1f}{100 * r['p_fpr95']:>7.1f}"
+            f"{100 * r.get('p_fpr95_interp', math.nan):>7.1f}{100 * r['p_auroc']:>9.1f}"
         )
     return "\n".join(lines)
 
@@ -416,6 +472,21 @@ def _gap_with_interval(outcomes: Sequence[Outcome], setting: str, reference: str
     return {"points": points, "interval_95": [float(low), float(high)]}
 
 
+def _gap_to_baseline(outcomes: Sequence[Outcome], setting: str, method: str) -> dict:
+    """P.AP points by which MRAD's ``setting`` leads ``method`` (continuous map) on the same
+    references, with a paired bootstrap 95 % interval over frames."""
+    ours = next(o for o in outcomes if o.setting.name == setting and o.setting.method == "MRAD")
+    theirs = next(
+        o
+        for o in outcomes
+        if o.setting.name == setting and o.setting.method == method and not o.setting.binary
+    )
+    points = 100.0 * (ours.metrics.compute().p_ap - theirs.metrics.compute().p_ap)
+    draws = 100.0 * bootstrap_ap_difference(np.stack(theirs.counts), np.stack(ours.counts))
+    low, high = np.percentile(draws, [2.5, 97.5]) if draws.size else (math.nan, math.nan)
+    return {"points": points, "interval_95": [float(low), float(high)]}
+
+
 def _describe_gap(points: float, interval_95: Sequence[float], reference: str) -> str:
     low, high = interval_95
     return (
@@ -484,7 +555,7 @@ def main(argv: list[str] | None = None) -> int:
     sequence = read_sequence(args.sequence)
     validation = read_sequence(args.validation) if args.validation else sequence
     val, test = _split(validation, "val", args.limit), _split(sequence, "test", args.limit)
-    settings = sweep_settings(profile("baseline"))
+    settings = sweep_settings(profile("default"))
     sweep = Sweep(sequence)
     val_sweep = Sweep(validation) if args.validation else sweep
     try:
@@ -492,7 +563,8 @@ def main(argv: list[str] | None = None) -> int:
         if val_sweep is not sweep:  # its GL contexts are not needed for the test split
             val_sweep.close()
         val_rows = [o.row() for o in val_outcomes]
-        default = choose_default(val_rows, args.ap_margin)
+        map_choice = choose_default(val_rows, args.ap_margin)
+        default = choose_mask(val_rows, map_choice)
         chosen = next(s for s in settings if s.name == default["setting"])
         val_best = _most_accurate(val_rows)
         val_gap = _gap_with_interval(val_outcomes, default["setting"], val_best["setting"])
@@ -502,19 +574,30 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(format_table(val_rows, default["setting"]))
         print(
-            f"* chosen default (fastest Pareto setting within {args.ap_margin:g} P.AP points of "
-            f"the best on validation): {default['setting']}; "
+            f"map (fastest Pareto setting within {args.ap_margin:g} P.AP points of the best on "
+            f"validation): {map_choice['setting']}; mask (best I.AUROC on that map): "
+            f"{default['setting']}"
+        )
+        print(
+            f"* chosen default: {default['setting']}; "
             f"{_describe_gap(val_gap['points'], val_gap['interval_95'], val_best['setting'])}\n"
         )
         del val_outcomes
 
-        baselines = [Setting(chosen.name, chosen.render, chosen.params, m) for m in ("PAD", "RXD")]
+        baselines = [
+            Setting(chosen.name, chosen.render, chosen.params, m, binary)
+            for m in ("PAD", "RXD")
+            for binary in (False, True)
+        ]
         test_outcomes = sweep.run(test, [*settings, *baselines], label="test")
         test_rows = [o.row() for o in test_outcomes]
         mrad_test = [r for r in test_rows if r["method"] == "MRAD"]
         best = _most_accurate(mrad_test)
         on_test = next(r for r in mrad_test if r["setting"] == default["setting"])
         test_gap = _gap_with_interval(test_outcomes, default["setting"], best["setting"])
+        leads = {
+            m: _gap_to_baseline(test_outcomes, default["setting"], m) for m in ("PAD", "RXD")
+        }
         del test_outcomes
         print(f"test split: {len(test)} frames ({sum(f.is_anomalous for f in test)} anomalous)")
         print(format_table(test_rows, default["setting"]))
@@ -527,6 +610,13 @@ def main(argv: list[str] | None = None) -> int:
             "speedup_vs_best": best["latency_ms_median"] / on_test["latency_ms_median"],
         }
         print(_describe_default_on_test(test_summary))
+        for method, lead in leads.items():
+            test_summary[f"ap_lead_over_{method.lower()}"] = lead
+            low, high = lead["interval_95"]
+            print(
+                f"default leads {method} (continuous map) by {lead['points']:.1f} P.AP points "
+                f"(95 % paired-bootstrap interval {low:.1f} to {high:.1f})"
+            )
         print(describe_speedup_tier(mrad_test, args.speedup) + "\n")
 
         levels = [
