@@ -619,15 +619,9 @@ def main(argv: list[str] | None = None) -> int:
             )
         print(describe_speedup_tier(mrad_test, args.speedup) + "\n")
 
-        levels = [
-            (0.0, 0.0),
-            (0.5, 0.0),
-            (1.0, 0.0),
-            (2.0, 0.0),
-            (0.0, 0.02),
-            (0.0, 0.05),
-            (0.0, 0.10),
-        ]
+        # Fewer levels than the first runs (0.5 deg, 2 and 5 cm dropped): they moved P.AP by
+        # under a point, and the machine is shared.
+        levels = [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (0.0, 0.10)]
         robustness = []
         for rotation, translation in levels:
             outcome = sweep.run(

@@ -10,6 +10,11 @@ Structure (one place per concern):
   up the pose at the image stamp, runs :class:`~allo_mrad_ros.processing.FrameProcessor`
   and publishes with the input image's header;
 * a timer publishes ``/diagnostics``.
+
+Outputs: ``~/score`` (32FC1, 0..255) is the continuous pixel ranking map, the cross score
+softly saturated (``mrad.pixel_score: continuous``; ``regions`` gives the paper's sparse map,
+zero outside the grown regions); ``~/mask`` (mono8 0/255) is the union of the grown regions
+and ``~/anomaly`` the image decision on its area.
 """
 
 from __future__ import annotations
@@ -205,6 +210,7 @@ class MradDetectorNode(Node):
         self.create_subscription(Vector3Stamped, SUN_DIRECTION_TOPIC, self._on_sun, state)
         self.create_subscription(Float32, SUN_STRENGTH_TOPIC, self._on_sun_strength, state)
         self.create_subscription(MarkerArray, BODIES_TOPIC, self._on_bodies, state)
+        # Continuous ranking map (mrad.pixel_score); the mask comes from the grown regions.
         self._pub_score = self.create_publisher(Image, "~/score", 5)
         self._pub_mask = self.create_publisher(Image, "~/mask", 5)
         self._pub_anomaly = self.create_publisher(Bool, "~/anomaly", 10)
