@@ -95,3 +95,39 @@ def test_cross_score_with_cell_affine_is_unchanged_by_a_common_gain():
     clean = detect(reference, reference, params).raw_score
     darker = detect(exposure(reference, 0.7), reference, params).raw_score
     assert np.abs(darker - clean).max() < 10.0 and np.abs(clean).max() < 1.0
+
+
+def test_cell_affine_score_matches_a_float64_oracle_in_reference_units():
+    # Per pixel: x_ref = (x - offset) / gain per cell and channel; both Mahalanobis terms in
+    # the reference's units, floors there, saturated reference channels widened.
+    from mrad_oracle import edges, regularised_cov
+
+    from allo_mrad_ros.detector.photometric import saturation_variance
+    from allo_mrad_ros.detector.score import cross_score
+
+    rng = np.random.default_rng(5)
+    reference = np.clip(rng.normal(140, 40, (48, 72, 3)), 0, 255).astype(np.uint8)
+    reference[:12, :20] = 255  # a saturated corner
+    query = np.clip(reference * np.array([1.3, 1.1, 0.8]) + 7, 0, 255).astype(np.uint8)
+    query[30:36, 40:50] = (20, 200, 20)
+    grid, abs_floor, rel_floor, max_gain = 3, 16.0, 1e-3, 2.0
+    fast = cross_score(query, reference, grid, abs_floor, rel_floor, "cell_affine", max_gain)
+    gain, offset = fit_cell_affine(query, reference, grid, max_gain)
+    extra = saturation_variance(reference, grid, max_gain)
+    rows, cols = edges(48, grid), edges(72, grid)
+    expected = np.empty((48, 72))
+    for i in range(grid):
+        for j in range(grid):
+            k = i * grid + j
+            cell = (slice(rows[i], rows[i + 1]), slice(cols[j], cols[j + 1]))
+            ref_pixels = reference[cell].reshape(-1, 3).astype(np.float64)
+            x = (query[cell].reshape(-1, 3).astype(np.float64) - offset[k]) / gain[k]
+            s0 = regularised_cov(ref_pixels, abs_floor, rel_floor) + np.diag(extra[k])
+            s1 = regularised_cov(x, abs_floor, rel_floor)
+            d0, d1 = x - ref_pixels.mean(axis=0), x - x.mean(axis=0)
+            t0 = np.einsum("ni,ij,nj->n", d0, np.linalg.inv(s0), d0)
+            t1 = np.einsum("ni,ij,nj->n", d1, np.linalg.inv(s1), d1)
+            expected[cell] = (t0 - t1).reshape(query[cell].shape[:2])
+    # The saturation widening is added before the relative floor in the library, after it
+    # in this oracle: equal when the absolute floor dominates, as here (rel_floor 1e-3).
+    np.testing.assert_allclose(fast, expected, atol=1e-3 * np.abs(expected).max() + 1e-2)
