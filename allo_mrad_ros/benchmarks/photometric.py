@@ -21,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from allo_mrad_ros.benchmarks.perturbations import PERTURBATIONS
-from allo_mrad_ros.benchmarks.tradeoff import RenderKey, Sweep, _split
+from allo_mrad_ros.benchmarks.tradeoff import PREVIOUS_DEFAULT, RenderKey, Sweep, _split
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.processing import earth_and_moon, with_sun
@@ -32,16 +32,19 @@ def variants() -> dict[str, tuple[str, MradParams]]:
     """The compared detectors: name -> (method, parameters)."""
     base = profile("default")
     return {
-        "MRAD, no photometric model": ("MRAD", base.replace(photometric="none")),
-        "MRAD, covariance floor 10 % (rel_floor 0.1)": (
+        "previous default (no photometric model, tolerance growth)": (
+            "MRAD",
+            PREVIOUS_DEFAULT.replace(pixel_score="continuous"),
+        ),
+        "covariance floor 10 % of the variance (rel_floor 0.1)": (
             "MRAD",
             base.replace(photometric="none", rel_floor=0.1),
         ),
-        "MRAD, cell_affine": ("MRAD", base.replace(photometric="cell_affine")),
-        "MRAD, cell_affine + hysteresis": (
+        "cell_affine, tolerance growth": (
             "MRAD",
-            base.replace(photometric="cell_affine", growth="hysteresis"),
+            base.replace(growth="tolerance", noise_removal="cell_spread"),
         ),
+        "cell_affine, hysteresis (default)": ("MRAD", base),
         "PAD": ("PAD", base),
     }
 

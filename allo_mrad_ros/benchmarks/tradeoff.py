@@ -152,6 +152,11 @@ def sweep_settings(base: MradParams) -> list[Setting]:
             eighth,
             affine.replace(min_score=15.0, seed_score=30.0),
         ),
+        Setting(
+            "cell_affine, mask: min 40, seed 80",
+            eighth,
+            affine.replace(min_score=40.0, seed_score=80.0),
+        ),
         Setting("cell_affine, mask: blur 2", eighth, affine.replace(blur_sigma=2.0)),
         Setting(
             "cell_affine, mask: no noise rule",
