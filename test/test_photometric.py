@@ -131,3 +131,21 @@ def test_cell_affine_score_matches_a_float64_oracle_in_reference_units():
     # The saturation widening is added before the relative floor in the library, after it
     # in this oracle: equal when the absolute floor dominates, as here (rel_floor 1e-3).
     np.testing.assert_allclose(fast, expected, atol=1e-3 * np.abs(expected).max() + 1e-2)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_cell_quantiles_equal_numpy_quantile(dtype):
+    from mrad_oracle import cell_pixels, to_255
+
+    from allo_mrad_ros.detector.photometric import QUANTILES, cell_quantiles
+
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (23, 31, 3)).astype(np.uint8)
+    if dtype == np.float32:
+        image = image.astype(np.float32) / 255
+    ours = cell_quantiles(image, 3)
+    for i in range(3):
+        for j in range(3):
+            pixels = cell_pixels(to_255(image), i, j, 3)
+            expected = np.quantile(pixels, QUANTILES, axis=0).T
+            np.testing.assert_allclose(ours[i * 3 + j], expected, atol=1e-4)
