@@ -7,19 +7,25 @@ quantile-quantile plot: the query's and the reference's per-channel quantiles (1
 are paired and a Theil-Sen line (median of pairwise slopes) is fitted through them. Quantiles
 ignore where pixels are, so the fit needs no pixel alignment (the reference may be rendered
 at another resolution or pose), and the median slope ignores the few quantiles an anomaly
-moves: an object covering less than about a quarter of a cell does not bend the fit.
+moves: an object covering less than about a quarter of a cell does not bend the fit. A
+larger object can steepen a cell's slope, so each cell takes the median gain of its 3 x 3
+neighbourhood of cells (the photometric difference is smooth across the frame, objects are
+local) and fits its offset under that gain.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy.ndimage import median_filter
 
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
 from allo_mrad_ros.detector.images import to_float32
 
 QUANTILES = np.linspace(0.1, 0.9, 9)
 SATURATED = 250.0
+# A cell and its four edge neighbours (one channel at a time).
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)[:, :, None]
 # Below this spread (8-bit units) a cell's quantiles carry no slope: such a cell takes the
 # frame's median gain of the cells that have one (an exposure change is mostly global), or 1.
 _MIN_SPREAD = 4.0
@@ -118,7 +124,18 @@ def fit_cell_affine(
             frame_gain[channel] = np.median(gain[has_slope[:, channel], channel])
     gain = np.where(has_slope, gain, frame_gain[None, :])
     offset = np.median(q - gain[..., None] * r, axis=-1)
-    return gain, offset
+    return _neighbourhood_median(gain, grid), _neighbourhood_median(offset, grid)
+
+
+def _neighbourhood_median(values: np.ndarray, grid: int) -> np.ndarray:
+    # A camera's gain varies smoothly across the frame; an object is local. The median
+    # over each cell's 3 x 3 neighbourhood of cells keeps the first and drops a cell whose
+    # slope an object bent; the offset is then refitted in the cell itself, so a gain that
+    # changes faster than the neighbourhood (vignetting in a corner) ends up in the offset.
+    if grid < 2:
+        return values
+    cells = values.reshape(grid, grid, -1)
+    return median_filter(cells, footprint=_CROSS, mode="nearest").reshape(values.shape)
 
 
 def saturation_variance(reference: np.ndarray, grid: int, max_gain: float) -> np.ndarray:
