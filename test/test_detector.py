@@ -12,7 +12,6 @@ STAGES = [
     "scale_threshold",
     "noise_removal",
     "blur",
-    "seeds",
     "region_growing",
     "pixel_score",
     "decision",
@@ -140,8 +139,10 @@ def test_lower_resolution_reference_still_finds_the_object(size):
     truth = pair.object_mask > 0
     found = result.mask > 0
     assert result.anomalous
-    assert np.count_nonzero(found & truth) >= 0.9 * np.count_nonzero(found)  # on the object
-    assert np.count_nonzero(found & truth) >= 0.3 * np.count_nonzero(truth)  # much of it
+    # Hysteresis keeps the whole object and the blur's rim around it (about a quarter of
+    # the mask here); the paper's tolerance growth kept a third less of the object.
+    assert np.count_nonzero(found & truth) >= 0.7 * np.count_nonzero(found)  # on the object
+    assert np.count_nonzero(found & truth) >= 0.9 * np.count_nonzero(truth)  # all of it
     assert not detect(pair.clean_query, reference).anomalous
 
 

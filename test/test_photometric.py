@@ -122,8 +122,8 @@ def test_cell_affine_score_matches_a_float64_oracle_in_reference_units():
             cell = (slice(rows[i], rows[i + 1]), slice(cols[j], cols[j + 1]))
             ref_pixels = reference[cell].reshape(-1, 3).astype(np.float64)
             x = (query[cell].reshape(-1, 3).astype(np.float64) - offset[k]) / gain[k]
-            s0 = regularised_cov(ref_pixels, abs_floor, rel_floor) + np.diag(extra[k])
-            s1 = regularised_cov(x, abs_floor, rel_floor)
+            s0 = regularised_cov(ref_pixels, abs_floor, rel_floor) + extra[k]
+            s1 = regularised_cov(x, abs_floor, rel_floor) + extra[k]
             d0, d1 = x - ref_pixels.mean(axis=0), x - x.mean(axis=0)
             t0 = np.einsum("ni,ij,nj->n", d0, np.linalg.inv(s0), d0)
             t1 = np.einsum("ni,ij,nj->n", d1, np.linalg.inv(s1), d1)

@@ -139,24 +139,33 @@ def _neighbourhood_median(values: np.ndarray, grid: int) -> np.ndarray:
 
 
 def saturation_variance(reference: np.ndarray, grid: int, max_gain: float) -> np.ndarray:
-    """Extra reference variance per cell and channel for clipped (saturated) pixels.
+    """Extra covariance per cell for clipped (saturated) reference pixels.
 
     A saturated render pixel only says "at least white": under a camera's gain down to
-    ``1 / max_gain`` and its vignetting the same surface may show anywhere from white down to
-    ``255 / max_gain``. Each channel's variance gains ``fraction_saturated * (range / 2)^2``
-    with ``range = 255 * (1 - 1 / max_gain)``.
+    ``1 / max_gain`` and its vignetting the same surface may show anywhere from its clipped
+    colour ``c`` down to ``c / max_gain``, so the uncertainty lies along ``c``, not across
+    colours. Each cell gains ``fraction * (range / 2)^2 * u u^T`` with ``u = c / 255`` the
+    mean colour of its saturated pixels (any channel >= 250), ``fraction`` their share and
+    ``range = 255 * (1 - 1 / max_gain)``.
 
     Returns
     -------
     numpy.ndarray
-        (G*G, 3) float64 variances in 8-bit units squared.
+        (G*G, 3, 3) float64 covariances in 8-bit units squared.
     """
     pixels = to_float32(reference)
-    saturated = (pixels >= SATURATED).astype(np.float32)
+    saturated = pixels.max(axis=2) >= SATURATED
     slices = cell_slices(pixels.shape[0], pixels.shape[1], grid)
-    fraction = np.array([saturated[cell].reshape(-1, 3).mean(axis=0) for cell in slices])
     half_range = 0.5 * 255.0 * (1.0 - 1.0 / max_gain)
-    return fraction.astype(np.float64) * half_range**2
+    out = np.zeros((len(slices), 3, 3))
+    for index, cell in enumerate(slices):
+        clipped = saturated[cell]
+        count = int(np.count_nonzero(clipped))
+        if count == 0:
+            continue
+        colour = pixels[cell][clipped].mean(axis=0).astype(np.float64) / 255.0
+        out[index] = (count / clipped.size) * half_range**2 * np.outer(colour, colour)
+    return out
 
 
 def _median_of_valid(values: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -62,14 +62,16 @@ def cross_score(
         ref_mean = gain * ref_stats.mean + offset
         inverse = 1.0 / gain
         in_ref_units = query_stats.cov * inverse[:, :, None] * inverse[:, None, :]
-        ref_cov = ref_stats.cov.copy()
-        diagonal = np.arange(3)
-        ref_cov[:, diagonal, diagonal] += saturation_variance(reference, grid, max_gain)
+        # Both models are widened where the reference is saturated, so identical images
+        # still cancel exactly.
+        widening = saturation_variance(reference, grid, max_gain)
         ref_precision = _to_query_units(
-            regularised_precision(ref_cov, abs_floor, rel_floor), inverse
+            regularised_precision(ref_stats.cov + widening, abs_floor, rel_floor),
+            inverse,
         )
         query_precision = _to_query_units(
-            regularised_precision(in_ref_units, abs_floor, rel_floor), inverse
+            regularised_precision(in_ref_units + widening, abs_floor, rel_floor),
+            inverse,
         )
     else:
         raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
