@@ -113,7 +113,7 @@ def test_image_smaller_than_grid_is_rejected():
         detect(image, image, MradParams(grid=4, process_scale=1.0))
     with pytest.raises(
         ValueError,
-        match=r"grid=6 is too fine for the 12x8 query processed at "
+        match=r"grid=8 is too fine for the 12x8 query processed at "
         r"process_scale=0.5 \(6x4\)",
     ):
         detect(np.zeros((8, 12, 3), np.uint8), np.zeros((8, 12, 3), np.uint8))
@@ -271,7 +271,8 @@ def test_blurred_pixel_score_keeps_the_mask_and_ranks_every_pixel(pair):
 
 @pytest.mark.parametrize("process_scale", [1.0, 0.5])
 def test_continuous_score_is_the_soft_saturated_raw_score_and_keeps_the_mask(pair, process_scale):
-    params = MradParams(process_scale=process_scale, score_sigma=0.0)
+    # The map from the same photometric model as the mask, so raw_score is its input.
+    params = MradParams(process_scale=process_scale, score_sigma=0.0, map_photometric="cell_affine")
     continuous = detect(pair.query, pair.reference, params)
     regions = detect(pair.query, pair.reference, params.replace(pixel_score="regions"))
     np.testing.assert_array_equal(continuous.mask, regions.mask)
@@ -313,3 +314,16 @@ def test_float_outside_unit_range_is_rejected(low, high):
     image = np.linspace(low, high, 8 * 8 * 3).reshape(8, 8, 3)
     with pytest.raises(ValueError, match=r"query is a float image with values in .* \[0, 1\]"):
         detect(image, np.zeros((8, 8, 3)))
+
+
+def test_ranking_map_and_mask_may_use_different_photometric_models(pair):
+    both = MradParams(process_scale=1.0, score_sigma=0.0, map_photometric="cell_affine")
+    split = both.replace(map_photometric="none")
+    plain = both.replace(photometric="none", map_photometric="none")
+    with_model, mixed, without = (
+        detect(pair.query, pair.reference, p) for p in (both, split, plain)
+    )
+    np.testing.assert_array_equal(mixed.mask, with_model.mask)  # the mask follows photometric
+    np.testing.assert_array_equal(mixed.raw_score, with_model.raw_score)
+    np.testing.assert_array_equal(mixed.score, without.score)  # the map, map_photometric
+    assert not np.array_equal(with_model.score, without.score)

@@ -82,16 +82,20 @@ class MradParams:
     seed_score : float
         Score a hysteresis region must reach, 0..255.
     photometric : {"none", "cell_affine"}
+        Photometric model of the score the mask and the decision come from:
         ``cell_affine`` fits each cell's reference colours to the query's by a robust
         per-channel gain and offset (quantiles) before scoring, so exposure, tone curve,
-        white balance and light fall-off are not anomalies.
+        white balance and light fall-off do not flag a normal frame.
+    map_photometric : {"none", "cell_affine"}
+        Photometric model of the score behind the ``continuous`` ranking map (chosen
+        separately: on the bench validation split the model cost ranking accuracy).
     max_gain : float
         Largest per-channel gain (and smallest, its inverse) ``cell_affine`` may apply, >= 1.
     bit_depth : int
         Significant bits of uint16 input (e.g. 12 for a 12-bit camera), 9..16.
     """
 
-    grid: int = 6
+    grid: int = 8
     tolerance: float = 50.0
     kernel_fraction: float = 0.20
     blur_sigma: float = 5.0
@@ -111,6 +115,7 @@ class MradParams:
     growth: Growth = "hysteresis"
     seed_score: float = 30.0
     photometric: Photometric = "cell_affine"
+    map_photometric: Photometric = "none"
     max_gain: float = 2.0
     bit_depth: int = 16
 
@@ -242,6 +247,11 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
         "none, or cell_affine: robust per-cell gain/offset fit of the reference to the query",
         choices=("none", "cell_affine"),
     ),
+    "map_photometric": ParameterSpec(
+        str,
+        "photometric model of the continuous ranking map: none or cell_affine",
+        choices=("none", "cell_affine"),
+    ),
     "max_gain": ParameterSpec(float, "largest per-channel gain of cell_affine", 1, 100),
     "bit_depth": ParameterSpec(int, "significant bits of uint16 input images", 9, 16),
 }
@@ -254,6 +264,7 @@ _PAPER_OPTIMUM = MradParams(
     noise_removal="local_std",
     process_scale=1.0,
     photometric="none",
+    map_photometric="none",
     growth="tolerance",
 )
 

@@ -164,7 +164,18 @@ def detect(
                 blurred, seeds, params.tolerance, params.min_score, params.connectivity
             )
     with timer.stage("pixel_score"):
-        score = _pixel_score(raw, blurred, mask, params)
+        ranked = raw
+        if params.pixel_score == "continuous" and params.map_photometric != params.photometric:
+            ranked = cross_score(
+                work,
+                reference,
+                params.grid,
+                params.abs_floor,
+                params.rel_floor,
+                params.map_photometric,
+                params.max_gain,
+            )
+        score = _pixel_score(ranked, blurred, mask, params)
     with timer.stage("decision"):
         score, mask = _restore_resolution(score, mask, full_shape, params.pixel_score)
         area, anomalous = decide(mask, params.area_threshold)
