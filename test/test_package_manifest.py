@@ -40,6 +40,7 @@ MODULE_PROVIDERS = {
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",
     "sklearn": "python3-sklearn",
+    "skimage": "python3-skimage",
     # Test-only oracles without a rosdep key: the pip world's requirements-dev.txt.
     "mcap": "mcap",
     "mcap_ros2": "mcap-ros2-support",

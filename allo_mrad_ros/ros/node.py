@@ -14,6 +14,11 @@ One place per concern:
 * :class:`.diagnostics.Diagnostics` counts and publishes ``/diagnostics``.
 
 Topic names come from :mod:`allo_mrad_ros.interface`.
+
+Outputs: ``~/score`` (32FC1, 0..255) is the continuous pixel ranking map, the cross score
+softly saturated (``mrad.pixel_score: continuous``; ``regions`` gives the paper's sparse map,
+zero outside the grown regions); ``~/mask`` (mono8 0/255) is the union of the grown regions
+and ``~/anomaly`` the image decision on its area.
 """
 
 from __future__ import annotations
