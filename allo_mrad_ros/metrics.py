@@ -93,7 +93,7 @@ def average_precision_from_curve(curve: Curve) -> float:
 
 def aupr_trapezoid_from_curve(curve: Curve) -> float:
     """Trapezoid area under the precision-recall curve (anomalib's AUPR)."""
-    return float(np.trapezoid(curve.precision, curve.tpr))
+    return trapezoid_area(curve.precision, curve.tpr)
 
 
 def fpr_at_tpr_interpolated_from_curve(curve: Curve, target_tpr: float = TARGET_TPR) -> float:
