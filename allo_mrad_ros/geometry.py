@@ -37,6 +37,20 @@ def finite_vector(
     return array
 
 
+def unit_vector(values: object, name: str, error: type[Exception] = PoseError) -> np.ndarray:
+    """``values`` (3 finite numbers, not all zero) scaled to unit length, else ``error``.
+
+    Divides by the largest component first, so huge (1e300) or tiny (1e-300) vectors keep
+    their direction instead of overflowing to infinity or underflowing to zero.
+    """
+    vector = finite_vector(values, 3, name, error)
+    largest = float(np.max(np.abs(vector)))
+    if largest == 0.0:
+        raise error(f"{name} must not be the zero vector")
+    scaled = vector / largest
+    return scaled / float(np.linalg.norm(scaled))
+
+
 def quaternion_to_matrix(quaternion_xyzw: object, normalise: bool = True) -> np.ndarray:
     """Return the 3x3 rotation matrix of an ``(x, y, z, w)`` quaternion.
 
