@@ -56,7 +56,7 @@ from .sequence import (
     validate_sequence,
 )
 from .sequence import Sequence as AlloSequence
-from .staging import staged_folder, terminate_like_interrupt
+from .staging import staged_folder, staging_path, terminate_like_interrupt
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
 """ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
@@ -304,7 +304,9 @@ def _run_import(args: argparse.Namespace) -> int:
                 import_allo(args.split_dir, staging, args.split, overwrite=True, **options)
             sequence = read_sequence(args.out)
     except AlloError as error:
-        print(f"import-allo: error: {error}", file=sys.stderr)
+        # Name the folder asked for, not the hidden one it was built in.
+        message = str(error).replace(str(staging_path(args.out)), str(args.out))
+        print(f"import-allo: error: {message}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("import-allo: interrupted; nothing written", file=sys.stderr)

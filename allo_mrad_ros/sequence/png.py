@@ -95,7 +95,15 @@ def _decode(path: Path, flags: int) -> np.ndarray:
         raise SequenceError("file not found", file=path) from None
     except OSError as error:
         raise SequenceError(f"cannot read file: {error.strerror}", file=path) from None
-    image = cv2.imdecode(data, flags) if data.size else None
+    # A corrupt file is reported below as one SequenceError; OpenCV's own warning line
+    # (or libpng's) would only come first and confuse.
+    logging = cv2.utils.logging
+    previous = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        image = cv2.imdecode(data, flags) if data.size else None
+    finally:
+        logging.setLogLevel(previous)
     if image is None:
         raise SequenceError("cannot decode image", file=path)
     return image

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
 from allo_mrad_ros.errors import AlloError
-from allo_mrad_ros.staging import staged_folder, terminate_like_interrupt
+from allo_mrad_ros.staging import staged_folder, staging_path, terminate_like_interrupt
 from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 
@@ -145,7 +145,11 @@ def _run_generate(args: argparse.Namespace) -> int:
             )
         report = replace(report, root=out)
     except (AlloError, SynthError) as error:
-        print(f"allo-synth generate: error: {error}", file=sys.stderr)
+        # Name the folder asked for, not the hidden one it was built in.
+        message = str(error)
+        if args.out is not None:
+            message = message.replace(str(staging_path(args.out)), str(args.out))
+        print(f"allo-synth generate: error: {message}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("allo-synth generate: interrupted; nothing written", file=sys.stderr)
