@@ -56,7 +56,7 @@ from .sequence import (
     validate_sequence,
 )
 from .sequence import Sequence as AlloSequence
-from .staging import staged_folder, staging_path, terminate_like_interrupt
+from .staging import sigterm_as_interrupt, staged_folder, staging_path
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
 """ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
@@ -324,8 +324,8 @@ def main_import(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="allo-synth")
     add_import_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["import-allo", *(sys.argv[1:] if argv is None else argv)])
-    terminate_like_interrupt()
-    return args.func(args)
+    with sigterm_as_interrupt():
+        return args.func(args)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from allo_mrad_ros.detector import PROFILES
 from allo_mrad_ros.errors import AlloError, InvalidInput
 from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
-from allo_mrad_ros.staging import staged_folder, terminate_like_interrupt
+from allo_mrad_ros.staging import sigterm_as_interrupt, staged_folder
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
 
@@ -272,9 +272,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Our own warnings (skipped topics) at INFO and up; other libraries' chatter stays out.
     logging.basicConfig(level=logging.WARNING, format=f"{PROG} {args.command}: %(message)s")
     logging.getLogger("allo_bag").setLevel(logging.INFO)
-    terminate_like_interrupt()
     try:
-        print(_COMMANDS[args.command](args))
+        with sigterm_as_interrupt():
+            print(_COMMANDS[args.command](args))
     except (CliError, TopicError) as error:
         parser.error(str(error))
     except AlloError as error:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
 from allo_mrad_ros.errors import AlloError
-from allo_mrad_ros.staging import staged_folder, staging_path, terminate_like_interrupt
+from allo_mrad_ros.staging import sigterm_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 
@@ -181,8 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``allo-synth``; returns the exit status."""
     args = build_parser().parse_args(argv)
-    terminate_like_interrupt()
-    return args.func(args)
+    with sigterm_as_interrupt():
+        return args.func(args)
 
 
 if __name__ == "__main__":

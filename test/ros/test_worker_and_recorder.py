@@ -6,6 +6,7 @@ import types
 
 import numpy as np
 import pytest
+import rclpy  # noqa: F401 - the worker's diagnostics need rclpy (skipped on the distro route)
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics

@@ -19,8 +19,8 @@ from allo_mrad_ros.sequence import Sequence
 from allo_mrad_ros.staging import (
     StagingError,
     remove_stale,
+    sigterm_as_interrupt,
     staged_folder,
-    terminate_like_interrupt,
 )
 from rosbag_tools import writer as writer_module
 from rosbag_tools.cli import main
@@ -96,12 +96,9 @@ def test_sigterm_during_write_leaves_nothing_and_stale_partials_are_cleaned(
 
     monkeypatch.setattr(writer_module._FrameEncoder, "encode", terminated_midway)
     previous = signal.getsignal(signal.SIGTERM)
-    terminate_like_interrupt()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            write_bag(sequence, tmp_path / "bag")
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
+        write_bag(sequence, tmp_path / "bag")
+    assert signal.getsignal(signal.SIGTERM) is previous
     assert len(calls) == 2
     assert not (tmp_path / "bag").exists()
     assert leftovers(tmp_path) == []  # ours removed, the dead process's too
