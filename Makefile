@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz test-distro lint bench bench-detector bench-render bench-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz test-distro lint bench bench-detector bench-render bench-node bench-node-outputs bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -71,6 +71,11 @@ bench-render: $(STAMP)
 
 bench-node: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --rate 30 --out reports/bench_node.json
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
+
+# Only the lazy-output comparison of bench-node: CPU per frame, ~/mask alone vs every output.
+bench-node-outputs: $(STAMP)
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 
 # Speed against error: defaults chosen on data/bench_val, reported on data/bench's test split
 # (both generated first if missing, ~6 + ~4 min).

@@ -15,8 +15,13 @@ Sun strength           ``/allo/sun_strength``              std_msgs/Float32
 celestial bodies       ``/allo/celestial_bodies``          visualization_msgs/MarkerArray
 =====================  ==================================  ==============================
 
+The node subscribes to these names *relative* (``arm_camera/image_raw``): at the root
+namespace they are the topics above, under ``namespace:=arm2`` they move with the node.
+
 Outputs are private to the node (``~/score`` 32FC1, ``~/mask`` mono8, ``~/anomaly`` Bool,
-``~/reference`` and ``~/overlay`` rgb8) plus ``/diagnostics``.
+``~/result`` DiagnosticArray and ``~/regions`` ImageMarker stamped with the image header,
+``~/reference`` rgb8 with ``~/reference/camera_info``, ``~/overlay`` rgb8) plus
+``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -36,12 +41,28 @@ LABEL_TOPIC = "/allo/ground_truth/label"
 TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
 
+# What the node subscribes to: the same names, relative, so they resolve in the node's
+# namespace (``/arm2/arm_camera/image_raw`` under ``namespace:=arm2``) and, at the root,
+# to the topics above that `allo-bag play` publishes.
+IMAGE_INPUT = IMAGE_TOPIC.lstrip("/")
+CAMERA_INFO_INPUT = CAMERA_INFO_TOPIC.lstrip("/")
+POSE_INPUT = POSE_TOPIC.lstrip("/")
+SUN_DIRECTION_INPUT = SUN_DIRECTION_TOPIC.lstrip("/")
+SUN_STRENGTH_INPUT = SUN_STRENGTH_TOPIC.lstrip("/")
+BODIES_INPUT = BODIES_TOPIC.lstrip("/")
+# image_transport's convention: the compressed stream of image topic T is T + "/compressed".
+COMPRESSED_SUFFIX = "/compressed"
+IMAGE_TRANSPORTS = ("raw", "compressed")
+
 # The node's outputs, relative to its private namespace.
 SCORE_OUTPUT = "~/score"
 MASK_OUTPUT = "~/mask"
 ANOMALY_OUTPUT = "~/anomaly"
 REFERENCE_OUTPUT = "~/reference"
 OVERLAY_OUTPUT = "~/overlay"
+REFERENCE_INFO_OUTPUT = "~/reference/camera_info"
+RESULT_OUTPUT = "~/result"
+REGIONS_OUTPUT = "~/regions"
 DIAGNOSTICS_TOPIC = "/diagnostics"
 
 # Frame ids.

@@ -1,4 +1,18 @@
-"""The four ALLO metrics: I.AUROC, P.AUROC, P.AP and P.FPR95 (anomalib's definitions).
+"""The ALLO metrics, each named for the way it is computed.
+
+- I.AUROC, P.AUROC: trapezoid area under the ROC curve (scikit-learn's ``roc_auc_score``).
+- P.AP (``p_ap``): **step** average precision, ``sum_n (R_n - R_{n-1}) P_n`` (scikit-learn's
+  ``average_precision_score``); no interpolation between operating points.
+- P.AUPR (``p_aupr``): **trapezoid** area under the precision-recall curve, the curve
+  starting at (recall 0, precision 1) -- anomalib's ``AUPR`` (torchmetrics' curve and
+  ``auc``), equal to ``sklearn.metrics.auc(recall, precision)``. On maps with many tied
+  scores the straight line across a tie block lifts it well above the step AP.
+- P.FPR95 (``p_fpr95``): false-positive rate at the **first** threshold (walking down from
+  the highest score) whose true-positive rate reaches 95 %; tied scores jump together, so a
+  block of ties at 0 forces it to 100 %.
+- P.FPR95 interpolated (``p_fpr95_interp``): the ROC curve linearly interpolated at a
+  true-positive rate of exactly 95 % (``numpy.interp`` over scikit-learn's ``roc_curve``),
+  as the out-of-distribution literature reports it.
 
 Pixel metrics pool the pixels of all test images. A 300-frame 1080p test split holds 600 M
 pixels, too many to sort, so :class:`PixelScoreHistogram` counts positives and negatives per
@@ -77,6 +91,26 @@ def average_precision_from_curve(curve: Curve) -> float:
     return float(np.sum(np.diff(curve.tpr) * curve.precision[1:]))
 
 
+def aupr_trapezoid_from_curve(curve: Curve) -> float:
+    """Trapezoid area under the precision-recall curve (anomalib's AUPR)."""
+    return float(np.trapezoid(curve.precision, curve.tpr))
+
+
+def fpr_at_tpr_interpolated_from_curve(curve: Curve, target_tpr: float = TARGET_TPR) -> float:
+    """False-positive rate on the ROC curve linearly interpolated at ``target_tpr``.
+
+    Between the last operating point below the target and the first one reaching it, the
+    FPR is interpolated linearly in TPR (the first point reaching it when TPR jumps to it
+    exactly).
+    """
+    reached = int(np.flatnonzero(curve.tpr >= target_tpr - 1e-12)[0])
+    if reached == 0 or curve.tpr[reached] <= target_tpr + 1e-12:
+        return float(curve.fpr[reached])
+    t0, t1 = curve.tpr[reached - 1], curve.tpr[reached]
+    f0, f1 = curve.fpr[reached - 1], curve.fpr[reached]
+    return float(f0 + (f1 - f0) * (target_tpr - t0) / (t1 - t0))
+
+
 def fpr_at_tpr_from_curve(curve: Curve, target_tpr: float = TARGET_TPR) -> float:
     """False-positive rate at the first operating point whose TPR reaches ``target_tpr``.
 
@@ -113,6 +147,19 @@ def average_precision(scores: np.ndarray, labels: np.ndarray) -> float:
 def fpr_at_tpr(scores: np.ndarray, labels: np.ndarray, target_tpr: float = TARGET_TPR) -> float:
     """Exact false-positive rate at the first threshold reaching ``target_tpr``."""
     return fpr_at_tpr_from_curve(curve_from_counts(*_counts_by_score(scores, labels)), target_tpr)
+
+
+def aupr_trapezoid(scores: np.ndarray, labels: np.ndarray) -> float:
+    """Exact trapezoid area under the precision-recall curve (anomalib's AUPR)."""
+    return aupr_trapezoid_from_curve(curve_from_counts(*_counts_by_score(scores, labels)))
+
+
+def fpr_at_tpr_interpolated(
+    scores: np.ndarray, labels: np.ndarray, target_tpr: float = TARGET_TPR
+) -> float:
+    """Exact ROC-interpolated false-positive rate at ``target_tpr``."""
+    curve = curve_from_counts(*_counts_by_score(scores, labels))
+    return fpr_at_tpr_interpolated_from_curve(curve, target_tpr)
 
 
 class PixelScoreHistogram:
@@ -155,12 +202,15 @@ class PixelScoreHistogram:
 
 @dataclass(frozen=True)
 class AlloMetrics:
-    """The four ALLO metrics as fractions in 0..1 (``nan`` where undefined)."""
+    """The ALLO metrics as fractions in 0..1 (``nan`` where undefined); see the module
+    docstring for which computation each is."""
 
     i_auroc: float
     p_auroc: float
     p_ap: float
     p_fpr95: float
+    p_aupr: float = float("nan")
+    p_fpr95_interp: float = float("nan")
 
     def as_dict(self) -> dict[str, float]:
         """The metrics as a dictionary with the report's keys."""
@@ -169,11 +219,13 @@ class AlloMetrics:
             "p_auroc": self.p_auroc,
             "p_ap": self.p_ap,
             "p_fpr95": self.p_fpr95,
+            "p_aupr": self.p_aupr,
+            "p_fpr95_interp": self.p_fpr95_interp,
         }
 
 
 class MetricsAccumulator:
-    """Accumulate frames and compute I.AUROC, P.AUROC, P.AP and P.FPR95.
+    """Accumulate frames and compute the :class:`AlloMetrics`.
 
     The image score is the detector's anomalous area; the image label is whether the
     ground-truth mask has any class-2 pixel.
@@ -207,6 +259,8 @@ class MetricsAccumulator:
             auroc_from_curve(curve),
             average_precision_from_curve(curve),
             fpr_at_tpr_from_curve(curve),
+            aupr_trapezoid_from_curve(curve),
+            fpr_at_tpr_interpolated_from_curve(curve),
         )
 
 

@@ -25,6 +25,7 @@ from rosbags.typesys import get_typestore as _get_typestore
 from rosbags.typesys.store import Typestore
 
 from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.ros.messages import MessageError, image_to_array
 from rosbag_tools.bag_meta import changed_files
 from rosbag_tools.topics import DEFAULT_TOPICS, TopicError, TopicNames
 
@@ -214,28 +215,20 @@ def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
 
 
 def image_array(message: Any, topic: str) -> np.ndarray:
-    """Pixels of a ``sensor_msgs/Image``: (H, W, 3) RGB for colour, (H, W) for mono8.
+    """Pixels of a ``sensor_msgs/Image`` or ``CompressedImage``: (H, W, 3) RGB, (H, W) mono.
+
+    Decoded by :func:`allo_mrad_ros.ros.messages.image_to_array`, the node's decoder, so a
+    bag the node accepts reads here too (every encoding the node takes, jpeg and png).
 
     Raises
     ------
     BagReadError
-        For an encoding other than rgb8, bgr8 and mono8, or a data size that does not match.
+        Naming the topic, for an encoding the node refuses or data that does not match.
     """
-    height, width, step = int(message.height), int(message.width), int(message.step)
-    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(message.encoding)
-    if channels is None:
-        raise BagReadError(f"topic {topic}: unsupported image encoding {message.encoding!r}")
-    data = np.asarray(message.data, dtype=np.uint8)
-    if step < width * channels or data.size != step * height:
-        raise BagReadError(
-            f"topic {topic}: image data of {data.size} bytes does not match "
-            f"{width}x{height} {message.encoding} with step {step}"
-        )
-    rows = data.reshape(height, step)[:, : width * channels]
-    if channels == 1:
-        return rows.reshape(height, width).copy()
-    pixels = rows.reshape(height, width, 3)
-    return (pixels[..., ::-1] if message.encoding == "bgr8" else pixels).copy()
+    try:
+        return image_to_array(message)
+    except MessageError as error:
+        raise BagReadError(f"topic {topic}: {error}") from None
 
 
 def stamp_ns(header: Any) -> int:

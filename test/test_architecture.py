@@ -21,6 +21,7 @@ LAYERS: dict[str, int] = {
     "resources": 1,
     "detector": 2,
     "metrics": 2,
+    "localisation": 3,
     "render": 2,
     "sequence": 2,
     "visualise": 2,

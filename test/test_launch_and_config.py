@@ -89,3 +89,153 @@ def test_generate_launch_description_loads():
     spec.loader.exec_module(module)
     description = module.generate_launch_description()
     assert len(description.entities) >= 2
+
+
+class _Recorded:
+    """Stands in for a launch class: keeps its arguments."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+
+class _LaunchConfiguration(_Recorded):
+    def perform(self, context):
+        return context[self.args[0]]
+
+
+def _launch_module(monkeypatch):
+    """detect.launch.py executed against stand-ins of launch and launch_ros."""
+    import sys
+    import types
+
+    names = {
+        "launch": {"LaunchDescription": _Recorded},
+        "launch.actions": {"DeclareLaunchArgument": _Recorded, "OpaqueFunction": _Recorded},
+        "launch.conditions": {"IfCondition": _Recorded},
+        "launch.substitutions": {
+            "LaunchConfiguration": _LaunchConfiguration,
+            "PathJoinSubstitution": _Recorded,
+        },
+        "launch_ros.actions": {"Node": _Recorded},
+        "launch_ros.substitutions": {"FindPackageShare": _Recorded},
+    }
+    monkeypatch.setitem(sys.modules, "launch_ros", types.ModuleType("launch_ros"))
+    for name, attributes in names.items():
+        module = types.ModuleType(name)
+        module.__dict__.update(attributes)
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location("detect_launch_stubbed", LAUNCH_FILE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def launched_nodes(monkeypatch, **given):
+    """The node actions the launch file makes when the user gives ``given`` arguments."""
+    module = _launch_module(monkeypatch)
+    description = module.generate_launch_description()
+    declared = {}
+    for entity in description.args[0]:
+        if isinstance(entity, _Recorded) and entity.args:
+            declared[entity.args[0]] = entity.kwargs["default_value"]
+    opaque = description.args[0][-1]
+    context = {name: default for name, default in declared.items()}
+    context["config"] = "/home/user/my.yaml"
+    context.update(given)
+    detector, rviz = opaque.kwargs["function"](context)
+    return declared, detector.kwargs, rviz.kwargs
+
+
+def test_launch_forwards_no_parameter_over_the_config_when_no_argument_is_given(monkeypatch):
+    declared, detector, rviz = launched_nodes(monkeypatch)
+    assert detector["parameters"] == ["/home/user/my.yaml"]
+    assert detector["remappings"] == []
+    assert detector["namespace"] == "" and rviz["namespace"] == ""
+    assert rviz["parameters"] == []
+    for name in ("mesh", "pose_source", "use_sim_time", "image_transport", "image_topic"):
+        assert declared[name] == "", f"{name} has a launch default that would override"
+
+
+def test_launch_forwards_exactly_the_arguments_given(monkeypatch):
+    _, detector, rviz = launched_nodes(
+        monkeypatch,
+        pose_source="topic",
+        use_sim_time="True",
+        namespace="arm2",
+        image_topic="/cam/image_rect",
+        bodies_topic="/allo/celestial_bodies",
+    )
+    config, overrides = detector["parameters"]
+    assert config == "/home/user/my.yaml"
+    assert overrides == {"pose_source": "topic", "use_sim_time": True}
+    assert detector["namespace"] == "arm2" and rviz["namespace"] == "arm2"
+    assert rviz["parameters"] == [{"use_sim_time": True}]
+    assert sorted(detector["remappings"]) == [
+        ("allo/celestial_bodies", "/allo/celestial_bodies"),
+        ("arm_camera/image_raw", "/cam/image_rect"),
+    ]
+
+
+def test_launch_rejects_a_boolean_argument_that_is_not_true_or_false(monkeypatch):
+    from allo_mrad_ros.ros.launch_arguments import LaunchArgumentError
+
+    with pytest.raises(LaunchArgumentError, match="use_sim_time"):
+        launched_nodes(monkeypatch, use_sim_time="yes")
+
+
+def test_every_node_input_can_be_remapped_from_the_launch_file():
+    from allo_mrad_ros import interface
+    from allo_mrad_ros.ros.launch_arguments import ARGUMENTS
+
+    inputs = {a.input_topic for a in ARGUMENTS if a.input_topic}
+    assert inputs == {
+        interface.IMAGE_INPUT,
+        interface.CAMERA_INFO_INPUT,
+        interface.POSE_INPUT,
+        interface.SUN_DIRECTION_INPUT,
+        interface.SUN_STRENGTH_INPUT,
+        interface.BODIES_INPUT,
+    }
+
+
+def test_mesh_argument_describes_what_happens_when_not_given():
+    from allo_mrad_ros.ros.launch_arguments import ARGUMENTS
+
+    mesh = next(a for a in ARGUMENTS if a.name == "mesh")
+    assert "not given: the parameter file's mesh" in mesh.description
+
+
+def test_rviz_topics_are_relative_so_they_follow_the_launch_namespace():
+    """RViz runs in the node's namespace: its topics must resolve there, to the node's."""
+    from allo_mrad_ros import interface
+
+    document = yaml.safe_load((REPO / "config" / "mrad.rviz").read_text())
+    displays = document["Visualization Manager"]["Displays"]
+    topics = [d["Topic"]["Value"] for d in displays if "Topic" in d]
+    outputs = {
+        f"{interface.NODE_NAME}/{o[2:]}"
+        for o in (
+            interface.OVERLAY_OUTPUT,
+            interface.MASK_OUTPUT,
+            interface.SCORE_OUTPUT,
+            interface.REFERENCE_OUTPUT,
+        )
+    }
+    assert set(topics) == outputs | {interface.BODIES_INPUT}
+    assert not any(topic.startswith("/") for topic in topics)
+
+
+def test_relative_inputs_resolve_at_the_root_to_the_topics_allo_bag_plays():
+    from allo_mrad_ros import interface
+    from rosbag_tools.topics import DEFAULT_TOPICS
+
+    pairs = {
+        interface.IMAGE_INPUT: DEFAULT_TOPICS.image,
+        interface.CAMERA_INFO_INPUT: DEFAULT_TOPICS.camera_info,
+        interface.POSE_INPUT: DEFAULT_TOPICS.pose,
+        interface.SUN_DIRECTION_INPUT: DEFAULT_TOPICS.sun_direction,
+        interface.SUN_STRENGTH_INPUT: DEFAULT_TOPICS.sun_strength,
+        interface.BODIES_INPUT: DEFAULT_TOPICS.bodies,
+    }
+    for relative, played in pairs.items():
+        assert not relative.startswith("/") and "/" + relative == played

@@ -1,21 +1,29 @@
-"""The four ALLO metrics against scikit-learn and a hand-computed case."""
+"""The ALLO metrics against scikit-learn and hand-computed cases."""
 
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
+from sklearn.metrics import (
+    auc,
+    average_precision_score,
+    precision_recall_curve,
+    roc_auc_score,
+    roc_curve,
+)
 
 from allo_mrad_ros.metrics import (
     MetricsAccumulator,
     MetricsError,
     PixelScoreHistogram,
+    aupr_trapezoid,
     auroc_from_curve,
     average_precision,
     average_precision_from_curve,
     bootstrap_ap_difference,
     fpr_at_tpr,
     fpr_at_tpr_from_curve,
+    fpr_at_tpr_interpolated,
     frame_counts,
     roc_auc,
 )
@@ -44,6 +52,47 @@ def test_exact_metrics_match_sklearn(seed, n, ties):
         average_precision_score(labels, scores), abs=1e-12
     )
     assert fpr_at_tpr(scores, labels) == pytest.approx(sklearn_fpr95(labels, scores), abs=1e-12)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 400), ties=st.booleans())
+def test_trapezoid_aupr_and_interpolated_fpr95_match_sklearn(seed, n, ties):
+    rng = np.random.default_rng(seed)
+    labels = rng.random(n) < rng.uniform(0.05, 0.95)
+    if labels.all() or not labels.any():
+        labels[0] = not labels[0]
+    scores = rng.normal(size=n) + labels * rng.uniform(0, 2)
+    if ties:
+        scores = np.round(scores * 2) / 2
+    precision, recall, _ = precision_recall_curve(labels, scores)
+    assert aupr_trapezoid(scores, labels) == pytest.approx(auc(recall, precision), abs=1e-12)
+    fpr, tpr, _ = roc_curve(labels, scores, drop_intermediate=False)
+    # The last operating point below the target and the first reaching it.
+    below = np.flatnonzero(tpr < 0.95)[-1]
+    expected = np.interp(0.95, tpr[below : below + 2], fpr[below : below + 2])
+    assert fpr_at_tpr_interpolated(scores, labels) == pytest.approx(expected, abs=1e-12)
+
+
+def test_step_ap_and_trapezoid_aupr_differ_on_tied_maps():
+    # One positive ranked first, then a block of 50 ties holding 9 positives and 41
+    # negatives: the step AP credits the block's recall at its end precision, the
+    # trapezoid draws a straight line across the block.
+    scores = np.r_[1.0, np.zeros(50)]
+    labels = np.r_[True, np.ones(9, bool), np.zeros(41, bool)]
+    step = 0.1 * 1.0 + 0.9 * (10 / 51)
+    trapezoid = 0.1 * 1.0 + 0.9 * (1.0 + 10 / 51) / 2
+    assert average_precision(scores, labels) == pytest.approx(step)
+    assert aupr_trapezoid(scores, labels) == pytest.approx(trapezoid)
+    assert aupr_trapezoid(scores, labels) - average_precision(scores, labels) > 0.35
+
+
+def test_interpolated_fpr95_hand_computed():
+    # 20 positives: TPR 0.90 at FPR 0, then a tie block of 2 positives and 10 negatives
+    # takes TPR to 1.0 at FPR 1.0. First-threshold FPR95 = 1.0; interpolated = 0.5.
+    scores = np.r_[np.arange(2.0, 20.0), np.zeros(12)]
+    labels = np.r_[np.ones(20, bool), np.zeros(10, bool)]
+    assert fpr_at_tpr(scores, labels) == pytest.approx(1.0)
+    assert fpr_at_tpr_interpolated(scores, labels) == pytest.approx(0.5)
 
 
 def test_fpr95_hand_computed():
@@ -96,7 +145,15 @@ def test_accumulator_pools_frames_and_uses_area_as_image_score():
     metrics = accumulator.compute()
     assert metrics.i_auroc == pytest.approx(roc_auc_score(image_labels, image_scores))
     assert 0.9 < metrics.p_auroc <= 1.0 and 0.0 <= metrics.p_fpr95 <= 1.0
-    assert set(metrics.as_dict()) == {"i_auroc", "p_auroc", "p_ap", "p_fpr95"}
+    assert set(metrics.as_dict()) == {
+        "i_auroc",
+        "p_auroc",
+        "p_ap",
+        "p_fpr95",
+        "p_aupr",
+        "p_fpr95_interp",
+    }
+    assert metrics.p_fpr95_interp <= metrics.p_fpr95
 
 
 def test_single_class_is_an_error_or_nan():

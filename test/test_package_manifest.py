@@ -24,6 +24,7 @@ FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools", "mrad_oracle", "rosbag_fixtures"
 # requirements-distro*.txt (the pip part of the distro route) for modules rosdep has no key for.
 MODULE_PROVIDERS = {
     "OpenGL": "python3-opengl",
+    "PIL": "python3-pil",
     "cv2": "python3-opencv",
     "matplotlib": "python3-matplotlib",
     "numpy": "python3-numpy",
@@ -39,6 +40,7 @@ MODULE_PROVIDERS = {
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",
     "sklearn": "python3-sklearn",
+    "skimage": "python3-skimage",
     # Test-only oracles without a rosdep key: the pip world's requirements-dev.txt.
     "mcap": "mcap",
     "mcap_ros2": "mcap-ros2-support",

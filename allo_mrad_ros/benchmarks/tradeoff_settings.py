@@ -24,12 +24,17 @@ def render_settings(
 
 @dataclass(frozen=True)
 class Setting:
-    """One point of the sweep: how the reference is rendered and how MRAD runs."""
+    """One point of the sweep: how the reference is rendered and how MRAD runs.
+
+    ``binary`` ranks pixels by the method's 0/255 mask instead of its score map (how the
+    paper evaluated its thresholded PAD and RXD maps).
+    """
 
     name: str
-    render: RenderSettings
+    render: RenderSettings = field(default_factory=lambda: render_settings(0.25))
     params: MradParams = field(default_factory=MradParams)
     method: str = "MRAD"
+    binary: bool = False
 
     @property
     def config(self) -> PipelineConfig:
@@ -39,58 +44,97 @@ class Setting:
     @property
     def conforms(self) -> bool:
         """Whether the outputs follow mrad.md (only those may become the default)."""
-        return self.params.pixel_score == "regions"
+        return self.params.pixel_score in ("continuous", "regions") and not self.binary
+
+
+# Parameters that change the pixel score map (and so P.AP); the others shape only the mask.
+MAP_KNOBS = (
+    "grid",
+    "photometric",
+    "max_gain",
+    "score_sigma",
+    "process_scale",
+    "score_scaling",
+    "score_ref",
+    "abs_floor",
+    "rel_floor",
+    "pixel_score",
+)
+
+# The shipped defaults before issue 11 (README "Speed against error", first rerun).
+PREVIOUS_DEFAULT = MradParams(
+    grid=6,
+    noise_removal="cell_spread",
+    process_scale=0.5,
+    pixel_score="regions",
+    photometric="none",
+    growth="tolerance",
+    score_sigma=0.0,
+)
 
 
 def sweep_settings(base: MradParams) -> list[Setting]:
-    """The swept settings: each knob alone around ``base``, then the speed knobs combined
-    with each accuracy knob (grid 6, cell_spread), so fast and accurate can meet."""
-    full, eighth = render_settings(0.25), render_settings(0.125)
-    eighth_flat = render_settings(0.125, False)
-    half = base.replace(process_scale=0.5)
+    """The swept settings around ``base`` (the default profile).
+
+    Map knobs (grid, photometric model, smoothing, query scale, reference scale) decide P.AP;
+    mask knobs (growth rule, thresholds, blur, noise rule) decide only the mask and the
+    image score, so they are swept at the base's map settings and chosen by I.AUROC.
+    """
+    eighth, eighth_flat = render_settings(0.125), render_settings(0.125, False)
     settings = [
-        Setting("baseline", full, base),
-        Setting("ref scale 1", render_settings(1.0), base),
-        Setting("ref scale 1/2", render_settings(0.5), base),
-        Setting("ref scale 1/8", eighth, base),
-        Setting("process scale 1/2", full, half),
-        Setting("process scale 1/4", full, base.replace(process_scale=0.25)),
-        Setting("no shadows", render_settings(0.25, False), base),
-        Setting("bodies always", render_settings(0.25, True, False), base),
-        Setting("grid 6", full, base.replace(grid=6)),
-        Setting("cell_spread", full, base.replace(noise_removal="cell_spread")),
-        Setting("per_image scaling", full, base.replace(score_scaling="per_image")),
-        Setting("ref 1/8, no shadows", eighth_flat, base),
-        Setting("ref 1/8, process 1/2, no shadows", eighth_flat, half),
+        Setting("previous default (sparse map)", eighth, PREVIOUS_DEFAULT),
+        Setting(
+            "previous default, continuous map",
+            eighth,
+            PREVIOUS_DEFAULT.replace(pixel_score="continuous"),
+        ),
         Setting("paper-faithful", render_settings(1.0), profile("paper")),
     ]
-    for label, accurate in (
-        ("grid 6", base.replace(grid=6)),
-        ("grid 6, cell_spread", base.replace(grid=6, noise_removal="cell_spread")),
-    ):
-        fast = accurate.replace(process_scale=0.5)
-        fastest = accurate.replace(process_scale=0.25)
-        if label != "grid 6":
-            settings.append(Setting(label, full, accurate))
-        settings += [
-            Setting(f"{label}, ref 1/8", eighth, accurate),
-            Setting(f"{label}, process 1/2", full, fast),
-            Setting(f"{label}, ref 1/8, process 1/2", eighth, fast),
-            Setting(f"{label}, ref 1/8, process 1/2, no shadows", eighth_flat, fast),
-            Setting(f"{label}, ref 1/8, process 1/4", eighth, fastest),
-            Setting(f"{label}, ref 1/8, process 1/4, no shadows", eighth_flat, fastest),
-        ]
-    # Not mrad.md's output (score kept outside the regions): shown, never chosen.
-    blurred = base.replace(grid=6, pixel_score="blurred")
+    for photometric in ("none", "cell_affine"):
+        for grid in (1, 3, 4, 6, 8):
+            settings.append(
+                Setting(
+                    f"grid {grid}, {photometric}",
+                    eighth,
+                    base.replace(grid=grid, photometric=photometric),
+                )
+            )
+    affine = base.replace(photometric="cell_affine")
     settings += [
-        Setting("grid 6, pixel score blurred (not mrad.md)", full, blurred),
+        Setting("cell_affine, score_sigma 0", eighth, affine.replace(score_sigma=0.0)),
+        Setting("cell_affine, score_sigma 2", eighth, affine.replace(score_sigma=2.0)),
+        Setting("cell_affine, query 1", eighth, affine.replace(process_scale=1.0)),
+        Setting("cell_affine, query 1/4", eighth, affine.replace(process_scale=0.25)),
+        Setting("cell_affine, ref 1/4", render_settings(0.25), affine),
+        Setting("cell_affine, ref 1/8 no shadows", eighth_flat, affine),
         Setting(
-            "grid 6, pixel score blurred, ref 1/8, process 1/2 (not mrad.md)",
+            "cell_affine, mask: tolerance growth",
             eighth,
-            blurred.replace(process_scale=0.5),
+            affine.replace(growth="tolerance", noise_removal="cell_spread"),
+        ),
+        Setting("cell_affine, mask: seed 50", eighth, affine.replace(seed_score=50.0)),
+        Setting(
+            "cell_affine, mask: min 15, seed 30",
+            eighth,
+            affine.replace(min_score=15.0, seed_score=30.0),
+        ),
+        Setting(
+            "cell_affine, mask: min 40, seed 80",
+            eighth,
+            affine.replace(min_score=40.0, seed_score=80.0),
+        ),
+        Setting("cell_affine, mask: blur 2", eighth, affine.replace(blur_sigma=2.0)),
+        Setting(
+            "cell_affine, mask: no noise rule",
+            eighth,
+            affine.replace(noise_removal="none"),
         ),
     ]
-    return settings
+    unique = {}
+    for setting in settings:  # base may coincide with a grid row: keep the first name
+        key = (setting.render, setting.params, setting.method, setting.binary)
+        unique.setdefault(key, setting)
+    return list(unique.values())
 
 
 def true_pose(frame: Frame) -> np.ndarray:
@@ -138,6 +182,7 @@ class Outcome:
             "cull_bodies": s.render.cull_bodies,
             "params": s.params.to_dict(),
             "conforms_to_mrad_md": s.conforms,
+            "binary": s.binary,
             "frames": len(self.latency_ms),
             "latency_ms_median": float(np.median(self.latency_ms)),
             "latency_ms_p95": float(np.percentile(self.latency_ms, 95)),

@@ -13,15 +13,28 @@ _TO_8BIT_SCALE = {
 }
 
 
-def check_image(image: object, name: str) -> np.ndarray:
-    """Validate an H x W x 3 colour image and return it as an ndarray.
+def check_image(image: object, name: str, bit_depth: int = 16) -> np.ndarray:
+    """Validate an H x W x 3 colour image and return it on a scale the detector reads.
 
     Accepted dtypes are uint8, uint16 and float32/float64 (floats on the 0..1 scale).
+    A uint16 image carries ``bit_depth`` significant bits (12 for a 12-bit camera): it is
+    returned as float32 on the 0..1 scale, ``value / (2**bit_depth - 1)``, so a 12-bit
+    image is not read as nearly black.
+
+    Parameters
+    ----------
+    image : object
+        The image to check.
+    name : str
+        Its name in error messages ("query", "reference").
+    bit_depth : int
+        Significant bits of uint16 input, 9..16.
 
     Raises
     ------
     ValueError
-        Naming ``name`` and the offending shape, dtype or value.
+        Naming ``name`` and the offending shape, dtype or value: float values outside
+        [0, 1] or not finite, uint16 values above ``2**bit_depth - 1``.
     """
     if not isinstance(image, np.ndarray):
         raise ValueError(f"{name} must be a numpy array, got {type(image).__name__}")
@@ -33,9 +46,27 @@ def check_image(image: object, name: str) -> np.ndarray:
         raise ValueError(
             f"{name} has unsupported dtype {image.dtype}; use uint8, uint16, float32 or float64"
         )
-    if image.dtype.kind == "f" and not np.isfinite(image).all():
-        bad = int(np.count_nonzero(~np.isfinite(image)))
-        raise ValueError(f"{name} contains {bad} NaN or Inf value(s)")
+    if image.dtype.kind == "f":
+        low, high = float(image.min()), float(image.max())
+        if not (np.isfinite(low) and np.isfinite(high)):
+            bad = int(np.count_nonzero(~np.isfinite(image)))
+            raise ValueError(f"{name} contains {bad} NaN or Inf value(s)")
+        if low < 0.0 or high > 1.0:
+            raise ValueError(
+                f"{name} is a float image with values in [{low:g}, {high:g}]; float images "
+                "must lie in [0, 1] (divide by the white level, or pass uint8/uint16)"
+            )
+    if image.dtype == np.uint16:
+        if not 9 <= bit_depth <= 16:
+            raise ValueError(f"bit_depth must be an integer in [9, 16], got {bit_depth!r}")
+        white = (1 << bit_depth) - 1
+        high = int(image.max())
+        if high > white:
+            raise ValueError(
+                f"{name} is a {bit_depth}-bit uint16 image but holds {high} > {white}; "
+                "set bit_depth to the camera's real bit depth"
+            )
+        return image.astype(np.float32) * np.float32(1.0 / white)
     return image
 
 

@@ -14,7 +14,9 @@ from typing import Any, Literal
 
 ScoreScaling = Literal["fixed", "per_image"]
 NoiseRemoval = Literal["local_std", "cell_spread", "none"]
-PixelScore = Literal["regions", "blurred"]
+PixelScore = Literal["continuous", "regions", "blurred"]
+Growth = Literal["tolerance", "hysteresis"]
+Photometric = Literal["none", "cell_affine"]
 
 SCORE_RANGE = 255.0
 
@@ -64,13 +66,36 @@ class MradParams:
     process_scale : float
         Linear scale at which the query is processed, (0, 1]; outputs are returned at the
         query's resolution.
-    pixel_score : {"regions", "blurred"}
-        What ``DetectionResult.score`` holds: ``regions`` (mrad.md) keeps the blurred map
-        inside the grown regions only; ``blurred`` keeps the whole blurred map (the mask is
-        the same either way).
+    pixel_score : {"continuous", "regions", "blurred"}
+        What ``DetectionResult.score`` holds (the mask is the same either way):
+        ``continuous`` is the positive raw score softly saturated onto 0..255 (no minimum
+        cut, no zeroing outside the regions), smoothed by ``score_sigma``; it ranks pixels.
+        ``regions`` (the paper's sparse map) keeps the blurred map inside the grown regions
+        only; ``blurred`` keeps the whole blurred map.
+    score_sigma : float
+        Gaussian smoothing of the ``continuous`` map in pixels at full resolution, >= 0.
+    growth : {"tolerance", "hysteresis"}
+        ``tolerance``: mean-shift seeds grown within ``tolerance`` of their score (the
+        paper). ``hysteresis``: every connected region of the blurred map at or above
+        ``min_score`` that reaches ``seed_score`` somewhere (keeps small and thin objects
+        whose peak the blur lowered).
+    seed_score : float
+        Score a hysteresis region must reach, 0..255.
+    photometric : {"none", "cell_affine"}
+        Photometric model of the score the mask and the decision come from:
+        ``cell_affine`` fits each cell's reference colours to the query's by a robust
+        per-channel gain and offset (quantiles) before scoring, so exposure, tone curve,
+        white balance and light fall-off do not flag a normal frame.
+    map_photometric : {"none", "cell_affine"}
+        Photometric model of the score behind the ``continuous`` ranking map (chosen
+        separately: on the bench validation split the model cost ranking accuracy).
+    max_gain : float
+        Largest per-channel gain (and smallest, its inverse) ``cell_affine`` may apply, >= 1.
+    bit_depth : int
+        Significant bits of uint16 input (e.g. 12 for a 12-bit camera), 9..16.
     """
 
-    grid: int = 6
+    grid: int = 8
     tolerance: float = 50.0
     kernel_fraction: float = 0.20
     blur_sigma: float = 5.0
@@ -85,7 +110,14 @@ class MradParams:
     connectivity: int = 8
     area_threshold: float = 0.001
     process_scale: float = 0.5
-    pixel_score: PixelScore = "regions"
+    pixel_score: PixelScore = "continuous"
+    score_sigma: float = 1.0
+    growth: Growth = "hysteresis"
+    seed_score: float = 30.0
+    photometric: Photometric = "cell_affine"
+    map_photometric: Photometric = "none"
+    max_gain: float = 2.0
+    bit_depth: int = 16
 
     def __post_init__(self) -> None:
         for name, spec in PARAMETER_SPECS.items():
@@ -196,22 +228,52 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
     ),
     "pixel_score": ParameterSpec(
         str,
-        "score output: regions (blurred map inside grown regions, mrad.md) or blurred (whole map)",
-        choices=("regions", "blurred"),
+        "score output: continuous (ranking map), regions (paper's sparse map) or blurred",
+        choices=("continuous", "regions", "blurred"),
     ),
+    "score_sigma": ParameterSpec(
+        float, "Gaussian smoothing SD of the continuous score map (px, full resolution)", 0, 100
+    ),
+    "growth": ParameterSpec(
+        str,
+        "tolerance: seeds grown within tolerance (paper); hysteresis: min_score/seed_score",
+        choices=("tolerance", "hysteresis"),
+    ),
+    "seed_score": ParameterSpec(
+        float, "score a hysteresis region must reach somewhere (0..255)", 0, SCORE_RANGE
+    ),
+    "photometric": ParameterSpec(
+        str,
+        "none, or cell_affine: robust per-cell gain/offset fit of the reference to the query",
+        choices=("none", "cell_affine"),
+    ),
+    "map_photometric": ParameterSpec(
+        str,
+        "photometric model of the continuous ranking map: none or cell_affine",
+        choices=("none", "cell_affine"),
+    ),
+    "max_gain": ParameterSpec(float, "largest per-channel gain of cell_affine", 1, 100),
+    "bit_depth": ParameterSpec(int, "significant bits of uint16 input images", 9, 16),
 }
 
 
 # The paper's optimum (grid 4x4, tolerance 50, kernel 20 % of the cell, blur SD 5) with this
 # project's fixed scaling: the defaults before the speed-against-error benchmark.
-_PAPER_OPTIMUM = MradParams(grid=4, noise_removal="local_std", process_scale=1.0)
+_PAPER_OPTIMUM = MradParams(
+    grid=4,
+    noise_removal="local_std",
+    process_scale=1.0,
+    photometric="none",
+    map_photometric="none",
+    growth="tolerance",
+)
 
 PROFILES: dict[str, MradParams] = {
     # Chosen on the validation split by `make bench` (README, "Speed against error").
     "default": MradParams(),
     # The paper read literally: its optimum with per-image score scaling, full resolution.
-    "paper": _PAPER_OPTIMUM.replace(score_scaling="per_image"),
-    # The paper's optimum with fixed scaling: the sweep's baseline.
+    "paper": _PAPER_OPTIMUM.replace(score_scaling="per_image", pixel_score="regions"),
+    # The paper's optimum with fixed scaling and the continuous ranking map.
     "baseline": _PAPER_OPTIMUM,
     # The most accurate mrad.md setting of the sweep on validation, at full resolution.
     "accurate": MradParams(process_scale=1.0),

@@ -18,11 +18,17 @@ from allo_mrad_ros.detector.images import check_aspect, check_image
 from allo_mrad_ros.detector.params import MradParams
 from allo_mrad_ros.detector.postprocess import (
     blur_scores,
+    continuous_scores,
     remove_noise,
     scale_scores,
     threshold_scores,
 )
-from allo_mrad_ros.detector.regions import find_seeds, grow_regions, seed_window
+from allo_mrad_ros.detector.regions import (
+    find_seeds,
+    grow_hysteresis,
+    grow_regions,
+    seed_window,
+)
 from allo_mrad_ros.detector.score import cross_score, rx_score
 
 
@@ -107,8 +113,8 @@ def detect(
     if reference is None:
         raise ValueError("reference is required for MRAD (got None)")
     timer = _StageTimer()
-    query = check_image(query, "query")
-    reference = check_image(reference, "reference")
+    query = check_image(query, "query", params.bit_depth)
+    reference = check_image(reference, "reference", params.bit_depth)
     check_aspect(query, reference)
     full_shape = query.shape[:2]
     work = _resize_query(query, params.process_scale)
@@ -119,7 +125,15 @@ def detect(
             f"({work.shape[1]}x{work.shape[0]}); use a larger image or process_scale=1"
         )
     with timer.stage("cross_score"):
-        raw = cross_score(work, reference, params.grid, params.abs_floor, params.rel_floor)
+        raw = cross_score(
+            work,
+            reference,
+            params.grid,
+            params.abs_floor,
+            params.rel_floor,
+            params.photometric,
+            params.max_gain,
+        )
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(
             scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
@@ -137,15 +151,48 @@ def detect(
     sigma = params.blur_sigma * params.process_scale
     with timer.stage("blur"):
         blurred = blur_scores(cleaned, sigma)
-    with timer.stage("seeds"):
-        seeds = find_seeds(blurred, params.min_score, seed_window(sigma))
-    with timer.stage("region_growing"):
-        mask = grow_regions(blurred, seeds, params.tolerance, params.min_score, params.connectivity)
+    if params.growth == "hysteresis":
+        with timer.stage("region_growing"):
+            mask = grow_hysteresis(
+                blurred, params.min_score, params.seed_score, params.connectivity
+            )
+    else:
+        with timer.stage("seeds"):
+            seeds = find_seeds(blurred, params.min_score, seed_window(sigma))
+        with timer.stage("region_growing"):
+            mask = grow_regions(
+                blurred, seeds, params.tolerance, params.min_score, params.connectivity
+            )
+    with timer.stage("pixel_score"):
+        ranked = raw
+        if params.pixel_score == "continuous" and params.map_photometric != params.photometric:
+            ranked = cross_score(
+                work,
+                reference,
+                params.grid,
+                params.abs_floor,
+                params.rel_floor,
+                params.map_photometric,
+                params.max_gain,
+            )
+        score = _pixel_score(ranked, blurred, mask, params)
     with timer.stage("decision"):
-        score = _masked(blurred, mask) if params.pixel_score == "regions" else blurred
         score, mask = _restore_resolution(score, mask, full_shape, params.pixel_score)
         area, anomalous = decide(mask, params.area_threshold)
     return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
+
+
+def _pixel_score(
+    raw: np.ndarray, blurred: np.ndarray, mask: np.ndarray, params: MradParams
+) -> np.ndarray:
+    # The map the pixel metrics rank. The regions decide the mask; zeroing the map outside
+    # them ("regions", the paper's sparse map) ties most anomaly pixels at 0.
+    if params.pixel_score == "regions":
+        return _masked(blurred, mask)
+    if params.pixel_score == "blurred":
+        return blurred
+    ranked = continuous_scores(raw, params.score_scaling, params.score_ref)
+    return blur_scores(ranked, params.score_sigma * params.process_scale)
 
 
 def detect_pad(
@@ -159,8 +206,8 @@ def detect_pad(
     params = params or MradParams()
     if reference is None:
         raise ValueError("reference is required for PAD (got None)")
-    query = check_image(query, "query")
-    reference = check_image(reference, "reference")
+    query = check_image(query, "query", params.bit_depth)
+    reference = check_image(reference, "reference", params.bit_depth)
     check_aspect(query, reference)
     timer = _StageTimer()
     with timer.stage("cross_score"):
@@ -177,7 +224,7 @@ def detect_rxd(
     :func:`detect_pad`.
     """
     params = params or MradParams()
-    query = check_image(query, "query")
+    query = check_image(query, "query", params.bit_depth)
     timer = _StageTimer()
     with timer.stage("rx_score"):
         raw = rx_score(query, params.abs_floor, params.rel_floor)

@@ -42,6 +42,27 @@ def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
     return scaled
 
 
+def continuous_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
+    """Map the raw score onto 0..255 without clipping ties at the top.
+
+    ``fixed`` scaling saturates softly: ``255 * s / (s + score_ref)`` with ``s = max(raw, 0)``,
+    which follows ``255 * s / score_ref`` for small scores and is strictly increasing up to
+    255, so the strongest pixels keep their order (hard clipping ties them at 255).
+    ``per_image`` scaling is :func:`scale_scores`'s (already unclipped).
+
+    Returns
+    -------
+    numpy.ndarray
+        H x W float32 in [0, 255].
+    """
+    if scaling == "per_image":
+        return scale_scores(raw, scaling, score_ref)
+    if scaling != "fixed":
+        raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+    _, positive = cv2.threshold(raw, 0.0, 0.0, cv2.THRESH_TOZERO)
+    return cv2.divide(positive * np.float32(SCORE_RANGE), positive + np.float32(score_ref))
+
+
 def threshold_scores(scaled: np.ndarray, min_score: float) -> np.ndarray:
     """Zero every scaled score below ``min_score`` (in place; returns the array)."""
     # THRESH_TOZERO keeps values strictly above its threshold: use the float just below.

@@ -87,3 +87,30 @@ def grow_regions(
             continue
         cv2.floodFill(image, fill_mask, (int(col), int(row)), 0, tolerance, tolerance, flags)
     return cv2.compare(fill_mask[1:-1, 1:-1], _FILL_VALUE, cv2.CMP_EQ)
+
+
+def grow_hysteresis(
+    blurred: np.ndarray, low: float, high: float, connectivity: int = 8
+) -> np.ndarray:
+    """Hysteresis thresholding: the regions at or above ``low`` that reach ``high``.
+
+    Every connected region of ``blurred >= low`` (``low`` > 0) that holds at least one pixel
+    ``>= high`` is kept whole, so a small or thin object whose peak is modest is kept with
+    its full extent, and a strong object grows down to ``low`` rather than to a fixed range
+    below its peak.
+
+    Returns
+    -------
+    numpy.ndarray
+        H x W uint8 mask with 0 and 255.
+    """
+    floor = max(float(low), float(np.finfo(np.float32).tiny))
+    candidates = cv2.compare(blurred, floor, cv2.CMP_GE)
+    count, labels = cv2.connectedComponents(candidates, connectivity=connectivity)
+    if count <= 1:
+        return np.zeros(blurred.shape, dtype=np.uint8)
+    strong = labels[blurred >= max(float(high), floor)]
+    keep = np.zeros(count, dtype=np.uint8)
+    keep[strong] = _FILL_VALUE
+    keep[0] = 0
+    return keep[labels]

@@ -14,6 +14,7 @@ import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.photometric import fit_cell_affine, saturation_variance
 from allo_mrad_ros.detector.statistics import cell_statistics, regularised_precision
 
 
@@ -23,6 +24,8 @@ def cross_score(
     grid: int,
     abs_floor: float,
     rel_floor: float,
+    photometric: str = "none",
+    max_gain: float = 2.0,
 ) -> np.ndarray:
     """Return the cross RXD score of every query pixel against its reference cell.
 
@@ -34,6 +37,11 @@ def cross_score(
         Cells per side.
     abs_floor, rel_floor : float
         Covariance regularisation (see :func:`regularised_precision`).
+    photometric : {"none", "cell_affine"}
+        ``cell_affine`` first maps each reference cell's statistics through the gain and
+        offset fitted by :func:`~allo_mrad_ros.detector.photometric.fit_cell_affine`.
+    max_gain : float
+        Gain limit of the ``cell_affine`` fit.
 
     Returns
     -------
@@ -42,16 +50,44 @@ def cross_score(
     """
     ref_stats = cell_statistics(reference, grid)
     query_stats = cell_statistics(query, grid)
-    ref_precision = regularised_precision(ref_stats.cov, abs_floor, rel_floor)
-    query_precision = regularised_precision(query_stats.cov, abs_floor, rel_floor)
+    if photometric == "none":
+        ref_precision = regularised_precision(ref_stats.cov, abs_floor, rel_floor)
+        query_precision = regularised_precision(query_stats.cov, abs_floor, rel_floor)
+        ref_mean = ref_stats.mean
+    elif photometric == "cell_affine":
+        # Score in the reference's photometric units (x_ref = (x - offset) / gain), so the
+        # regularisation floors mean the same whatever the query's exposure: a darker
+        # query does not hide its anomalies under a floor sized for the render.
+        gain, offset = fit_cell_affine(query, reference, grid, max_gain)
+        ref_mean = gain * ref_stats.mean + offset
+        inverse = 1.0 / gain
+        in_ref_units = query_stats.cov * inverse[:, :, None] * inverse[:, None, :]
+        # Both models are widened where the reference is saturated, so identical images
+        # still cancel exactly.
+        widening = saturation_variance(reference, grid, max_gain)
+        ref_precision = _to_query_units(
+            regularised_precision(ref_stats.cov + widening, abs_floor, rel_floor),
+            inverse,
+        )
+        query_precision = _to_query_units(
+            regularised_precision(in_ref_units + widening, abs_floor, rel_floor),
+            inverse,
+        )
+    else:
+        raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
     return _evaluate(
         to_float32(query),
         grid,
-        ref_stats.mean,
+        ref_mean,
         ref_precision,
         query_stats.mean,
         query_precision,
     )
+
+
+def _to_query_units(precision: np.ndarray, inverse_gain: np.ndarray) -> np.ndarray:
+    # A precision P on x_ref = (x - o) / g is D^-1 P D^-1 on x, D = diag(g).
+    return precision * inverse_gain[:, :, None] * inverse_gain[:, None, :]
 
 
 def rx_score(image: np.ndarray, abs_floor: float, rel_floor: float) -> np.ndarray:

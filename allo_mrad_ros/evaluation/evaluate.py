@@ -41,6 +41,7 @@ from allo_mrad_ros.evaluation.tally import (
     latency_stats,
     merged_accumulator,
 )
+from allo_mrad_ros.localisation import ObjectOverlap, summarise
 from allo_mrad_ros.metrics import (
     POSITIVE_CLASS,
     AlloMetrics,
@@ -235,6 +236,7 @@ def evaluate(
     tallies: dict[str, dict[str, Tally]] = {m: defaultdict(Tally) for m in methods}
     samples: dict[str, list[float]] = defaultdict(list)
     overlays: list[FrameOutcome] = []
+    overlaps: dict[tuple[str, str], list[ObjectOverlap]] = defaultdict(list)
     frames_by_group: dict[str, int] = defaultdict(int)
     chosen: dict[str, int] = defaultdict(int)
     clock = RunClock()
@@ -254,6 +256,8 @@ def evaluate(
             frames_by_group[outcome.group] += 1
             for name, method in outcome.methods.items():
                 tallies[name][outcome.group].add(method, outcome.truth_anomalous)
+                if method.overlap is not None:
+                    overlaps[outcome.group, name].append(method.overlap)
                 for stage, value in method.timings_ms.items():
                     samples[f"{name}/{stage}"].append(value)
             for stage, value in outcome.timings_ms.items():
@@ -284,6 +288,7 @@ def evaluate(
                 .as_dict()
                 for name in methods
             },
+            "localisation": {name: summarise(overlaps[anomaly, name]) for name in methods},
         }
     return EvaluationResult(
         **vars(RunFacts.of(source, split, indices)),

@@ -28,8 +28,16 @@ if TYPE_CHECKING:
     from allo_mrad_ros.evaluation.ablate import AblationResult
     from allo_mrad_ros.evaluation.evaluate import EvaluationResult
 
-METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
-METRIC_TITLES = ("I.AUROC", "P.AUROC", "P.AP", "P.FPR95")
+# Which computation each is: allo_mrad_ros/metrics.py's module docstring.
+METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_aupr", "p_fpr95", "p_fpr95_interp")
+METRIC_TITLES = (
+    "I.AUROC",
+    "P.AUROC",
+    "P.AP (step)",
+    "P.AUPR (trapezoid)",
+    "P.FPR95 (first)",
+    "P.FPR95 (interp.)",
+)
 _TRUTH_COLOUR = (60, 220, 60)
 _DETECTION_COLOUR = np.array([230, 40, 40], dtype=np.float32)
 
@@ -179,6 +187,18 @@ def evaluation_markdown(result: EvaluationResult) -> str:
             for name, metrics in entry["methods"].items():
                 cells = " | ".join(_percent(metrics.get(k)) for k in METRIC_KEYS)
                 lines.append(f"| {anomaly} | {entry['frames']} | {name} | {cells} |")
+        lines += [
+            "",
+            "Localisation per type (anomalous frames only): found = some object pixel detected; "
+            "recall = fraction of the object's pixels in the mask; IoU = mask against object.",
+            "",
+            "| type | method | found | recall | IoU |",
+            "|---|---|---:|---:|---:|",
+        ]
+        for anomaly, entry in result.per_type.items():
+            for name, loc in entry.get("localisation", {}).items():
+                cells = " | ".join(_percent(loc[k]) for k in ("found", "recall", "iou"))
+                lines.append(f"| {anomaly} | {name} | {cells} |")
         lines.append("")
     lines += [
         "## Latency",

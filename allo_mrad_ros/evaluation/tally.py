@@ -13,7 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from allo_mrad_ros.detector import DetectionResult
+from allo_mrad_ros.localisation import ObjectOverlap, object_overlap
 from allo_mrad_ros.metrics import (
+    POSITIVE_CLASS,
     MetricsAccumulator,
     PixelScoreHistogram,
 )
@@ -50,17 +52,20 @@ class MethodOutcome:
     area: float
     anomalous: bool
     timings_ms: dict[str, float]
+    overlap: ObjectOverlap | None = None
 
     @classmethod
     def of(
         cls, result: DetectionResult, truth: np.ndarray, timings_ms: dict[str, float]
     ) -> MethodOutcome:
         """The outcome of one detection against the frame's ground truth."""
+        has_object = bool(np.any(truth == POSITIVE_CLASS))
         return cls(
             frame_counts(result.score, truth),
             float(result.area),
             bool(result.anomalous),
             timings_ms,
+            object_overlap(result.mask, truth) if has_object else None,
         )
 
 

@@ -24,6 +24,16 @@ import numpy as np
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
+from allo_mrad_ros.render.primitives import (
+    basis_with_z,
+    box,
+    cylinder,
+    dish,
+    frustum,
+    placed,
+    strut,
+)
+
 # Vertex positions are snapped to this grid (metres) so that last-bit differences in the
 # trigonometry of the primitive generators cannot change the exported bytes.
 POSITION_QUANTUM = 1e-5
@@ -41,72 +51,6 @@ MATERIALS: dict[str, tuple[tuple[float, float, float, float], float, float]] = {
     "radiator": ((0.93, 0.94, 0.95, 1.0), 0.0, 0.35),
     "handrail": ((0.85, 0.62, 0.08, 1.0), 0.1, 0.5),
 }
-
-
-def _basis(axis: np.ndarray) -> np.ndarray:
-    """Return a rotation whose z column is ``axis`` (deterministic, no SVD)."""
-    z = axis / np.linalg.norm(axis)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
-
-
-def _placed(
-    mesh: trimesh.Trimesh, rotation: np.ndarray, origin: Sequence[float]
-) -> trimesh.Trimesh:
-    transform = np.eye(4)
-    transform[:3, :3] = rotation
-    transform[:3, 3] = origin
-    mesh.apply_transform(transform)
-    return mesh
-
-
-def _along(mesh: trimesh.Trimesh, p0: Sequence[float], p1: Sequence[float]) -> trimesh.Trimesh:
-    """Place a mesh built along +z from z=0 to z=length onto the segment p0 -> p1."""
-    p0 = np.asarray(p0, dtype=np.float64)
-    return _placed(mesh, _basis(np.asarray(p1, dtype=np.float64) - p0), p0)
-
-
-def cylinder(
-    p0: Sequence[float], p1: Sequence[float], radius: float, sections: int = 32
-) -> trimesh.Trimesh:
-    """Closed cylinder from ``p0`` to ``p1``."""
-    return frustum(p0, p1, radius, radius, sections)
-
-
-def frustum(
-    p0: Sequence[float], p1: Sequence[float], r0: float, r1: float, sections: int = 32
-) -> trimesh.Trimesh:
-    """Closed cone frustum from ``p0`` (radius ``r0``) to ``p1`` (radius ``r1``)."""
-    length = float(np.linalg.norm(np.subtract(p1, p0)))
-    profile = [[0.0, 0.0], [r0, 0.0], [r1, length], [0.0, length]]
-    return _along(trimesh.creation.revolve(profile, sections=sections), p0, p1)
-
-
-def box(centre: Sequence[float], extents: Sequence[float]) -> trimesh.Trimesh:
-    """Axis-aligned box."""
-    return _placed(trimesh.creation.box(extents=extents), np.eye(3), centre)
-
-
-def strut(p0: Sequence[float], p1: Sequence[float], width: float) -> trimesh.Trimesh:
-    """Square-section bar from ``p0`` to ``p1`` (cheaper than a cylinder: 12 triangles)."""
-    length = float(np.linalg.norm(np.subtract(p1, p0)))
-    bar = trimesh.creation.box(extents=[width, width, length])
-    bar.apply_translation([0.0, 0.0, length / 2.0])
-    return _along(bar, p0, p1)
-
-
-def dish(
-    centre: Sequence[float], axis: Sequence[float], radius: float, depth: float
-) -> trimesh.Trimesh:
-    """Parabolic antenna dish (closed shell 4 cm thick) opening along ``axis``."""
-    rho = np.linspace(0.0, radius, 7)
-    front = np.column_stack([rho, depth * (rho / radius) ** 2])
-    back = front[::-1] - [0.0, 0.04]
-    profile = np.vstack([front, back, [[0.0, -0.04]]])
-    mesh = trimesh.creation.revolve(profile[::-1], sections=32)
-    return _placed(mesh, _basis(np.asarray(axis, dtype=np.float64)), centre)
 
 
 class StationBuilder:
@@ -127,7 +71,7 @@ class StationBuilder:
         """Square lattice truss: four longerons, battens and one diagonal per face and bay."""
         p0 = np.asarray(p0, dtype=np.float64)
         p1 = np.asarray(p1, dtype=np.float64)
-        rotation = _basis(p1 - p0)
+        rotation = basis_with_z(p1 - p0)
         half = width / 2.0
         corners = [
             rotation @ [sx * half, sy * half, 0.0]
@@ -194,23 +138,16 @@ class StationBuilder:
 def _canonical_order(
     vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Order vertices and faces by value, not by how trimesh happened to produce them.
-
-    trimesh's smooth shading groups faces with NumPy sorts whose order among ties depends on
-    the CPU's SIMD sort kernels, so the same mesh came out with its faces in another order on
-    another machine, and the committed file could not be rebuilt bit for bit. Sorting by value
-    (stable sorts only) makes the bytes depend on the geometry alone. Winding is kept.
-    """
+    """Sort vertices and faces by value (stable sorts; winding kept), so the exported bytes
+    depend on the geometry alone: trimesh's smooth shading orders ties by the CPU's SIMD
+    sort kernels, and the committed file could not be rebuilt on another machine."""
     vertex_order = np.lexsort(np.column_stack([vertices, normals]).T[::-1])
     new_index = np.empty_like(vertex_order)
     new_index[vertex_order] = np.arange(len(vertex_order))
     faces = new_index[faces]
-    # Rotate each face to start at its smallest index (same winding), then sort the faces.
-    first = np.argmin(faces, axis=1)
-    rows = np.arange(len(faces))[:, None]
-    faces = faces[rows, (first[:, None] + np.arange(3)) % 3]
-    face_order = np.lexsort(faces.T[::-1])
-    return vertices[vertex_order], normals[vertex_order], faces[face_order]
+    first = np.argmin(faces, axis=1)  # rotate each face to start at its smallest index
+    faces = faces[np.arange(len(faces))[:, None], (first[:, None] + np.arange(3)) % 3]
+    return vertices[vertex_order], normals[vertex_order], faces[np.lexsort(faces.T[::-1])]
 
 
 def _module_handrails(
@@ -245,7 +182,7 @@ def _equipment_panels(
         outward = np.array([0.0, math.cos(angle), math.sin(angle)])
         panel = trimesh.creation.box(extents=[size[0], size[1], 0.08])
         rotation = np.column_stack([[1.0, 0.0, 0.0], np.cross(outward, [1.0, 0.0, 0.0]), outward])
-        b.add(component, "dark_panel", _placed(panel, rotation, [x, *(radius * outward[1:])]))
+        b.add(component, "dark_panel", placed(panel, rotation, [x, *(radius * outward[1:])]))
 
 
 def _solar_wing(b: StationBuilder, side: int) -> None:
@@ -374,7 +311,7 @@ def build_station() -> trimesh.Scene:
         normal = np.cross([1.0, 0.0, 0.0], direction)
         rotation = np.column_stack([[1.0, 0.0, 0.0], direction, normal])
         wing = trimesh.creation.box(extents=[1.9, 6.6, 0.04])
-        b.add("orion", "solar_cells", _placed(wing, rotation, root + 3.8 * direction))
+        b.add("orion", "solar_cells", placed(wing, rotation, root + 3.8 * direction))
         b.add(
             "orion",
             "bare_aluminium",

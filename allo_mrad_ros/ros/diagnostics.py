@@ -118,7 +118,8 @@ class Diagnostics:
             last_input, frame_id = self._last_input, self._frame_id
         counters["frames_received"] = self._received()
         status = DiagnosticStatus(
-            name=f"{self._node.get_name()}: pipeline",
+            # Fully qualified (less the root slash): two cameras' nodes stay apart.
+            name=f"{self._node.get_fully_qualified_name().lstrip('/')}: pipeline",
             hardware_id=self._hardware_id or frame_id or interface.HARDWARE_ID,
         )
         values = {

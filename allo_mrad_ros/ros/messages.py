@@ -10,6 +10,7 @@ import array
 from collections.abc import Sequence
 from typing import Any
 
+import cv2
 import numpy as np
 
 from allo_mrad_ros import interface
@@ -51,12 +52,7 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     width, height = int(msg.width), int(msg.height)
     if width <= 0 or height <= 0:
         raise MessageError("size", f"image size {width}x{height} is empty")
-    if expected_size is not None and (width, height) != tuple(expected_size):
-        raise MessageError(
-            "size",
-            f"image size {width}x{height} differs from camera_info "
-            f"{expected_size[0]}x{expected_size[1]}",
-        )
+    _check_size(width, height, expected_size)
     row_bytes = width * channels * dtype.itemsize
     step = int(msg.step)
     if step < row_bytes:
@@ -79,13 +75,52 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     return pixels
 
 
+def _check_size(width: int, height: int, expected_size: tuple[int, int] | None) -> None:
+    if expected_size is not None and (width, height) != tuple(expected_size):
+        raise MessageError(
+            "size",
+            f"image size {width}x{height} differs from camera_info "
+            f"{expected_size[0]}x{expected_size[1]}",
+        )
+
+
+def _decode_compressed(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
+    """H x W x C pixels (RGB order) of a ``sensor_msgs/CompressedImage``, jpeg or png.
+
+    ``format`` follows image_transport: ``"rgb8; jpeg compressed bgr8"``, or just ``"png"``.
+    The compressed file holds the standard channel order whatever the original encoding.
+    """
+    text = str(msg.format).lower()
+    if "compresseddepth" in text or not ("jpeg" in text or "jpg" in text or "png" in text):
+        raise MessageError(
+            "encoding",
+            f"compressed image format {msg.format!r} is not supported; use jpeg or png "
+            "(image_transport 'compressed')",
+        )
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if pixels is None:
+        raise MessageError(
+            "data", f"compressed image ({msg.format!r}, {data.size} bytes) cannot be decoded"
+        )
+    _check_size(pixels.shape[1], pixels.shape[0], expected_size)
+    if pixels.ndim == 2:
+        return pixels[..., None]
+    return pixels[..., [2, 1, 0]]
+
+
+def is_compressed(msg: Any) -> bool:
+    """Whether ``msg`` is a ``sensor_msgs/CompressedImage`` (it has ``format``, no ``encoding``)."""
+    return hasattr(msg, "format") and not hasattr(msg, "encoding")
+
+
 def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.ndarray:
-    """Decode a ``sensor_msgs/Image`` into an H x W x 3 RGB array (uint8 or uint16).
+    """Decode a ``sensor_msgs/Image`` or ``CompressedImage`` into H x W x 3 RGB (uint8/uint16).
 
     Parameters
     ----------
-    msg : sensor_msgs/Image
-        The camera image.
+    msg : sensor_msgs/Image or sensor_msgs/CompressedImage
+        The camera image; compressed ones jpeg or png (image_transport ``compressed``).
     expected_size : (width, height), optional
         The size announced by ``camera_info``; a different size is an error.
 
@@ -95,7 +130,11 @@ def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.n
         With ``cause`` ``encoding``, ``size``, ``step`` or ``data`` and a message that
         names the field and the values.
     """
-    pixels = _decode(msg, expected_size)
+    pixels = (
+        _decode_compressed(msg, expected_size)
+        if is_compressed(msg)
+        else _decode(msg, expected_size)
+    )
     if pixels.shape[2] == 1:
         pixels = np.repeat(pixels, 3, axis=2)
     return np.ascontiguousarray(pixels)
@@ -109,7 +148,7 @@ def image_to_array(msg: Any) -> np.ndarray:
     MessageError
         As :func:`image_to_rgb`.
     """
-    pixels = _decode(msg, None)
+    pixels = _decode_compressed(msg, None) if is_compressed(msg) else _decode(msg, None)
     if pixels.shape[2] == 1:
         return np.ascontiguousarray(pixels[..., 0])
     return np.ascontiguousarray(pixels)
@@ -154,6 +193,43 @@ def intrinsics_from_camera_info(msg: Any) -> CameraIntrinsics:
         )
     except (ValueError, IndexError) as error:
         raise MessageError("camera_info", f"camera_info is unusable: {error}") from error
+
+
+def camera_intrinsics(msg: Any, rectified: bool) -> CameraIntrinsics:
+    """The pinhole camera the reference is rendered for, from a ``sensor_msgs/CameraInfo``.
+
+    The reference is a distortion-free render. ``rectified`` (the image is ``image_rect``):
+    the rectified camera ``P``. Otherwise ``K``, and only if ``D`` is all zero: a distorted
+    ``image_raw`` would be compared with an undistorted reference.
+
+    Raises
+    ------
+    MessageError
+        Cause ``distortion`` for non-zero ``D`` on a raw image, ``camera_info`` for an
+        unusable one.
+    """
+    if rectified:
+        p = np.asarray(msg.p, dtype=np.float64)
+        try:
+            return CameraIntrinsics(
+                width=int(msg.width),
+                height=int(msg.height),
+                fx=float(p[0]),
+                fy=float(p[5]),
+                cx=float(p[2]),
+                cy=float(p[6]),
+            )
+        except (ValueError, IndexError) as error:
+            raise MessageError("camera_info", f"camera_info P is unusable: {error}") from error
+    d = np.asarray(msg.d, dtype=np.float64)
+    if d.size and (not np.isfinite(d).all() or np.any(d != 0.0)):
+        raise MessageError(
+            "distortion",
+            f"camera_info has distortion ({msg.distortion_model}, D={d.tolist()}) but the "
+            "reference is an undistorted render: feed the rectified image (image_proc's "
+            "image_rect, e.g. image_topic:=image_rect) and set rectified_input:=true",
+        )
+    return intrinsics_from_camera_info(msg)
 
 
 def fill_camera_info(msg: Any, intrinsics: CameraIntrinsics, frame_id: str = "") -> Any:

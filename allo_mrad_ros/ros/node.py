@@ -14,10 +14,16 @@ One place per concern:
 * :class:`.diagnostics.Diagnostics` counts and publishes ``/diagnostics``.
 
 Topic names come from :mod:`allo_mrad_ros.interface`.
+
+Outputs: ``~/score`` (32FC1, 0..255) is the continuous pixel ranking map, the cross score
+softly saturated (``mrad.pixel_score: continuous``; ``regions`` gives the paper's sparse map,
+zero outside the grown regions); ``~/mask`` (mono8 0/255) is the union of the grown regions
+and ``~/anomaly`` the image decision on its area.
 """
 
 from __future__ import annotations
 
+import copy
 import sys
 import threading
 import time
@@ -36,8 +42,9 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Bool, Float32
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from std_msgs.msg import Float32
 from visualization_msgs.msg import MarkerArray
 
 from allo_mrad_ros import interface
@@ -47,6 +54,7 @@ from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.buffers import LatestSlot, StampedBuffer
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
+from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import (
     NodeConfig,
     NodeParameter,
@@ -60,9 +68,7 @@ from allo_mrad_ros.ros.parameters import (
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
 from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
 from allo_mrad_ros.view import View
-from allo_mrad_ros.visualise import outline
 
-OVERLAY_COLOUR = (255, 40, 40)
 # Exit status when a parameter value is invalid (as for a command-line usage error).
 EXIT_INVALID_PARAMETER = 2
 
@@ -141,7 +147,7 @@ class MradDetectorNode(Node):
         self.get_logger().info(
             f"MRAD detector ready: pose from {self._pose_source.kind}, reference scale "
             f"{config.pipeline.render.reference_scale}, grid {config.pipeline.params.grid}, "
-            f"listening on {interface.IMAGE_TOPIC}"
+            f"listening on {self._image_topic}"
         )
 
     # --- parameters ---------------------------------------------------------------------
@@ -209,30 +215,52 @@ class MradDetectorNode(Node):
     # --- inputs -------------------------------------------------------------------------
 
     def _setup_io(self, state: QoSProfile) -> None:
-        inputs = qos_profile_sensor_data
-        self.create_subscription(Image, interface.IMAGE_TOPIC, self._on_image, inputs)
-        self.create_subscription(
-            CameraInfo, interface.CAMERA_INFO_TOPIC, self._on_camera_info, inputs
-        )
-        self.create_subscription(Vector3Stamped, interface.SUN_DIRECTION_TOPIC, self._on_sun, state)
-        self.create_subscription(
-            Float32, interface.SUN_STRENGTH_TOPIC, self._on_sun_strength, state
-        )
-        self.create_subscription(MarkerArray, interface.BODIES_TOPIC, self._on_bodies, state)
-        self._pub_score = self.create_publisher(Image, interface.SCORE_OUTPUT, 5)
-        self._pub_mask = self.create_publisher(Image, interface.MASK_OUTPUT, 5)
-        self._pub_anomaly = self.create_publisher(Bool, interface.ANOMALY_OUTPUT, 10)
-        self._pub_reference = self.create_publisher(Image, interface.REFERENCE_OUTPUT, 5)
-        self._pub_overlay = self.create_publisher(Image, interface.OVERLAY_OUTPUT, 5)
+        # Relative names: they resolve in the node's namespace; QoS overridable at start
+        # (qos_overrides.<resolved topic>.subscription.<policy>, read-only parameters).
+        overrides = QoSOverridingOptions.with_default_policies()
 
-    def _on_image(self, msg: Image) -> None:
+        def inputs() -> QoSProfile:
+            # A copy each: an override sets the policy on the profile object it is given.
+            return copy.copy(qos_profile_sensor_data)
+
+        image_type, image_topic = Image, interface.IMAGE_INPUT
+        if self._config.image_transport == "compressed":
+            # image_transport's rule: the remapped, resolved base topic + "/compressed".
+            image_topic = self.resolve_topic_name(image_topic) + interface.COMPRESSED_SUFFIX
+            image_type = CompressedImage
+        self._image_topic = self.resolve_topic_name(image_topic)
+        self.create_subscription(
+            image_type, image_topic, self._on_image, inputs(), qos_overriding_options=overrides
+        )
+        self.create_subscription(
+            CameraInfo,
+            interface.CAMERA_INFO_INPUT,
+            self._on_camera_info,
+            inputs(),
+            qos_overriding_options=overrides,
+        )
+        self.create_subscription(Vector3Stamped, interface.SUN_DIRECTION_INPUT, self._on_sun, state)
+        self.create_subscription(
+            Float32, interface.SUN_STRENGTH_INPUT, self._on_sun_strength, state
+        )
+        self.create_subscription(MarkerArray, interface.BODIES_INPUT, self._on_bodies, state)
+        self._outputs = Outputs(self)
+
+    def _on_image(self, msg: Image | CompressedImage) -> None:
         self._diagnostics.input_seen(msg.header.frame_id)
+        config = self._config
+        if not self._outputs.wanted(config.publish_reference, config.publish_overlay):
+            # Nobody listens: neither render nor detect.
+            self._diagnostics.count("frames_skipped_no_subscribers")
+            return
         if self._image_slot.put((msg, time.monotonic())):
             self._diagnostics.count("frames_dropped_stale")
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            intrinsics = messages.check_camera_size(messages.intrinsics_from_camera_info(msg))
+            intrinsics = messages.check_camera_size(
+                messages.camera_intrinsics(msg, self._config.rectified_input)
+            )
         except MessageError as error:
             self._diagnostics.report(error)
             return
@@ -242,6 +270,7 @@ class MradDetectorNode(Node):
     def _on_sun(self, msg: Vector3Stamped) -> None:
         try:
             direction = messages.vector_to_direction(msg.vector)
+            direction = self._pose_source.in_station(msg.header, direction, "sun")
         except MessageError as error:
             self._diagnostics.report(error)
             return
@@ -261,6 +290,7 @@ class MradDetectorNode(Node):
     def _on_bodies(self, msg: MarkerArray) -> None:
         try:
             bodies = tuple(messages.markers_to_bodies(msg.markers))
+            bodies = self._pose_source.bodies_in_station(msg.markers, bodies)
         except MessageError as error:
             self._diagnostics.report(error)
             return
@@ -282,11 +312,12 @@ class MradDetectorNode(Node):
     def _view_of(self, msg: Image, state: Snapshot) -> View | None:
         """Pose and lighting at the image stamp (None, counted, when no pose is known)."""
         tolerance_s = state.config.pose_tolerance_s
-        pose = self._pose_source.lookup(msg.header, tolerance_s)
+        pose = self._pose_source.lookup(msg.header, tolerance_s, state.config.tf_timeout_s)
         if pose is None:
             self._diagnostics.count("pose_lookup_failures")
             self.get_logger().warning(
-                f"no camera pose within {tolerance_s} s of image stamp "
+                f"no camera pose within {tolerance_s} s (tf: {state.config.tf_timeout_s} s "
+                "wait) of image stamp "
                 f"{messages.stamp_to_ns(msg.header.stamp)} ns "
                 f"(pose source {self._pose_source.kind}); frame skipped",
                 throttle_duration_sec=5.0,
@@ -302,18 +333,22 @@ class MradDetectorNode(Node):
     # --- outputs ------------------------------------------------------------------------
 
     def _publish(self, msg: Image, image: np.ndarray, frame: ProcessedFrame) -> None:
-        result = frame.primary
-        header = msg.header
         config = self._config
-        fill = messages.fill_image
-        self._pub_score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
-        self._pub_mask.publish(fill(Image(), header, result.mask, interface.MONO8))
-        self._pub_anomaly.publish(Bool(data=bool(result.anomalous)))
-        if config.publish_reference:
-            self._pub_reference.publish(fill(Image(), header, frame.reference, interface.RGB8))
-        if config.publish_overlay:
-            overlay = outline(_as_uint8(image), result.mask, OVERLAY_COLOUR)
-            self._pub_overlay.publish(fill(Image(), header, overlay, interface.RGB8))
+        with self._lock:
+            camera = self._intrinsics
+        reference_camera = None
+        if camera is not None:
+            reference_camera = camera.scaled(config.pipeline.render.reference_scale)
+            if (reference_camera.height, reference_camera.width) != frame.reference.shape[:2]:
+                reference_camera = None  # camera_info changed under this frame
+        self._outputs.publish(
+            msg.header,
+            image,
+            frame,
+            reference_camera,
+            config.publish_reference,
+            config.publish_overlay,
+        )
 
     def destroy_node(self) -> None:
         """Stop the processing thread (nothing is published after), then destroy the node."""
@@ -321,12 +356,6 @@ class MradDetectorNode(Node):
         if worker is not None:
             worker.stop()
         super().destroy_node()
-
-
-def _as_uint8(image: np.ndarray) -> np.ndarray:
-    if image.dtype == np.uint8:
-        return image
-    return (image / 257).astype(np.uint8)
 
 
 def main(argv: list[str] | None = None) -> int:

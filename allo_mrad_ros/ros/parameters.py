@@ -76,7 +76,30 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
         ),
         "pose_tolerance_s": NodeParameter(
             0.05,
-            _number("largest |pose stamp - image stamp| accepted (topic) or TF wait", 0.0, 10.0),
+            _number(
+                "largest |stamp - image stamp| of a PoseStamped or Sun direction accepted",
+                0.0,
+                10.0,
+            ),
+        ),
+        "tf_timeout_s": NodeParameter(
+            0.5, _number("longest wait for the camera's TF transform at an image stamp", 0.0, 10.0)
+        ),
+        "image_transport": NodeParameter(
+            "raw",
+            _choice(
+                "raw: sensor_msgs/Image on the image topic; compressed: sensor_msgs/"
+                "CompressedImage (jpeg, png) on <image topic>/compressed",
+                *interface.IMAGE_TRANSPORTS,
+            ),
+            read_only=True,
+        ),
+        "rectified_input": NodeParameter(
+            False,
+            _flag(
+                "the image is rectified (image_rect): intrinsics from camera_info P, D ignored; "
+                "false: from K, and a non-zero D is refused"
+            ),
         ),
         "mesh": NodeParameter(
             "",
@@ -212,6 +235,9 @@ class NodeConfig:
     station_frame: str
     camera_frame: str
     pose_tolerance_s: float
+    tf_timeout_s: float
+    image_transport: str
+    rectified_input: bool
     mesh: str
     sun_direction: tuple[float, float, float]
     sun_strength: float
@@ -235,6 +261,9 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         station_frame=values["station_frame"],
         camera_frame=values["camera_frame"],
         pose_tolerance_s=float(values["pose_tolerance_s"]),
+        tf_timeout_s=float(values["tf_timeout_s"]),
+        image_transport=values["image_transport"],
+        rectified_input=values["rectified_input"],
         mesh=values["mesh"],
         sun_direction=tuple(float(v) for v in values["sun_direction"]),
         sun_strength=float(values["sun_strength"]),

@@ -15,38 +15,17 @@ from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
 from allo_mrad_ros.sequence import SPLITS
+from allo_mrad_ros.synth.realism_config import RealismConfig
+from allo_mrad_ros.synth.validation import SynthError, _count, _finite, _pair
 
-
-class SynthError(ValueError):
-    """An invalid generator setting, or a scene in which the rules cannot be met."""
-
-
-def _finite(value: object, name: str, low: float | None = None, high: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SynthError(f"{name} must be a number, got {value!r}")
-    number = float(value)
-    if not math.isfinite(number):
-        raise SynthError(f"{name} must be finite, got {value!r}")
-    if low is not None and number < low:
-        raise SynthError(f"{name} must be >= {low}, got {value!r}")
-    if high is not None and number > high:
-        raise SynthError(f"{name} must be <= {high}, got {value!r}")
-    return number
-
-
-def _count(value: object, name: str, low: int = 0) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise SynthError(f"{name} must be an integer >= {low}, got {value!r}")
-    return value
-
-
-def _pair(value: object, name: str, low: float) -> tuple[float, float]:
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise SynthError(f"{name} must be a (min, max) pair, got {value!r}")
-    a, b = (_finite(v, name, low) for v in value)
-    if a > b:
-        raise SynthError(f"{name} must have min <= max, got {value!r}")
-    return a, b
+__all__ = [
+    "PRESETS",
+    "RealismConfig",
+    "SplitSpec",
+    "SynthConfig",
+    "SynthError",
+    "preset",
+]
 
 
 @dataclass(frozen=True)
@@ -76,64 +55,6 @@ class SplitSpec:
     def frames(self) -> int:
         """Total number of frames."""
         return self.normal + self.anomalous
-
-
-@dataclass(frozen=True)
-class RealismConfig:
-    """How the query image departs from a clean render of the CAD model.
-
-    The reference MRAD renders is a clean image of the nominal model; the query stands for a
-    real camera image. These effects model the gap; their defaults are plain camera physics,
-    not tuned for any detector.
-
-    Parameters
-    ----------
-    enabled : bool
-        False writes the clean render as the query (for debugging only).
-    exposure_sigma : float
-        Standard deviation of the log exposure gain per frame (auto-exposure, Sun angle).
-    read_noise_dn : float
-        Read noise in 8-bit digital numbers (DN).
-    shot_noise_dn : float
-        Shot-noise standard deviation at full scale (255 DN); it scales with sqrt(signal).
-    noise_gain : tuple of float
-        Range of the per-frame multiplier on both noise terms (sensor gain).
-    blur_sigma : float
-        Optical blur (Gaussian sigma) in pixels at 1920 pixels of width.
-    vignetting : float
-        Relative brightness loss in the image corners.
-    bloom : float
-        Weight of the halo around saturated highlights.
-    glare : float
-        Weight of the Sun's glare (halo, diffraction spikes, ghosts) when the Sun is in view.
-    material_variation : float
-        Relative spread of the as-built station's colours and roughness around the CAD
-        model's (one draw per sequence: the real station is one object).
-    """
-
-    enabled: bool = True
-    exposure_sigma: float = 0.12
-    read_noise_dn: float = 1.2
-    shot_noise_dn: float = 3.0
-    noise_gain: tuple[float, float] = (0.8, 1.5)
-    blur_sigma: float = 0.6
-    vignetting: float = 0.12
-    bloom: float = 0.06
-    glare: float = 1.0
-    material_variation: float = 0.08
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.enabled, bool):
-            raise SynthError(f"realism enabled must be a bool, got {self.enabled!r}")
-        _finite(self.exposure_sigma, "exposure_sigma", 0.0, 1.0)
-        _finite(self.read_noise_dn, "read_noise_dn", 0.0, 50.0)
-        _finite(self.shot_noise_dn, "shot_noise_dn", 0.0, 50.0)
-        object.__setattr__(self, "noise_gain", _pair(self.noise_gain, "noise_gain", 0.0))
-        _finite(self.blur_sigma, "blur_sigma", 0.0, 10.0)
-        _finite(self.vignetting, "vignetting", 0.0, 0.9)
-        _finite(self.bloom, "bloom", 0.0, 1.0)
-        _finite(self.glare, "glare", 0.0, 10.0)
-        _finite(self.material_variation, "material_variation", 0.0, 0.5)
 
 
 DEFAULT_DEPTHS_M = (0.0, -1.0, 1.0, -2.0, 2.0)
@@ -176,6 +97,11 @@ class SynthConfig:
         Relative Sun strengths and their probabilities.
     colour_probability : float
         Probability that an anomalous frame recolours its object (ALLO's colour variant).
+    scale_probability : float
+        Probability that an anomalous frame scales its object (ALLO's scale variant).
+    scales : tuple of float
+        The scale factors of that variant (ALLO: 0.3, 0.5, 0.7). A scaled object that
+        cannot be placed visibly is placed at the next larger scale, finally at 1.
     anomaly_types : tuple of str or None
         Object types to use; None for all (:data:`~.objects.ANOMALY_TYPES`).
     camera_distance_m : tuple of float
@@ -216,6 +142,8 @@ class SynthConfig:
     sun_strengths: tuple[float, ...] = DEFAULT_SUN_STRENGTHS
     sun_weights: tuple[float, ...] = DEFAULT_SUN_WEIGHTS
     colour_probability: float = 0.2
+    scale_probability: float = 0.2
+    scales: tuple[float, ...] = (0.3, 0.5, 0.7)
     anomaly_types: tuple[str, ...] | None = None
     camera_distance_m: tuple[float, float] = (12.0, 30.0)
     min_camera_clearance_m: float = 7.0
@@ -260,6 +188,11 @@ class SynthConfig:
         _finite(self.max_occluded_fraction, "max_occluded_fraction", 0.0, 1.0)
         self._check_sun()
         _finite(self.colour_probability, "colour_probability", 0.0, 1.0)
+        _finite(self.scale_probability, "scale_probability", 0.0, 1.0)
+        if not isinstance(self.scales, tuple) or not self.scales:
+            raise SynthError(f"scales must be a non-empty tuple, got {self.scales!r}")
+        for scale in self.scales:
+            _finite(scale, "scales", 0.05, 1.0)
         if self.anomaly_types is not None:
             from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 

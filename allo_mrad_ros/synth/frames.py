@@ -21,17 +21,22 @@ from allo_mrad_ros.geometry import pose_components
 from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer, RenderResult
 from allo_mrad_ros.synth import placement
 from allo_mrad_ros.synth.config import SynthConfig, SynthError
+from allo_mrad_ros.synth.lighting import QueryLight, query_lamps, query_light
 from allo_mrad_ros.synth.objects import AnomalyObject, build_anomaly
 from allo_mrad_ros.synth.occupancy import StationOccupancy
 from allo_mrad_ros.synth.planning import (
+    STREAM_CAMERA,
     STREAM_FRAME,
+    STREAM_LIGHT,
     STREAM_MATERIALS,
     STREAM_POSES,
+    STREAM_WEAR,
     FramePlan,
     stream,
 )
 from allo_mrad_ros.synth.poses import BasePose, clear_camera, make_base_poses, perturb, pose_error
-from allo_mrad_ros.synth.realism import apply_camera, as_built_station, find_sun, resize_to
+from allo_mrad_ros.synth.realism import CameraLook, apply_camera, find_sun, resize_to
+from allo_mrad_ros.synth.surfaces import as_built_station, worn_object
 
 # The low-resolution pre-check of an object's visible area accepts down to this share of
 # the threshold; the full-resolution render decides.
@@ -120,10 +125,18 @@ class FrameSynthesizer:
         )
         self.ephemeris = StationEphemeris()
         realism = config.realism
-        amount = realism.material_variation if realism.enabled else 0.0
-        station = as_built_station(self.mesh, stream(seed, STREAM_MATERIALS), amount)
+        station = as_built_station(self.mesh, stream(seed, STREAM_MATERIALS), realism)
+        camera_rng = stream(seed, STREAM_CAMERA)
+        self.look = CameraLook.draw(camera_rng, realism)
+        self.ambient, self.spot_intensity = query_lamps(camera_rng, realism)
         self._query = ReferenceRenderer(
-            station, self.intrinsics, scale=1.0, backend=backend, shadows=config.shadows
+            station,
+            self.intrinsics,
+            scale=1.0,
+            backend=backend,
+            shadows=config.shadows,
+            ambient=self.ambient,
+            spot_intensity=self.spot_intensity,
         )
         self._low: ReferenceRenderer | None = None
         pixels = config.width * config.height
@@ -156,17 +169,24 @@ class FrameSynthesizer:
         base = self.base_poses[plan.split][plan.camera]
         sky = self._sky(plan.day)
         bodies = sky.bodies()
+        realism = self.config.realism
+        light = query_light(
+            stream(plan.seed, STREAM_LIGHT, plan.index),
+            realism,
+            sky.sun_direction,
+            plan.sun_strength,
+        )
         extra: dict[str, object] = {"day": plan.day, "pose_id": base.pose_id}
         if plan.is_anomalous:
-            T_true, result, anomaly_extra = self._place(plan, base, sky, rng)
+            T_true, result, anomaly_extra = self._place(plan, base, sky, light, rng)
             extra.update(anomaly_extra)
         else:
             T_true = self._camera(base, rng)
             result = self._query.render(
-                T_true, sky.sun_direction, plan.sun_strength, bodies, labels=True
+                T_true, light.sun_direction, light.sun_strength, bodies, labels=True
             )
         sun = find_sun(result, sky.sun[:3], T_true, float(sky.sun[3]))
-        image, effects = apply_camera(result.rgb, rng, self.config.realism, sun, plan.sun_strength)
+        image, effects = apply_camera(result.rgb, rng, realism, sun, light.sun_strength, self.look)
         T_reported = pose_error(T_true, rng, self.config.pose_error_m, self.config.pose_error_rad)
         reference = None
         if self.config.references:
@@ -177,6 +197,12 @@ class FrameSynthesizer:
             {
                 "exposure": round(effects.exposure, 6),
                 "noise_gain": round(effects.noise_gain, 6),
+                "white_balance_r": round(effects.white_balance[0], 6),
+                "white_balance_b": round(effects.white_balance[1], 6),
+                "query_sun_strength": round(light.sun_strength, 6),
+                "query_sun_angle_deg": round(light.angle_deg, 4),
+                "tone_contrast": round(self.look.tone_contrast, 4),
+                "saturation": round(self.look.saturation, 4),
                 "sun_in_view": 0.0 if sun is None else round(sun.visible, 4),
             }
         )
@@ -201,50 +227,73 @@ class FrameSynthesizer:
         return sorted(self.config.depths_m, key=lambda d: (abs(d - requested), d))
 
     def _place(
-        self, plan: FramePlan, base: BasePose, sky: Sky, rng: np.random.Generator
+        self,
+        plan: FramePlan,
+        base: BasePose,
+        sky: Sky,
+        light: QueryLight,
+        rng: np.random.Generator,
     ) -> tuple[np.ndarray, RenderResult, dict[str, object]]:
         config = self.config
-        obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour)
         need = math.ceil(config.min_anomaly_fraction * config.width * config.height)
         bodies = sky.bodies()
         tries = 0
         reasons: dict[str, int] = {}
-        for depth in self._depth_order(plan.depth_m):
-            for _ in range(config.camera_attempts):
-                T = self._camera(base, rng)
-                for _ in range(config.max_retries):
-                    tries += 1
-                    pose = placement.propose(
-                        T, rng, config.object_distance_m, config.box_half_width_m, depth
-                    )
-                    candidate = placement.check(
-                        obj,
-                        pose,
-                        T,
-                        self.intrinsics,
-                        self.occupancy,
-                        config.max_occluded_fraction,
-                        depth,
-                    )
-                    reason = candidate.rejected or self._too_small(obj, pose, T, sky, need)
-                    if not reason:
-                        extras = [ExtraObject(obj.scene, pose, LABEL_ANOMALY, plan.anomaly)]
-                        result = self._query.render(
-                            T, sky.sun_direction, plan.sun_strength, bodies, extras, labels=True
+        # A scale variant too small to be seen is placed at the next larger scale, finally 1.
+        scales = [plan.scale, *sorted(s for s in {*config.scales, 1.0} if s > plan.scale)]
+        for scale in scales:
+            obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour, scale)
+            if self._area_bound(obj) < need:
+                reasons["scale"] = reasons.get("scale", 0) + 1
+                continue
+            wear = stream(plan.seed, STREAM_WEAR, plan.index)
+            worn = worn_object(obj.scene, wear, config.realism)
+            for depth in self._depth_order(plan.depth_m):
+                for _ in range(config.camera_attempts):
+                    T = self._camera(base, rng)
+                    for _ in range(config.max_retries):
+                        tries += 1
+                        pose = placement.propose(
+                            T, rng, config.object_distance_m, config.box_half_width_m, depth
                         )
-                        pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
-                        if pixels >= need:
-                            return (
+                        candidate = placement.check(
+                            obj,
+                            pose,
+                            T,
+                            self.intrinsics,
+                            self.occupancy,
+                            config.max_occluded_fraction,
+                            depth,
+                        )
+                        reason = candidate.rejected or self._too_small(obj, pose, T, sky, need)
+                        if not reason:
+                            extras = [ExtraObject(worn, pose, LABEL_ANOMALY, plan.anomaly)]
+                            result = self._query.render(
                                 T,
-                                result,
-                                self._anomaly_extra(plan, obj, candidate, pixels, tries),
+                                light.sun_direction,
+                                light.sun_strength,
+                                bodies,
+                                extras,
+                                labels=True,
                             )
-                        reason = "small"
-                    reasons[reason] = reasons.get(reason, 0) + 1
+                            pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
+                            if pixels >= need:
+                                extra = self._anomaly_extra(plan, obj, candidate, pixels, tries)
+                                return T, result, extra
+                            reason = "small"
+                        reasons[reason] = reasons.get(reason, 0) + 1
         raise SynthError(
             f"frame {plan.index} ({plan.anomaly}, camera {plan.split}/{plan.camera}): no "
             f"placement met the rules in {tries} tries ({reasons})"
         )
+
+    def _area_bound(self, obj: AnomalyObject) -> float:
+        """Upper bound of the object's image area (pixels) at the nearest placement."""
+        config = self.config
+        nearest = config.object_distance_m + min(config.depths_m)
+        nearest = max(0.5, nearest - math.sqrt(3.0) * config.box_half_width_m)
+        largest = np.sort(obj.extents)[::-1]
+        return float(largest[0] * largest[1] * (self.intrinsics.fx / nearest) ** 2)
 
     def _too_small(
         self, obj: AnomalyObject, pose: np.ndarray, T: np.ndarray, sky: Sky, need: int
@@ -273,6 +322,8 @@ class FrameSynthesizer:
         extra: dict[str, object] = {
             "object_seed": obj.seed,
             "colour": obj.colour,
+            "scale": obj.scale,
+            "requested_scale": plan.scale,
             "depth_m": candidate.depth_m,
             "requested_depth_m": plan.depth_m,
             "anomaly_pixels": pixels,

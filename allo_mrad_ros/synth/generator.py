@@ -40,8 +40,9 @@ class GenerationReport:
     root : pathlib.Path
         The sequence folder.
     composition : dict
-        Per split: ``frames``, ``normal``, ``anomalous``, ``cameras`` and counts per object
-        type and per depth.
+        Per split: ``frames``, ``normal``, ``anomalous``, ``cameras``, counts per object
+        type, depth, scale and colour, and how many objects fell back to another depth or
+        scale.
     frames : int
         Frames written.
     seconds : float
@@ -72,6 +73,11 @@ def _composition(outputs: list[tuple[FramePlan, dict]], config: SynthConfig) -> 
                 str(k): v for k, v in sorted(Counter(e["depth_m"] for _, e in anomalous).items())
             },
             "depth_fallbacks": sum(e["depth_m"] != p.depth_m for p, e in anomalous),
+            "per_scale": {
+                str(k): v for k, v in sorted(Counter(e["scale"] for _, e in anomalous).items())
+            },
+            "scale_fallbacks": sum(e["scale"] != p.scale for p, e in anomalous),
+            "per_colour": dict(sorted(Counter(e["colour"] for _, e in anomalous).items())),
         }
     return result
 

@@ -16,7 +16,8 @@ from allo_mrad_ros.synth.config import SynthConfig
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES, COLOURS, DEFAULT_COLOUR
 
 # Independent random streams derived from the sequence seed.
-STREAM_PLAN, STREAM_POSES, STREAM_MATERIALS, STREAM_FRAME = range(4)
+STREAM_PLAN, STREAM_POSES, STREAM_MATERIALS, STREAM_FRAME, STREAM_CAMERA = range(5)
+STREAM_LIGHT, STREAM_WEAR = 5, 6  # per frame: the query's Sun, the object's wear
 
 
 def stream(seed: int, kind: int, *index: int) -> np.random.Generator:
@@ -46,6 +47,8 @@ class FramePlan:
         Requested depth offset of the object (0 for normal frames).
     colour : str
         ``default`` or a colour variant name.
+    scale : float
+        Scale of the object (1 unless the frame is a scale variant).
     object_seed : int
         Seed the object is built from.
     seed : int
@@ -62,6 +65,7 @@ class FramePlan:
     colour: str
     object_seed: int
     seed: int
+    scale: float = 1.0
 
     @property
     def is_anomalous(self) -> bool:
@@ -120,6 +124,8 @@ def plan_frames(config: SynthConfig, seed: int) -> list[FramePlan]:
         recolour = rng.random(spec.frames) < config.colour_probability
         colour_index = rng.integers(len(colours), size=spec.frames)
         object_seeds = rng.integers(0, 2**31 - 1, spec.frames)
+        rescale = rng.random(spec.frames) < config.scale_probability
+        scale_index = rng.integers(len(config.scales), size=spec.frames)
         order = sorted(range(spec.frames), key=lambda i: (days[i], cameras[i], i))
         for i in order:
             anomalous = bool(kinds[i])
@@ -137,6 +143,7 @@ def plan_frames(config: SynthConfig, seed: int) -> list[FramePlan]:
                     else DEFAULT_COLOUR,
                     object_seed=int(object_seeds[i]) if anomalous else 0,
                     seed=seed,
+                    scale=float(config.scales[scale_index[i]]) if anomalous and rescale[i] else 1.0,
                 )
             )
     return plans

@@ -1,17 +1,13 @@
 """The gap between the CAD model and a camera image, for the generated queries.
 
-Two parts:
-
-* :func:`as_built_station` - the "real" station: the CAD model's geometry with its
-  materials' colours and roughness drawn around the nominal values once per sequence, so
-  the query and the reference disagree a little everywhere, as a real station and its model
-  do;
-* :func:`apply_camera` - the camera: exposure, the Sun's glare (halo, diffraction spikes,
-  lens ghosts) when it is in view, bloom around highlights, vignetting, optical blur, shot
-  and read noise, 8-bit quantisation.
+The camera, :func:`apply_camera`: exposure, white balance, saturation, the Sun's glare
+(halo, diffraction spikes, lens ghosts) when it is in view, bloom around highlights,
+vignetting, optical blur, an S-shaped tone curve, shot and read noise, 8-bit quantisation.
+The surfaces (as-built station, worn objects) are in :mod:`.surfaces`, the light in
+:mod:`.lighting`.
 
 The effects are modelled from plain camera physics with moderate defaults
-(:class:`~.config.RealismConfig`); none is tuned against any detector.
+(:class:`~.realism_config.RealismConfig`); none is tuned against any detector.
 """
 
 from __future__ import annotations
@@ -19,16 +15,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cache
-from os import PathLike
 
 import cv2
 import numpy as np
-import trimesh
-from trimesh.visual.material import PBRMaterial
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.render import RenderResult
-from allo_mrad_ros.synth.config import RealismConfig, SynthError
+from allo_mrad_ros.synth.realism_config import RealismConfig
 
 _GAMMA = 2.2
 _WIDTH_REF = 1920.0  # effect sizes are given at this image width
@@ -61,65 +54,6 @@ class SunInView:
     y: float
     radius_px: float
     visible: float
-
-
-def as_built_station(
-    model: str | PathLike[str] | trimesh.Scene, rng: np.random.Generator, amount: float
-) -> trimesh.Scene:
-    """The station model with every material's colour and roughness varied a little.
-
-    Parameters
-    ----------
-    model : path or trimesh.Scene
-        The CAD model (as the renderer takes it).
-    rng : numpy.random.Generator
-        Source of randomness (one draw per material, in material-name order).
-    amount : float
-        Relative spread: each colour channel is scaled by U(1 - amount, 1 + amount), the
-        roughness moved by U(-amount, amount).
-
-    Returns
-    -------
-    trimesh.Scene
-        A new scene; the input is not modified.
-    """
-    scene = model.copy() if isinstance(model, trimesh.Scene) else trimesh.load(model, force="scene")
-    if not isinstance(scene, trimesh.Scene):
-        raise SynthError(f"cannot load the station model {model!r} as a scene")
-    materials: dict[str, PBRMaterial] = {}
-    for name in sorted(scene.geometry):
-        mesh = scene.geometry[name]
-        visual = getattr(mesh, "visual", None)
-        material = getattr(visual, "material", None)
-        if not isinstance(material, PBRMaterial):
-            continue  # vertex-coloured or plain parts keep their look
-        key = material.name or f"material{id(material)}"
-        if key not in materials:
-            materials[key] = _varied(material, rng, amount)
-        mesh.visual = trimesh.visual.TextureVisuals(uv=visual.uv, material=materials[key])
-    return scene
-
-
-def _varied(material: PBRMaterial, rng: np.random.Generator, amount: float) -> PBRMaterial:
-    colour = np.asarray(
-        material.baseColorFactor if material.baseColorFactor is not None else [1.0] * 4,
-        dtype=np.float64,
-    )
-    if np.issubdtype(np.asarray(material.baseColorFactor).dtype, np.integer):
-        colour = colour / 255.0
-    colour[:3] = np.clip(colour[:3] * rng.uniform(1 - amount, 1 + amount, 3), 0.0, 1.0)
-    roughness = 1.0 if material.roughnessFactor is None else float(material.roughnessFactor)
-    roughness = float(np.clip(roughness + rng.uniform(-amount, amount), 0.05, 1.0))
-    return PBRMaterial(
-        name=material.name,
-        baseColorFactor=colour,
-        baseColorTexture=material.baseColorTexture,
-        metallicFactor=material.metallicFactor,
-        roughnessFactor=roughness,
-        emissiveFactor=material.emissiveFactor,
-        alphaMode=material.alphaMode,
-        doubleSided=material.doubleSided,
-    )
 
 
 def find_sun(
@@ -224,12 +158,55 @@ def _bloom(linear: np.ndarray, width: int) -> np.ndarray:
     return cv2.resize(halo, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
+_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, linear RGB
+
+
+@dataclass(frozen=True)
+class CameraLook:
+    """The camera's fixed rendering of colour, drawn once per sequence.
+
+    Attributes
+    ----------
+    tone_contrast : float
+        Exponent ``k`` of the S-shaped tone curve on display values (1: none).
+    saturation : float
+        Saturation factor in linear RGB (1: unchanged).
+    """
+
+    tone_contrast: float = 1.0
+    saturation: float = 1.0
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, realism: RealismConfig) -> CameraLook:
+        """Draw a camera's look from the ranges of ``realism`` (identity when disabled)."""
+        if not realism.enabled:
+            return cls()
+        return cls(
+            float(rng.uniform(*realism.tone_contrast)), float(rng.uniform(*realism.saturation))
+        )
+
+
+def tone_curve(display: np.ndarray, contrast: float) -> np.ndarray:
+    """S-shaped tone curve ``d**k / (d**k + (1 - d)**k)`` on display values in [0, 1].
+
+    Fixes 0, 1/2 and 1; ``k > 1`` crushes the shadows and rolls off the highlights as a
+    camera's picture style or a path tracer's view transform (Filmic, AgX) does.
+    """
+    d = np.clip(display, 0.0, 1.0)
+    if contrast == 1.0:
+        return d
+    k = np.float32(contrast)
+    a = np.power(d, k)
+    return a / np.maximum(a + np.power(np.float32(1.0) - d, k), np.float32(1e-12))
+
+
 @dataclass(frozen=True)
 class CameraEffects:
     """The per-frame draws of :func:`apply_camera`, recorded in the frame's extra columns."""
 
     exposure: float
     noise_gain: float
+    white_balance: tuple[float, float] = (1.0, 1.0)
 
 
 def apply_camera(
@@ -238,6 +215,7 @@ def apply_camera(
     realism: RealismConfig,
     sun: SunInView | None = None,
     sun_strength: float = 1.0,
+    look: CameraLook | None = None,
 ) -> tuple[np.ndarray, CameraEffects]:
     """Turn a clean render into a camera image.
 
@@ -253,20 +231,28 @@ def apply_camera(
         The Sun's disc, when in view: adds glare scaled by its visible fraction.
     sun_strength : float
         Relative Sun strength of the frame (dimmer settings glare less).
+    look : CameraLook, optional
+        The camera's tone curve and saturation; default none (identity).
 
     Returns
     -------
     image : numpy.ndarray
         (h, w, 3) uint8.
     effects : CameraEffects
-        The exposure gain and noise gain drawn.
+        The exposure gain, noise gain and white-balance gains (red, blue) drawn.
     """
     if not realism.enabled:
         return rgb.copy(), CameraEffects(1.0, 0.0)
     height, width = rgb.shape[:2]
     exposure = float(math.exp(rng.normal(0.0, realism.exposure_sigma)))
     noise_gain = float(rng.uniform(*realism.noise_gain))
-    linear = _to_linear()[rgb] * np.float32(exposure)
+    limit = 3.0 * realism.white_balance_sigma
+    red, blue = np.exp(np.clip(rng.normal(0.0, realism.white_balance_sigma, 2), -limit, limit))
+    look = look or CameraLook()
+    linear = _to_linear()[rgb] * np.array([red, 1.0, blue], np.float32) * np.float32(exposure)
+    if look.saturation != 1.0:
+        luma = (linear @ _LUMA)[..., None]
+        linear = luma + np.float32(look.saturation) * (linear - luma)
     if sun is not None and realism.glare > 0:
         strength = realism.glare * sun.visible * (0.3 + 0.7 * min(sun_strength, 1.0))
         linear += _glare((height, width), sun, strength) * np.float32(exposure)
@@ -276,13 +262,14 @@ def apply_camera(
         linear *= (1.0 - np.float32(realism.vignetting) * _radial(height, width))[..., None]
     if realism.blur_sigma > 0:
         linear = _blur(linear, realism.blur_sigma * width / _WIDTH_REF)
-    display = np.power(np.clip(linear, 0.0, 1.0), np.float32(1.0 / _GAMMA)) * np.float32(255.0)
+    display = np.power(np.clip(linear, 0.0, 1.0), np.float32(1.0 / _GAMMA))
+    display = tone_curve(display, look.tone_contrast) * np.float32(255.0)
     read = realism.read_noise_dn * noise_gain
     shot = realism.shot_noise_dn * noise_gain
     sigma = np.sqrt(np.float32(read * read) + np.float32(shot * shot / 255.0) * display)
     noisy = display + sigma * rng.standard_normal(display.shape, dtype=np.float32)
     image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
-    return image, CameraEffects(exposure, noise_gain)
+    return image, CameraEffects(exposure, noise_gain, (float(red), float(blue)))
 
 
 def resize_to(image: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:

@@ -8,11 +8,12 @@ from scipy.spatial.transform import Rotation
 
 from allo_mrad_ros.benchmarks.tradeoff_report import (
     choose_default,
+    choose_mask,
     describe_speedup_tier,
     most_accurate_with_speedup,
     pareto_front,
 )
-from allo_mrad_ros.benchmarks.tradeoff_settings import perturbed, sweep_settings
+from allo_mrad_ros.benchmarks.tradeoff_settings import Setting, perturbed, sweep_settings
 from allo_mrad_ros.detector import profile
 from allo_mrad_ros.geometry import look_at
 
@@ -67,13 +68,44 @@ def test_perturbation_has_exactly_the_requested_size(degrees, metres):
 
 
 def test_sweep_covers_the_issue_knobs_and_names_are_unique():
-    settings = sweep_settings(profile("baseline"))
+    settings = sweep_settings(profile("default"))
     names = [s.name for s in settings]
     assert len(names) == len(set(names))
-    assert {s.render.reference_scale for s in settings} == {1.0, 0.5, 0.25, 0.125}
+    assert {s.render.reference_scale for s in settings} == {1.0, 0.25, 0.125}
     assert {s.params.process_scale for s in settings} == {1.0, 0.5, 0.25}
     assert {s.render.shadows for s in settings} == {True, False}
-    assert {s.render.cull_bodies for s in settings} == {True, False}
-    assert {s.params.grid for s in settings} >= {4, 6}
-    assert {s.params.noise_removal for s in settings} >= {"local_std", "cell_spread"}
+    assert {s.params.grid for s in settings} >= {1, 3, 4, 6, 8}
+    assert {s.params.photometric for s in settings} == {"none", "cell_affine"}
+    assert {s.params.growth for s in settings} == {"tolerance", "hysteresis"}
+    assert {s.params.pixel_score for s in settings} == {"continuous", "regions"}
     assert {s.params.score_scaling for s in settings} == {"fixed", "per_image"}
+    assert all(s.conforms for s in settings)
+
+
+def test_binary_and_blurred_maps_never_become_the_default():
+    assert not Setting("x", binary=True).conforms
+    assert not Setting("x", params=profile("default", pixel_score="blurred")).conforms
+    assert Setting("x", params=profile("paper")).conforms
+
+
+def full_row(name, p_ap, i_auroc, **params):
+    base = profile("default").to_dict()
+    return {
+        **row(name, 10.0, p_ap),
+        "i_auroc": i_auroc,
+        "reference_scale": 0.125,
+        "shadows": True,
+        "cull_bodies": True,
+        "params": {**base, **params},
+    }
+
+
+def test_mask_choice_keeps_the_map_and_takes_the_best_image_auroc():
+    chosen = full_row("map", 0.7, 0.80)
+    rows = [
+        chosen,
+        full_row("better mask", 0.7, 0.90, seed_score=50.0),
+        full_row("other map, best auroc", 0.6, 0.99, grid=4),
+    ]
+    assert choose_mask(rows, chosen)["setting"] == "better mask"
+    assert choose_mask(rows[::2], chosen)["setting"] == "map"

@@ -12,8 +12,8 @@ STAGES = [
     "scale_threshold",
     "noise_removal",
     "blur",
-    "seeds",
     "region_growing",
+    "pixel_score",
     "decision",
     "total",
 ]
@@ -45,7 +45,9 @@ def test_pasted_object_is_found_and_clean_frame_is_not(pair):
     reference = cv2.resize(pair.reference, (240, 135), interpolation=cv2.INTER_AREA)
     found = detect(pair.query, reference)
     assert_well_formed(found, pair.query.shape[:2])
-    assert_score_confined_to_mask(found)
+    # The default score ranks every pixel: the object's pixels outrank the rest.
+    truth = pair.object_mask > 0
+    assert np.median(found.score[truth]) > np.percentile(found.score[~truth], 99)
     assert found.anomalous
     assert iou(found.mask > 0, pair.object_mask > 0) >= 0.5
     clean = detect(pair.clean_query, reference)
@@ -111,7 +113,7 @@ def test_image_smaller_than_grid_is_rejected():
         detect(image, image, MradParams(grid=4, process_scale=1.0))
     with pytest.raises(
         ValueError,
-        match=r"grid=6 is too fine for the 12x8 query processed at "
+        match=r"grid=8 is too fine for the 12x8 query processed at "
         r"process_scale=0.5 \(6x4\)",
     ):
         detect(np.zeros((8, 12, 3), np.uint8), np.zeros((8, 12, 3), np.uint8))
@@ -137,8 +139,10 @@ def test_lower_resolution_reference_still_finds_the_object(size):
     truth = pair.object_mask > 0
     found = result.mask > 0
     assert result.anomalous
-    assert np.count_nonzero(found & truth) >= 0.9 * np.count_nonzero(found)  # on the object
-    assert np.count_nonzero(found & truth) >= 0.3 * np.count_nonzero(truth)  # much of it
+    # Hysteresis keeps the whole object and the blur's rim around it (about a quarter of
+    # the mask here); the paper's tolerance growth kept a third less of the object.
+    assert np.count_nonzero(found & truth) >= 0.7 * np.count_nonzero(found)  # on the object
+    assert np.count_nonzero(found & truth) >= 0.9 * np.count_nonzero(truth)  # all of it
     assert not detect(pair.clean_query, reference).anomalous
 
 
@@ -243,7 +247,8 @@ def test_profiles():
         "local_std",
         1.0,
     )
-    assert profile("baseline") == paper.replace(score_scaling="fixed")
+    assert paper.pixel_score == "regions"
+    assert profile("baseline") == paper.replace(score_scaling="fixed", pixel_score="continuous")
     assert profile("accurate") == MradParams(process_scale=1.0)
     assert profile("baseline", grid=8).grid == 8
     with pytest.raises(ValueError, match="unknown MRAD profile 'best'"):
@@ -251,7 +256,10 @@ def test_profiles():
 
 
 def test_blurred_pixel_score_keeps_the_mask_and_ranks_every_pixel(pair):
-    regions = detect(pair.query, pair.reference, MradParams(process_scale=1.0))
+    regions = detect(
+        pair.query, pair.reference, MradParams(process_scale=1.0, pixel_score="regions")
+    )
+    assert_score_confined_to_mask(regions)
     blurred = detect(
         pair.query, pair.reference, MradParams(process_scale=1.0, pixel_score="blurred")
     )
@@ -259,3 +267,63 @@ def test_blurred_pixel_score_keeps_the_mask_and_ranks_every_pixel(pair):
     inside = regions.mask > 0
     np.testing.assert_array_equal(regions.score[inside], blurred.score[inside])
     assert blurred.score[~inside].any() and not regions.score[~inside].any()
+
+
+@pytest.mark.parametrize("process_scale", [1.0, 0.5])
+def test_continuous_score_is_the_soft_saturated_raw_score_and_keeps_the_mask(pair, process_scale):
+    # The map from the same photometric model as the mask, so raw_score is its input.
+    params = MradParams(process_scale=process_scale, score_sigma=0.0, map_photometric="cell_affine")
+    continuous = detect(pair.query, pair.reference, params)
+    regions = detect(pair.query, pair.reference, params.replace(pixel_score="regions"))
+    np.testing.assert_array_equal(continuous.mask, regions.mask)
+    raw = continuous.raw_score.astype(np.float64)
+    expected = 255.0 * np.maximum(raw, 0) / (np.maximum(raw, 0) + params.score_ref)
+    if process_scale < 1.0:
+        size = pair.query.shape[1::-1]
+        expected = cv2.resize(expected.astype(np.float32), size, interpolation=cv2.INTER_LINEAR)
+    np.testing.assert_allclose(continuous.score, expected, atol=1e-3)
+    # Soft saturation: the strongest scores keep their order instead of tying at 255.
+    top = continuous.score[continuous.score > 200]
+    assert top.size == 0 or top.max() < 255.0
+
+
+def test_continuous_score_smoothing_is_a_gaussian_of_the_map(pair):
+    sharp = detect(pair.query, pair.reference, MradParams(process_scale=1.0, score_sigma=0.0))
+    smooth = detect(pair.query, pair.reference, MradParams(process_scale=1.0, score_sigma=2.0))
+    expected = cv2.GaussianBlur(sharp.score, (13, 13), 2.0, borderType=cv2.BORDER_REFLECT)
+    np.testing.assert_allclose(smooth.score, expected, atol=1e-3)
+
+
+def test_twelve_bit_uint16_is_read_at_its_bit_depth(pair):
+    # A 12-bit camera's image in uint16: values 0..4095.
+    query12 = np.rint(pair.query.astype(np.float64) * 4095 / 255).astype(np.uint16)
+    reference12 = np.rint(pair.reference.astype(np.float64) * 4095 / 255).astype(np.uint16)
+    expected = detect(pair.query, pair.reference)
+    result = detect(query12, reference12, MradParams(bit_depth=12))
+    assert result.anomalous == expected.anomalous
+    assert iou(result.mask > 0, expected.mask > 0) > 0.95
+    # Read as 16-bit it is 16 times too dark: the object is lost in the floor.
+    dark = detect(query12, reference12)
+    assert iou(dark.mask > 0, expected.mask > 0) < 0.5
+    with pytest.raises(ValueError, match=r"query is a 12-bit uint16 image but holds 4096"):
+        detect(np.full((8, 8, 3), 4096, np.uint16), reference12[:8, :8], MradParams(bit_depth=12))
+
+
+@pytest.mark.parametrize(("low", "high"), [(-0.1, 0.5), (0.0, 1.5), (0.0, 255.0)])
+def test_float_outside_unit_range_is_rejected(low, high):
+    image = np.linspace(low, high, 8 * 8 * 3).reshape(8, 8, 3)
+    with pytest.raises(ValueError, match=r"query is a float image with values in .* \[0, 1\]"):
+        detect(image, np.zeros((8, 8, 3)))
+
+
+def test_ranking_map_and_mask_may_use_different_photometric_models(pair):
+    both = MradParams(process_scale=1.0, score_sigma=0.0, map_photometric="cell_affine")
+    split = both.replace(map_photometric="none")
+    plain = both.replace(photometric="none", map_photometric="none")
+    with_model, mixed, without = (
+        detect(pair.query, pair.reference, p) for p in (both, split, plain)
+    )
+    np.testing.assert_array_equal(mixed.mask, with_model.mask)  # the mask follows photometric
+    np.testing.assert_array_equal(mixed.raw_score, with_model.raw_score)
+    np.testing.assert_array_equal(mixed.score, without.score)  # the map, map_photometric
+    assert not np.array_equal(with_model.score, without.score)

@@ -1,8 +1,10 @@
 """Post-processing and region stages against naive oracles and scikit-learn's MeanShift."""
 
+import cv2
 import numpy as np
 import pytest
 from mrad_oracle import flood_fill_naive, local_std_naive
+from skimage.filters import apply_hysteresis_threshold
 from sklearn.cluster import MeanShift
 
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
@@ -13,7 +15,7 @@ from allo_mrad_ros.detector.postprocess import (
     scale_scores,
     threshold_scores,
 )
-from allo_mrad_ros.detector.regions import find_seeds, grow_regions
+from allo_mrad_ros.detector.regions import find_seeds, grow_hysteresis, grow_regions
 
 
 def test_cell_edges_are_proportional_and_cover_the_image():
@@ -173,3 +175,26 @@ def test_region_growing_matches_naive_flood_fill(tolerance):
     mask = grow_regions(values, np.array([seed]), tolerance, min_score=20.0)
     expected = flood_fill_naive(values, seed, tolerance, floor=20.0)
     np.testing.assert_array_equal(mask > 0, expected)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_hysteresis_growth_matches_scikit_image(seed):
+    rng = np.random.default_rng(seed)
+    scores = cv2.GaussianBlur(rng.random((60, 80)).astype(np.float32) * 100, (0, 0), 2.0)
+    low, high = np.percentile(scores, [60, 95])
+    ours = grow_hysteresis(scores, low, high, connectivity=8) > 0
+    # scikit-image keeps regions strictly above low that hold a pixel strictly above high;
+    # ours are ">=": nudge the thresholds below a float step so the two agree.
+    theirs = apply_hysteresis_threshold(scores, np.nextafter(low, -1), np.nextafter(high, -1))
+    np.testing.assert_array_equal(ours, theirs)
+    assert ours.any() and not ours.all()
+
+
+def test_hysteresis_keeps_a_thin_line_whole_and_drops_weak_blobs():
+    scores = np.zeros((40, 40), np.float32)
+    scores[10, 5:35] = 30.0  # a thin line, one pixel reaching the seed score
+    scores[10, 20] = 60.0
+    scores[25:30, 25:30] = 40.0  # a blob that never reaches it
+    mask = grow_hysteresis(scores, 25.0, 50.0)
+    assert mask[10, 5:35].all() and not mask[25:30, 25:30].any()
+    assert np.count_nonzero(mask) == 30

@@ -18,6 +18,7 @@ from allo_mrad_ros.detector import MradParams
 from allo_mrad_ros.evaluation.ablate import ablate, sweep_points
 from allo_mrad_ros.evaluation.parallel import ParallelError, run_frames
 from allo_mrad_ros.evaluation.sources import FrameSourceError, spread
+from allo_mrad_ros.localisation import object_overlap, summarise
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, params_from
 from allo_mrad_ros.render import ReferenceRenderer
@@ -54,6 +55,7 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
     chosen = frames if frames is not None else sequence.split("test")
     renderer = ReferenceRenderer(meta.mesh, meta.camera, scale=REF_SCALE)
     accumulators = {m: MetricsAccumulator() for m in methods}
+    overlaps: dict = {}
     by_type: dict[str, dict[str, MetricsAccumulator]] = {}
     try:
         for frame in chosen:
@@ -69,6 +71,10 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
             results = {name: DETECTORS[name](image, reference, params) for name in methods}
             for name, result in results.items():
                 accumulators[name].update(result.score, result.area, mask)
+                if frame.is_anomalous:
+                    overlaps.setdefault((frame.anomaly, name), []).append(
+                        object_overlap(result.mask, mask)
+                    )
             # Per type: that type's frames plus every normal frame.
             types = [frame.anomaly] if frame.is_anomalous else None
             for anomaly in types or {f.anomaly for f in chosen if f.is_anomalous}:
@@ -79,6 +85,7 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
         renderer.close()
     overall = {m: a.compute().as_dict() for m, a in accumulators.items()}
     per_type = {t: {m: a.compute().as_dict() for m, a in g.items()} for t, g in by_type.items()}
+    _direct.localisation = {key: summarise(found) for key, found in overlaps.items()}
     return overall, per_type
 
 
@@ -119,6 +126,8 @@ def test_evaluate_report_equals_a_direct_computation(data, capsys):
     for anomaly, entry in report["per_anomaly_type"].items():
         assert entry["frames"] == 2 and entry["normal_frames"] == 2
         _same(entry["methods"], per_type[anomaly])
+        for name in METHODS:
+            _same(entry["localisation"][name], _direct.localisation[anomaly, name])
     for value in report["methods"]["MRAD"].values():
         assert 0.0 <= value <= 1.0
     latency = report["latency_ms"]
@@ -133,6 +142,7 @@ def test_evaluate_report_equals_a_direct_computation(data, capsys):
         assert (out / name).stat().st_size > 0
     text = (out / "metrics.md").read_text()
     assert "## Per anomaly type" in text and "## Latency" in text
+    assert "| type | method | found | recall | IoU |" in text
 
 
 def test_bag_input_and_two_jobs_give_the_same_numbers(data):
@@ -212,7 +222,7 @@ def test_ablation_table_rows_and_baseline(data, capsys):
     table = json.loads((out / "ablation.json").read_text())
     assert table["frames"] == 3 and len(table["rows"]) == len(points)
     baselines = [row for row in table["rows"] if row["baseline"]]
-    keys = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
+    keys = ("i_auroc", "p_auroc", "p_ap", "p_fpr95", "p_aupr", "p_fpr95_interp")
     test = read_sequence(data / "seq").split("test")
     frames = [test[i] for i in spread(list(range(len(test))), 3)]
     overall, _ = _direct(data / "seq", MradParams(), ("MRAD",), frames)

@@ -164,3 +164,79 @@ def test_sphere_markers_become_bodies_and_others_are_ignored():
 
 def test_stamp_to_ns():
     assert messages.stamp_to_ns(Msg(sec=3, nanosec=7)) == 3_000_000_007
+
+
+def _compressed(pixels: np.ndarray, extension: str, format_text: str):
+    import cv2
+
+    bgr = pixels[..., ::-1] if pixels.ndim == 3 else pixels
+    ok, data = cv2.imencode(extension, np.ascontiguousarray(bgr))
+    assert ok
+    return Msg(format=format_text, data=data.tobytes())
+
+
+def test_png_compressed_images_decode_exactly_to_rgb():
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 256, (12, 20, 3), dtype=np.uint8)
+    msg = _compressed(rgb, ".png", "rgb8; png compressed bgr8")
+    np.testing.assert_array_equal(messages.image_to_rgb(msg, (20, 12)), rgb)
+    mono = rng.integers(0, 256, (12, 20), dtype=np.uint8)
+    decoded = messages.image_to_rgb(_compressed(mono, ".png", "mono8; png compressed mono8"))
+    np.testing.assert_array_equal(decoded, np.repeat(mono[..., None], 3, axis=2))
+    deep = rng.integers(0, 65536, (12, 20, 3), dtype=np.uint16)
+    decoded = messages.image_to_rgb(_compressed(deep, ".png", "rgb16; png compressed bgr16"))
+    assert decoded.dtype == np.uint16
+    np.testing.assert_array_equal(decoded, deep)
+
+
+def test_jpeg_compressed_images_decode_close_to_rgb_in_channel_order():
+    rgb = np.zeros((32, 48, 3), np.uint8)
+    rgb[..., 0] = 200  # red: a swapped channel order would give blue
+    rgb[:, 24:, 1] = 120
+    decoded = messages.image_to_rgb(_compressed(rgb, ".jpg", "bgr8; jpeg compressed bgr8"))
+    assert decoded.shape == rgb.shape
+    assert np.abs(decoded.astype(int) - rgb).mean() < 3  # lossy, ringing at the edge
+
+
+@pytest.mark.parametrize(
+    ("msg", "cause", "text"),
+    [
+        (Msg(format="16UC1; compressedDepth png", data=b"\x00"), "encoding", "compressedDepth"),
+        (Msg(format="tiff", data=b"\x00"), "encoding", "use jpeg or png"),
+        (Msg(format="png", data=b"not a png"), "data", "cannot be decoded"),
+    ],
+)
+def test_unsupported_or_corrupt_compressed_images_are_refused(msg, cause, text):
+    with pytest.raises(MessageError, match=text) as caught:
+        messages.image_to_rgb(msg)
+    assert caught.value.cause == cause
+
+
+def test_compressed_image_of_another_size_than_camera_info_is_refused():
+    msg = _compressed(np.zeros((10, 10, 3), np.uint8), ".png", "png")
+    with pytest.raises(MessageError, match="10x10 differs from camera_info 20x10"):
+        messages.image_to_rgb(msg, (20, 10))
+
+
+def _plumb_bob(d):
+    k = CameraIntrinsics(640, 480, 500.0, 502.0, 320.5, 240.5)
+    info = messages.fill_camera_info(Msg(header=Msg()), k)
+    info.d = list(d)
+    # The rectified camera of image_proc: another focal length and principal point.
+    info.p = [480.0, 0.0, 318.0, 0.0, 0.0, 481.0, 242.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return info
+
+
+def test_plumb_bob_camera_with_distortion_is_refused_for_raw_images():
+    info = _plumb_bob([-0.28, 0.07, 0.0002, -0.0001, 0.0])
+    with pytest.raises(MessageError, match=r"image_rect.*rectified_input:=true") as caught:
+        messages.camera_intrinsics(info, rectified=False)
+    assert caught.value.cause == "distortion"
+    assert "plumb_bob" in str(caught.value)
+
+
+def test_plumb_bob_camera_rectified_uses_p_and_zero_distortion_uses_k():
+    rectified = messages.camera_intrinsics(_plumb_bob([-0.28, 0.07, 0.0, 0.0, 0.0]), rectified=True)
+    assert (rectified.fx, rectified.fy, rectified.cx, rectified.cy) == (480.0, 481.0, 318.0, 242.0)
+    raw = messages.camera_intrinsics(_plumb_bob([0.0] * 5), rectified=False)
+    assert (raw.fx, raw.fy, raw.cx, raw.cy) == (500.0, 502.0, 320.5, 240.5)

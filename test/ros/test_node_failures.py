@@ -19,6 +19,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.ros.feed import CameraFeed
@@ -134,6 +135,7 @@ def test_huge_sun_vector_keeps_its_direction_and_frames_keep_flowing(live):
     sun = Vector3Stamped()
     sun.vector.x, sun.vector.y, sun.vector.z = 1e300, -1e300, 1e300
     sun.header.stamp.sec = T0 // 10**9
+    sun.header.frame_id = interface.STATION_FRAME
     feed.pub_sun.publish(sun)
     expected = np.array([1.0, -1.0, 1.0]) / 3**0.5
     assert feed.wait_for(lambda: np.allclose(node._sun_direction, expected), TIMEOUT)

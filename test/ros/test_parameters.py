@@ -71,3 +71,36 @@ def test_tf_requested_without_tf2_falls_back_to_topic():
         created.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_qos_overrides_reach_subscriptions_and_publishers():
+    """QoSOverridingOptions: `-p qos_overrides.<topic>.<entity>.<policy>:=...` at start."""
+    from rclpy.qos import ReliabilityPolicy
+
+    rclpy.init()
+    try:
+        node = MradDetectorNode(
+            parameter_overrides=[
+                Parameter("pose_source", value="topic"),
+                Parameter(
+                    "qos_overrides./arm_camera/image_raw.subscription.reliability",
+                    value="reliable",
+                ),
+                Parameter("qos_overrides./arm_camera/image_raw.subscription.depth", value=3),
+                Parameter("qos_overrides./mrad_detector/mask.publisher.depth", value=1),
+            ]
+        )
+        try:
+            image = next(s for s in node.subscriptions if s.topic_name == "/arm_camera/image_raw")
+            assert image.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+            assert image.qos_profile.depth == 3
+            info = next(
+                s for s in node.subscriptions if s.topic_name == "/arm_camera/camera_info"
+            )
+            assert info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT  # untouched
+            assert node._outputs.mask.qos_profile.depth == 1
+            assert node._outputs.score.qos_profile.depth == 5
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

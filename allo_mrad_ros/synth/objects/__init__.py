@@ -59,7 +59,9 @@ class ObjectError(ValueError):
     """An unknown object type or colour, or a bad seed."""
 
 
-def build_anomaly(kind: str, seed: int, colour: str = DEFAULT_COLOUR) -> AnomalyObject:
+def build_anomaly(
+    kind: str, seed: int, colour: str = DEFAULT_COLOUR, scale: float = 1.0
+) -> AnomalyObject:
     """Build one anomaly object.
 
     Parameters
@@ -71,6 +73,8 @@ def build_anomaly(kind: str, seed: int, colour: str = DEFAULT_COLOUR) -> Anomaly
     colour : str
         ``default`` for the object's own materials, or a key of :data:`COLOURS` to recolour
         its main part (ALLO's colour variant).
+    scale : float
+        Size factor in (0, 1] (ALLO's scale variant); 1 keeps the real object's size.
 
     Returns
     -------
@@ -80,7 +84,7 @@ def build_anomaly(kind: str, seed: int, colour: str = DEFAULT_COLOUR) -> Anomaly
     Raises
     ------
     ObjectError
-        For an unknown kind or colour, or a negative seed.
+        For an unknown kind or colour, a negative seed or a scale outside (0, 1].
     """
     if kind not in ANOMALY_TYPES:
         raise ObjectError(f"unknown anomaly type {kind!r}; known: {', '.join(ANOMALY_TYPES)}")
@@ -88,13 +92,19 @@ def build_anomaly(kind: str, seed: int, colour: str = DEFAULT_COLOUR) -> Anomaly
         raise ObjectError(f"unknown colour {colour!r}; known: default, {', '.join(COLOURS)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ObjectError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 1:
+        raise ObjectError(f"scale must be a number in (0, 1], got {scale!r}")
     parts = ANOMALY_TYPES[kind](np.random.default_rng(int(seed)))
     low = np.min([p.mesh.bounds[0] for p in parts], axis=0)
     high = np.max([p.mesh.bounds[1] for p in parts], axis=0)
     centre = (low + high) / 2.0
     for part in parts:
         part.mesh.apply_translation(-centre)
-    return AnomalyObject(kind=kind, seed=int(seed), colour=colour, parts=tuple(parts))
+        if scale != 1:
+            part.mesh.apply_scale(float(scale))
+    return AnomalyObject(
+        kind=kind, seed=int(seed), colour=colour, parts=tuple(parts), scale=float(scale)
+    )
 
 
 __all__ = [

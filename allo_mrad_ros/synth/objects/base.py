@@ -147,12 +147,15 @@ class AnomalyObject:
         ``default`` or a key of :data:`COLOURS` that recoloured its main (first) part.
     parts : tuple of Part
         The meshes and their materials.
+    scale : float
+        Size factor applied to the built object (ALLO's scale variant).
     """
 
     kind: str
     seed: int
     colour: str
     parts: tuple[Part, ...]
+    scale: float = 1.0
 
     @cached_property
     def mesh(self) -> trimesh.Trimesh:

@@ -1,0 +1,107 @@
+"""The arguments of ``launch/detect.launch.py`` and what each one forwards to the node.
+
+An argument the user did not give stays empty and forwards nothing, so the parameter file
+(``config:=my.yaml``) keeps its values: launch defaults never override a config. Plain Python,
+no launch import, so the rule is testable without a ROS distro.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from allo_mrad_ros import interface
+
+NOT_GIVEN = ""
+
+
+class LaunchArgumentError(ValueError):
+    """A launch argument has a value its node parameter cannot take."""
+
+
+@dataclass(frozen=True)
+class LaunchArgument:
+    """One launch argument: a node parameter it sets, or a node input it remaps."""
+
+    name: str
+    description: str
+    parameter: str = ""
+    kind: type = str
+    input_topic: str = ""
+
+
+ARGUMENTS: tuple[LaunchArgument, ...] = (
+    LaunchArgument("namespace", "namespace of the node (and RViz): one per camera"),
+    LaunchArgument(
+        "mesh",
+        "station CAD model (trimesh-loadable, metres); not given: the parameter file's mesh "
+        "(empty there: the package's meshes/station.glb)",
+        parameter="mesh",
+    ),
+    LaunchArgument(
+        "pose_source",
+        "camera pose from tf (tf2_ros) or topic (PoseStamped); not given: the parameter file's",
+        parameter="pose_source",
+    ),
+    LaunchArgument(
+        "image_transport",
+        "raw (sensor_msgs/Image) or compressed (CompressedImage on <image>/compressed); "
+        "not given: the parameter file's",
+        parameter="image_transport",
+    ),
+    LaunchArgument(
+        "use_sim_time",
+        "true: use /clock (replaying a bag with --clock); not given: the parameter file's",
+        parameter="use_sim_time",
+        kind=bool,
+    ),
+    LaunchArgument("image_topic", "camera image", input_topic=interface.IMAGE_INPUT),
+    LaunchArgument(
+        "camera_info_topic", "camera intrinsics", input_topic=interface.CAMERA_INFO_INPUT
+    ),
+    LaunchArgument(
+        "pose_topic", "camera pose (pose_source topic)", input_topic=interface.POSE_INPUT
+    ),
+    LaunchArgument("sun_topic", "Sun direction", input_topic=interface.SUN_DIRECTION_INPUT),
+    LaunchArgument("sun_strength_topic", "Sun strength", input_topic=interface.SUN_STRENGTH_INPUT),
+    LaunchArgument(
+        "bodies_topic", "celestial bodies (MarkerArray)", input_topic=interface.BODIES_INPUT
+    ),
+)
+
+
+def _typed(argument: LaunchArgument, text: str) -> Any:
+    if argument.kind is bool:
+        lowered = text.strip().lower()
+        if lowered not in ("true", "false"):
+            raise LaunchArgumentError(f"launch argument {argument.name} must be true or false")
+        return lowered == "true"
+    return text
+
+
+def parameter_overrides(values: Mapping[str, str]) -> dict[str, Any]:
+    """The node parameters set by launch arguments the user gave (non-empty), typed.
+
+    Raises
+    ------
+    LaunchArgumentError
+        For a boolean argument that is neither ``true`` nor ``false``.
+    """
+    return {
+        argument.parameter: _typed(argument, values[argument.name])
+        for argument in ARGUMENTS
+        if argument.parameter and values.get(argument.name, NOT_GIVEN) != NOT_GIVEN
+    }
+
+
+def remappings(values: Mapping[str, str]) -> list[tuple[str, str]]:
+    """``(node input, topic)`` for every topic argument the user gave.
+
+    The node's inputs are relative names, so a remapping matches inside any namespace.
+    """
+    return [
+        (argument.input_topic, values[argument.name])
+        for argument in ARGUMENTS
+        if argument.input_topic and values.get(argument.name, NOT_GIVEN) != NOT_GIVEN
+    ]

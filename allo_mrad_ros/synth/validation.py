@@ -1,0 +1,37 @@
+"""The generator's error type and the checks its settings share."""
+
+from __future__ import annotations
+
+import math
+
+
+class SynthError(ValueError):
+    """An invalid generator setting, or a scene in which the rules cannot be met."""
+
+
+def _finite(value: object, name: str, low: float | None = None, high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SynthError(f"{name} must be a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise SynthError(f"{name} must be finite, got {value!r}")
+    if low is not None and number < low:
+        raise SynthError(f"{name} must be >= {low}, got {value!r}")
+    if high is not None and number > high:
+        raise SynthError(f"{name} must be <= {high}, got {value!r}")
+    return number
+
+
+def _count(value: object, name: str, low: int = 0) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise SynthError(f"{name} must be an integer >= {low}, got {value!r}")
+    return value
+
+
+def _pair(value: object, name: str, low: float) -> tuple[float, float]:
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise SynthError(f"{name} must be a (min, max) pair, got {value!r}")
+    a, b = (_finite(v, name, low) for v in value)
+    if a > b:
+        raise SynthError(f"{name} must have min <= max, got {value!r}")
+    return a, b

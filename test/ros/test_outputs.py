@@ -1,0 +1,141 @@
+"""Lazy outputs: each output is built and published only for a subscriber; stamped results."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rclpy
+from std_msgs.msg import Header
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.pipeline import DetectionResult
+from allo_mrad_ros.pipeline import ProcessedFrame
+from allo_mrad_ros.ros import outputs as outputs_module
+from allo_mrad_ros.ros.outputs import Outputs, connected_boxes, region_marker
+
+pytestmark = pytest.mark.ros
+
+NAMES = (
+    "score",
+    "mask",
+    "anomaly",
+    "result",
+    "regions",
+    "reference",
+    "reference_info",
+    "overlay",
+)
+
+
+class FakePublisher:
+    def __init__(self, subscribers: int) -> None:
+        self.subscribers = subscribers
+        self.sent: list = []
+
+    def get_subscription_count(self) -> int:
+        return self.subscribers
+
+    def publish(self, msg) -> None:
+        self.sent.append(msg)
+
+
+@pytest.fixture
+def outputs():
+    rclpy.init()
+    node = rclpy.create_node("outputs_test")
+    built = Outputs(node)
+    yield built
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def subscribe(outputs: Outputs, *names: str) -> dict[str, FakePublisher]:
+    fakes = {name: FakePublisher(1 if name in names else 0) for name in NAMES}
+    for name, fake in fakes.items():
+        setattr(outputs, name, fake)
+    return fakes
+
+
+def frame() -> ProcessedFrame:
+    mask = np.zeros((90, 160), np.uint8)
+    mask[10:20, 30:50] = 255
+    mask[60:62, 100:101] = 255
+    result = DetectionResult(
+        score=np.zeros((90, 160), np.float32),
+        raw_score=np.zeros((45, 80), np.float32),
+        mask=mask,
+        area=int(np.count_nonzero(mask)),
+        anomalous=True,
+    )
+    return ProcessedFrame(reference=np.zeros((45, 80, 3), np.uint8), results={"MRAD": result})
+
+
+def publish(outputs: Outputs, reference: bool = True, overlay: bool = True) -> None:
+    header = Header(frame_id="cam")
+    header.stamp.sec = 7
+    camera = CameraIntrinsics(80, 45, 50.0, 50.0, 40.0, 22.5)
+    outputs.publish(header, np.zeros((90, 160, 3), np.uint8), frame(), camera, reference, overlay)
+
+
+def test_only_the_subscribed_mask_is_built_and_nothing_heavy(outputs, monkeypatch):
+    fakes = subscribe(outputs, "mask")
+    outlined = []
+    monkeypatch.setattr(outputs_module, "outline", lambda *a: outlined.append(a))
+    publish(outputs)
+    assert len(fakes["mask"].sent) == 1 and fakes["mask"].sent[0].header.stamp.sec == 7
+    for name in ("score", "result", "regions", "reference", "reference_info", "overlay"):
+        assert fakes[name].sent == [], name
+    assert outlined == []
+
+
+def test_every_subscribed_output_is_published_with_the_image_header(outputs):
+    fakes = subscribe(outputs, *NAMES)
+    publish(outputs)
+    for name in NAMES:
+        assert len(fakes[name].sent) == 1, name
+        if name != "anomaly":
+            assert fakes[name].sent[0].header.frame_id == "cam", name
+    info = fakes["reference_info"].sent[0]
+    assert (info.width, info.height, info.k[0]) == (80, 45, 50.0)
+    status = fakes["result"].sent[0].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert values == {
+        "anomalous": "true",
+        "area_px": "202",
+        "area_fraction": f"{202 / (90 * 160):.6f}",
+        "regions": "2",
+        "boxes_xywh": "30,10,20,10;100,60,1,2",
+    }
+
+
+def test_switched_off_outputs_stay_off_even_when_subscribed(outputs):
+    fakes = subscribe(outputs, *NAMES)
+    publish(outputs, reference=False, overlay=False)
+    assert fakes["reference"].sent == fakes["reference_info"].sent == fakes["overlay"].sent == []
+
+
+def test_wanted_only_with_a_subscriber_to_an_enabled_output(outputs):
+    subscribe(outputs)
+    assert not outputs.wanted(True, True)
+    subscribe(outputs, "overlay")
+    assert outputs.wanted(True, True) and not outputs.wanted(True, False)
+    subscribe(outputs, "reference_info")
+    assert outputs.wanted(True, False) and not outputs.wanted(False, True)
+    for name in ("mask", "score", "anomaly", "result", "regions"):
+        subscribe(outputs, name)
+        assert outputs.wanted(False, False), name
+
+
+def test_connected_boxes_and_their_outline_marker():
+    mask = np.zeros((20, 30), np.uint8)
+    mask[2:5, 3:9] = 255
+    mask[10, 20] = 255
+    mask[11, 21] = 255  # diagonal neighbour: one 8-connected region
+    boxes = connected_boxes(mask)
+    assert sorted(boxes) == [(3, 2, 6, 3), (20, 10, 2, 2)]
+    marker = region_marker(Header(frame_id="cam"), [(3, 2, 6, 3)])
+    segments = [
+        ((a.x, a.y), (b.x, b.y))
+        for a, b in zip(marker.points[::2], marker.points[1::2], strict=True)
+    ]
+    assert segments == [((3, 2), (9, 2)), ((9, 2), (9, 5)), ((9, 5), (3, 5)), ((3, 5), (3, 2))]
