@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.sequence import Frame
 from allo_mrad_ros.sky import earth_and_moon, with_sun
 
 
@@ -52,6 +53,14 @@ class View:
             np.array(sun_direction),
             float(sun_strength),
             earth_and_moon(earth, moon),
+        )
+
+    @classmethod
+    def of_frame(cls, frame: Frame, pose: np.ndarray | None = None) -> View:
+        """The view of a sequence frame; ``pose`` replaces its recorded camera pose."""
+        camera = frame.T_station_camera if pose is None else pose
+        return cls.from_row(
+            camera, frame.sun_direction, frame.sun_strength, frame.earth, frame.moon
         )
 
     @property

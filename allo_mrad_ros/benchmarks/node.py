@@ -1,6 +1,6 @@
 """Benchmark of the running ``mrad_detector`` node at 1920x1080 (``make bench-node``).
 
-The node runs as its own process with its default parameters (reference scale 1/4); a
+The node runs as its own process with its default parameters; a
 camera feed in this process publishes rendered full-HD frames, poses and the sun at
 ``--rate`` Hz with wall-clock stamps, and records when each mask arrives. Reports the
 sustained output rate, the latency from image stamp to received mask, and the node's
@@ -23,6 +23,8 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -48,19 +50,33 @@ def _frames() -> tuple[np.ndarray, list[np.ndarray]]:
     return pose, [clean, with_object]
 
 
-def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
-    """Drive the node and measure; returns the report dictionary."""
+@contextmanager
+def _node_session(
+    log_path: Path, feed_options: dict, *node_args: str
+) -> Iterator[tuple[CameraFeed, psutil.Process]]:
+    """Start the node and a camera feed on loopback DDS; stop both whatever happens."""
     os.environ.setdefault(
         "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
     )
-    pose, images = _frames()
     rclpy.init()
-    feed = CameraFeed(ALLO_INTRINSICS, keep_messages=False)
-    process = start_node(log_path)
+    feed = CameraFeed(ALLO_INTRINSICS, keep_messages=False, **feed_options)
+    process = start_node(log_path, *node_args)
     try:
         if not feed.wait_for_node(60.0):
             raise RuntimeError(f"node did not subscribe; see {log_path}")
-        node = psutil.Process(process.pid)
+        yield feed, psutil.Process(process.pid)
+        if process.poll() is not None:
+            raise RuntimeError(f"node exited with {process.returncode}; see {log_path}")
+    finally:
+        stop_node(process)
+        feed.node.destroy_node()
+        rclpy.shutdown()
+
+
+def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
+    """Drive the node and measure; returns the report dictionary."""
+    pose, images = _frames()
+    with _node_session(log_path, {}) as (feed, node):
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
             feed.publish_frame(time.time_ns(), images[0], pose, SUN)
@@ -83,12 +99,6 @@ def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
                 if done >= mark and mark not in rss_mb:
                     rss_mb[mark] = node.memory_info().rss / 2**20
         feed.spin(1.0)
-        if process.poll() is not None:
-            raise RuntimeError(f"node exited with {process.returncode}; see {log_path}")
-    finally:
-        stop_node(process)
-        feed.node.destroy_node()
-        rclpy.shutdown()
     arrivals = feed.arrival["mask"]
     stamps = sorted(arrivals)
     latencies = np.array([1e3 * (arrivals[s] - s / 1e9) for s in stamps])
@@ -125,18 +135,11 @@ def _lock_step(feed: CameraFeed, pose: np.ndarray, images: list, frames: int) ->
 
 def compare_outputs(rounds: int, block: int, log_path: Path) -> dict:
     """CPU seconds per frame of the node, mask only against every output, interleaved."""
-    os.environ.setdefault(
-        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
-    )
     pose, images = _frames()
-    rclpy.init()
-    feed = CameraFeed(ALLO_INTRINSICS, keep_messages=False, outputs=("mask",))
-    process = start_node(log_path, "publish_reference:=true", "publish_overlay:=true")
     cpu = {"mask_only": [], "every_output": []}
-    try:
-        if not feed.wait_for_node(60.0):
-            raise RuntimeError(f"node did not subscribe; see {log_path}")
-        node = psutil.Process(process.pid)
+    options = {"outputs": ("mask",)}
+    extra = ("publish_reference:=true", "publish_overlay:=true")
+    with _node_session(log_path, options, *extra) as (feed, node):
         for index in range(2 * rounds):
             mode = "every_output" if index % 2 else "mask_only"
             feed.set_outputs(OUTPUT_TYPES if mode == "every_output" else ())
@@ -147,12 +150,6 @@ def compare_outputs(rounds: int, block: int, log_path: Path) -> dict:
             after = node.cpu_times()
             seconds = (after.user - before.user) + (after.system - before.system)
             cpu[mode].append(seconds / max(count, 1))
-        if process.poll() is not None:
-            raise RuntimeError(f"node exited with {process.returncode}; see {log_path}")
-    finally:
-        stop_node(process)
-        feed.node.destroy_node()
-        rclpy.shutdown()
     mask_only = float(np.median(cpu["mask_only"]))
     every = float(np.median(cpu["every_output"]))
     return {

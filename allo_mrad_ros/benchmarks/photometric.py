@@ -88,14 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for frame in tqdm(frames, desc="photometric", unit="frame", leave=False):
             image, truth = sequence.load_image(frame), sequence.load_mask(frame)
-            view = View.from_row(
-                frame.T_station_camera,
-                frame.sun_direction,
-                frame.sun_strength,
-                frame.earth,
-                frame.moon,
-            )
-            reference = provider.render(view)
+            reference = provider.render(View.of_frame(frame))
             for p_name, perturb in perturbations.items():
                 query = perturb(image)
                 for v_name, (method, params) in detectors.items():

@@ -98,9 +98,7 @@ class Sweep:
             image = self.sequence.load_image(frame)
             truth = self.sequence.load_mask(frame)
             # The bodies the node and the evaluator render: Earth, Moon and the Sun's disc.
-            view = View.from_row(
-                pose_of(frame), frame.sun_direction, frame.sun_strength, frame.earth, frame.moon
-            )
+            view = View.of_frame(frame, pose_of(frame))
             references, render_ms = {}, {}
             for key in keys:
                 start = time.perf_counter()

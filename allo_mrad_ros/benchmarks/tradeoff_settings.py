@@ -62,15 +62,7 @@ MAP_KNOBS = (
 )
 
 # The shipped defaults before issue 11 (README "Speed against error", first rerun).
-PREVIOUS_DEFAULT = MradParams(
-    grid=6,
-    noise_removal="cell_spread",
-    process_scale=0.5,
-    pixel_score="regions",
-    photometric="none",
-    growth="tolerance",
-    score_sigma=0.0,
-)
+PREVIOUS_DEFAULT = profile("previous")
 
 
 def sweep_settings(base: MradParams) -> list[Setting]:

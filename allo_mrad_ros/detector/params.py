@@ -277,6 +277,15 @@ PROFILES: dict[str, MradParams] = {
     "baseline": _PAPER_OPTIMUM,
     # The most accurate mrad.md setting of the sweep on validation, at full resolution.
     "accurate": MradParams(process_scale=1.0),
+    # The shipped default before issue 11 (grid 6, per-cell noise rule, half resolution, the
+    # sparse map), kept to compare against and to reproduce earlier figures.
+    "previous": _PAPER_OPTIMUM.replace(
+        grid=6,
+        noise_removal="cell_spread",
+        process_scale=0.5,
+        pixel_score="regions",
+        score_sigma=0.0,
+    ),
 }
 
 

@@ -146,7 +146,7 @@ def detect(
             kernel_fraction=params.kernel_fraction,
             std_thresh=params.std_thresh,
             large_anomaly_fraction=params.large_anomaly_fraction,
-            variant=params.noise_removal,
+            noise_removal=params.noise_removal,
         )
     sigma = params.blur_sigma * params.process_scale
     with timer.stage("blur"):

@@ -105,7 +105,7 @@ def remove_noise(
     kernel_fraction: float,
     std_thresh: float,
     large_anomaly_fraction: float,
-    variant: str,
+    noise_removal: str,
 ) -> np.ndarray:
     """Zero flat noise in a thresholded score map, cell by cell.
 
@@ -121,10 +121,12 @@ def remove_noise(
     numpy.ndarray
         A new H x W float32 map.
     """
-    if variant not in ("local_std", "cell_spread", "none"):
-        raise ValueError(f"noise_removal must be local_std, cell_spread or none, got {variant!r}")
+    if noise_removal not in ("local_std", "cell_spread", "none"):
+        raise ValueError(
+            f"noise_removal must be local_std, cell_spread or none, got {noise_removal!r}"
+        )
     cleaned = scores.copy()
-    if variant == "none" or not cleaned.any():
+    if noise_removal == "none" or not cleaned.any():
         return cleaned
     for cell in cell_slices(*scores.shape, grid):
         cell_scores = scores[cell]
@@ -134,7 +136,7 @@ def remove_noise(
             continue
         # The window stays inside the cell (reflected at its edges): cells are independent.
         spread = local_std(cell_scores, std_window(*cell_scores.shape, 1, kernel_fraction))
-        if variant == "local_std":
+        if noise_removal == "local_std":
             # Saturated scores are flat because scaling clipped them, not because they are
             # noise: keep them, or a confident object loses its interior.
             flat_noise = (spread < std_thresh) & (cell_scores < SCORE_RANGE)

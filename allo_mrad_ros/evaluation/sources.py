@@ -195,13 +195,7 @@ class SequenceSource(FrameSource):
                     f"{sequence.root}: frame {frame.name} (row {index + 1}) has no reference; "
                     "drop --use-sequence-references to render one"
                 )
-            view = View.from_row(
-                frame.T_station_camera,
-                frame.sun_direction,
-                frame.sun_strength,
-                frame.earth,
-                frame.moon,
-            )
+            view = View.of_frame(frame)
             header = (index, frame.name, frame.stamp_ns, frame.split, frame.anomaly)
             yield EvalFrame(*header, image, mask, view, reference)
 

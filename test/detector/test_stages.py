@@ -57,7 +57,7 @@ def test_local_std_rule_zeroes_flat_interiors_and_keeps_varying_scores():
         kernel_fraction=0.2,
         std_thresh=10,
         large_anomaly_fraction=0.9,
-        variant="local_std",
+        noise_removal="local_std",
     )
     assert not cleaned[10:30, 10:30].any()  # interior: local std 0
     assert cleaned[5, 5:35].all()  # the plateau's edge has a local std of about 15
@@ -74,7 +74,7 @@ def test_local_std_rule_keeps_saturated_interiors():
         kernel_fraction=0.2,
         std_thresh=10,
         large_anomaly_fraction=0.9,
-        variant="local_std",
+        noise_removal="local_std",
     )
     np.testing.assert_array_equal(cleaned, scores)
 
@@ -89,7 +89,7 @@ def test_large_anomaly_cell_is_kept_whole():
         kernel_fraction=0.2,
         std_thresh=10,
         large_anomaly_fraction=0.9,
-        variant="local_std",
+        noise_removal="local_std",
     )
     np.testing.assert_array_equal(cleaned[:40, :40], 120.0)
     np.testing.assert_array_equal(cleaned[40:], 0.0)
@@ -109,7 +109,7 @@ def test_cell_spread_variant_zeroes_cells_of_uniform_speckle_only():
         kernel_fraction=0.2,
         std_thresh=10,
         large_anomaly_fraction=0.9,
-        variant="cell_spread",
+        noise_removal="cell_spread",
     )
     assert not cleaned[:100, 100:].any()
     np.testing.assert_array_equal(cleaned[100:, 100:], scores[100:, 100:])
@@ -120,7 +120,7 @@ def test_cell_spread_variant_zeroes_cells_of_uniform_speckle_only():
         kernel_fraction=0.2,
         std_thresh=10,
         large_anomaly_fraction=0.9,
-        variant="local_std",
+        noise_removal="local_std",
     )
     assert local[:100, 100:].any()  # the per-region rule keeps speckle (its local std is high)
 
