@@ -14,10 +14,13 @@ settings.register_profile(
     "fuzz",
     max_examples=int(os.environ.get("ALLO_FUZZ_EXAMPLES", "300")),
     deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
 settings.register_profile(
-    "quick", max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+    "quick",
+    max_examples=20,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
 settings.load_profile("fuzz" if os.environ.get("ALLO_FUZZ") else "quick")
 
