@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test test-distro lint bench bench-detector bench-render bench-node bench-node-outputs bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz test-distro lint bench bench-detector bench-render bench-node bench-node-outputs bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -35,6 +35,12 @@ lint: $(STAMP)
 test: lint
 	$(ISOLATED) $(PY) -m pytest -q --timeout=600
 	$(MAKE) test-distro
+
+# Bad-input fuzzing: several hundred generated cases per property (hypothesis) over image
+# headers, camera_info, poses, Sun vectors and sequence rows; prints the count per verdict.
+# `make test` runs the same properties with a few examples each.
+fuzz: $(STAMP)
+	ALLO_FUZZ=1 $(PY) -m pytest -q -p no:cacheprovider --timeout=300 test/fuzz
 
 # The distro route's Python side, without a ROS install: Python 3.10 and the NumPy 1.21 / SciPy
 # 1.8 / OpenCV 4.5 that Ubuntu 22.04 (Humble) ships, plus requirements-distro*.txt, then every

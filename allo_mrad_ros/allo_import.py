@@ -44,15 +44,19 @@ from allo_mrad_ros.allo_format import (
 from .allo_ephemeris import allo_sky
 from .camera import ALLO_INTRINSICS, CameraIntrinsics
 from .ephemeris import EPOCH_2030, EphemerisError
+from .errors import AlloError
 from .options import keyword_options
-from .sequence import Sequence as AlloSequence
 from .sequence import (
+    FRAMES_FILE,
+    META_FILE,
     SequenceError,
     SequenceMeta,
     SequenceWriter,
     read_sequence,
     validate_sequence,
 )
+from .sequence import Sequence as AlloSequence
+from .staging import sigterm_as_interrupt, staged_folder, staging_path
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
 """ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
@@ -214,7 +218,7 @@ def import_allo(
                 )
             except SequenceError as error:
                 raise error.located(file=item.image) from None
-    return validate_sequence(out) if validate else read_sequence(out)
+    return validate_sequence(out, decode_images=True) if validate else read_sequence(out)
 
 
 def _copy(source: Path | None, folder: Path) -> Path | None:
@@ -255,20 +259,58 @@ def add_import_parser(subparsers: argparse._SubParsersAction) -> argparse.Argume
     parser.add_argument("--name", default=None, help="sequence name (default 'ALLO <split>')")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing sequence")
     parser.add_argument(
-        "--validate", action="store_true", help="decode every mask and check it against labels"
+        "--validate",
+        action="store_true",
+        help="decode every image and mask; check masks against labels",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(func=_run_import)
     return parser
 
 
+def refuse_existing(out: Path, overwrite: bool) -> None:
+    """Check that a command may build ``out`` aside and rename it into place.
+
+    Raises
+    ------
+    SequenceError
+        If ``out`` holds a sequence and ``overwrite`` is off, or holds anything else (which
+        replacing the folder would delete).
+    """
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise SequenceError(f"{out}: exists and is not a folder")
+    holds_sequence = (out / META_FILE).is_file() or (out / FRAMES_FILE).is_file()
+    if holds_sequence and not overwrite:
+        raise SequenceError(
+            f"{out}: folder already holds a sequence; use --overwrite to replace it"
+        )
+    if not holds_sequence and any(out.iterdir()):
+        raise SequenceError(f"{out}: folder holds files that are not a sequence; choose another")
+
+
 def _run_import(args: argparse.Namespace) -> int:
     try:
-        options = keyword_options(args, "copy", "rate_hz", "name", "overwrite", "validate")
-        sequence = import_allo(args.split_dir, args.out, args.split, **options)
-    except (AlloImportError, SequenceError) as error:
-        print(f"import-allo: error: {error}", file=sys.stderr)
+        options = keyword_options(args, "copy", "rate_hz", "name", "validate")
+        if args.split_dir.resolve().is_relative_to(args.out.resolve()):
+            # Into the ALLO folder itself: only frames.csv and sequence.yaml are added there.
+            sequence = import_allo(
+                args.split_dir, args.out, args.split, overwrite=args.overwrite, **options
+            )
+        else:
+            refuse_existing(args.out, args.overwrite)
+            with staged_folder(args.out) as staging:
+                import_allo(args.split_dir, staging, args.split, overwrite=True, **options)
+            sequence = read_sequence(args.out)
+    except AlloError as error:
+        # Name the folder asked for, not the hidden one it was built in.
+        message = str(error).replace(str(staging_path(args.out)), str(args.out))
+        print(f"import-allo: error: {message}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("import-allo: interrupted; nothing written", file=sys.stderr)
+        return 130
     anomalous = sum(frame.is_anomalous for frame in sequence.frames)
     print(
         f"wrote {sequence.root}: {len(sequence)} frames "
@@ -282,7 +324,8 @@ def main_import(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="allo-synth")
     add_import_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["import-allo", *(sys.argv[1:] if argv is None else argv)])
-    return args.func(args)
+    with sigterm_as_interrupt():
+        return args.func(args)
 
 
 if __name__ == "__main__":

@@ -37,6 +37,20 @@ def finite_vector(
     return array
 
 
+def unit_vector(values: object, name: str, error: type[Exception] = PoseError) -> np.ndarray:
+    """``values`` (3 finite numbers, not all zero) scaled to unit length, else ``error``.
+
+    Divides by the largest component first, so huge (1e300) or tiny (1e-300) vectors keep
+    their direction instead of overflowing to infinity or underflowing to zero.
+    """
+    vector = finite_vector(values, 3, name, error)
+    largest = float(np.max(np.abs(vector)))
+    if largest == 0.0:
+        raise error(f"{name} must not be the zero vector")
+    scaled = vector / largest
+    return scaled / float(np.linalg.norm(scaled))
+
+
 def quaternion_to_matrix(quaternion_xyzw: object, normalise: bool = True) -> np.ndarray:
     """Return the 3x3 rotation matrix of an ``(x, y, z, w)`` quaternion.
 
@@ -54,12 +68,15 @@ def quaternion_to_matrix(quaternion_xyzw: object, normalise: bool = True) -> np.
         3x3 float64 rotation matrix.
     """
     q = finite_vector(quaternion_xyzw, 4, "quaternion")
-    norm = float(np.linalg.norm(q))
+    # Through the largest component, so a huge quaternion cannot overflow its norm to inf.
+    largest = float(np.max(np.abs(q)))
+    scaled = q / largest if largest > 0 else q
+    norm = largest * float(np.linalg.norm(scaled))
     if norm < 1e-9:
         raise PoseError(f"quaternion has zero norm: {q.tolist()}")
     if not normalise and abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise PoseError(f"quaternion is not unit norm (|q| = {norm:.6f}): {q.tolist()}")
-    return Rotation.from_quat(q / norm).as_matrix()
+    return Rotation.from_quat(scaled / float(np.linalg.norm(scaled))).as_matrix()
 
 
 def matrix_to_quaternion(rotation: np.ndarray) -> np.ndarray:

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Iterable
 from pathlib import Path
+
+import yaml
 
 from allo_mrad_ros.sequence import SPLITS
 
@@ -57,3 +60,40 @@ def file_sha256(path: Path) -> str:
         for block in iter(lambda: stream.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+KEY_FILES_SHA256 = "allo.files_sha256"
+"""custom_data key: JSON ``{storage file name: hex SHA-256}``, added once the bag is closed.
+
+rosbags writes MCAP chunks without CRCs, so this digest is what lets a reader notice a bag
+whose bytes changed after writing (a bad disk, a bad copy)."""
+
+_METADATA = "metadata.yaml"
+_INFO = "rosbag2_bagfile_information"
+
+
+def add_file_digests(bag: Path) -> None:
+    """Record the SHA-256 of every storage file in the closed bag's ``metadata.yaml``."""
+    meta_path = bag / _METADATA
+    document = yaml.safe_load(meta_path.read_text())
+    info = document[_INFO]
+    digests = {name: file_sha256(bag / name) for name in info.get("relative_file_paths", [])}
+    info.setdefault("custom_data", {})[KEY_FILES_SHA256] = json.dumps(digests, sort_keys=True)
+    meta_path.write_text(yaml.safe_dump(document, sort_keys=False))
+
+
+def changed_files(bag: Path, custom: dict[str, str]) -> list[str]:
+    """Storage files whose SHA-256 differs from the one recorded at writing (none recorded:
+    nothing to compare, empty list)."""
+    recorded = custom.get(KEY_FILES_SHA256)
+    if not recorded:
+        return []
+    try:
+        digests = json.loads(recorded)
+    except ValueError:
+        return [f"{KEY_FILES_SHA256} (malformed)"]
+    return [
+        name
+        for name, digest in sorted(digests.items())
+        if not (bag / name).is_file() or file_sha256(bag / name) != digest
+    ]

@@ -33,6 +33,7 @@ from allo_mrad_ros.ros.messages import (
     pose_to_matrix,
 )
 from allo_mrad_ros.sequence import MASK_ANOMALY, META_FILE
+from allo_mrad_ros.sequence.png import bad_mask_values
 from allo_mrad_ros.view import View
 from rosbag_tools.bag_meta import (
     KEY_MESH,
@@ -123,9 +124,17 @@ def _frame_from_group(
     image = _decoded(topics.image, index, image_to_array, image_msg)
     if image.ndim != 3:
         raise FrameSourceError(f"topic {topics.image}: frame {index} is not a colour image")
-    mask = _decoded(topics.mask, index, image_to_array, group[topics.mask][1])
-    if mask.shape != image.shape[:2]:
-        raise FrameSourceError(f"topic {topics.mask}: frame {index} mask size differs from image")
+    mask_stamp, mask_msg = group[topics.mask]
+    mask = _decoded(topics.mask, index, image_to_array, mask_msg)
+    where = f"topic {topics.mask}: frame {index} at {mask_stamp} ns"
+    if mask.ndim != 2 or mask.dtype != np.uint8 or mask.shape != image.shape[:2]:
+        raise FrameSourceError(
+            f"{where}: mask {mask.dtype} {mask.shape} does not match the image "
+            f"{image.shape[1]}x{image.shape[0]} (mono8 expected)"
+        )
+    bad = bad_mask_values(mask)
+    if bad:
+        raise FrameSourceError(f"{where}: mask values must be 0, 1 or 2; found {bad[:10]}")
     pose = _decoded(topics.pose, index, pose_to_matrix, group[topics.pose][1].pose)
     vector = group[topics.sun_direction][1].vector
     sun_strength = 1.0

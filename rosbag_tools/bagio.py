@@ -26,6 +26,7 @@ from rosbags.typesys.store import Typestore
 
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.ros.messages import MessageError, image_to_array
+from rosbag_tools.bag_meta import changed_files
 from rosbag_tools.topics import DEFAULT_TOPICS, TopicError, TopicNames
 
 METADATA_FILE = "metadata.yaml"
@@ -191,6 +192,13 @@ def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
         raise BagReadError(f"{path}: bag not found")
     if path.is_file() and path.suffix == ".bag":
         raise BagReadError(f"{path}: ROS 1 bags are not supported, only rosbag2")
+    if (path / "metadata.yaml").is_file():
+        changed = changed_files(path, custom_data(path))
+        if changed:
+            raise BagReadError(
+                f"{path}: {', '.join(changed)} differs from the SHA-256 recorded when the bag "
+                "was written: the bag is corrupted or was modified"
+            )
     try:
         reader = Reader(path)
         reader.open()

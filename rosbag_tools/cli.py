@@ -1,7 +1,9 @@
 """The ``allo-bag`` command: write, info, play, evaluate, ablate.
 
 Exit status 0 on success, 1 when the work fails (the message names the file, row, topic or
-frame), 2 for a usage error, 130 when interrupted.
+frame), 2 for a usage error, 130 when interrupted (SIGINT or SIGTERM: nothing is left half
+written). Reports and bags are built in a hidden sibling folder and renamed into place at the
+end, so ``--out`` is either complete or untouched.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from allo_mrad_ros.detector import PROFILES
 from allo_mrad_ros.errors import AlloError, InvalidInput
 from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
+from allo_mrad_ros.staging import sigterm_as_interrupt, staged_folder
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
 
@@ -178,7 +181,11 @@ def _play(args: argparse.Namespace) -> str:
 
 
 def _source(args: argparse.Namespace) -> object:
+    from allo_mrad_ros.render.model import load_model
     from rosbag_tools.bag_source import open_source
+
+    if args.mesh is not None:
+        load_model(args.mesh)  # here, so a bad model is one clear error, not a dead worker
 
     return open_source(args.input, mesh=args.mesh, use_references=args.use_sequence_references)
 
@@ -217,7 +224,8 @@ def _evaluate(args: argparse.Namespace) -> str:
         progress=not args.quiet,
     )
     result = evaluate(_source(args), config)
-    write_evaluation_report(result, args.out)
+    with staged_folder(args.out) as staging:
+        write_evaluation_report(result, staging)
     table = evaluation_markdown(result).split("\n## ")[0]
     return (
         f"{table.rstrip()}\n\n{result.frames_per_second:.2f} frames/s with {config.jobs} "
@@ -237,7 +245,8 @@ def _ablate(args: argparse.Namespace) -> str:
         jobs=args.jobs,
         progress=not args.quiet,
     )
-    write_ablation_report(result, args.out)
+    with staged_folder(args.out) as staging:
+        write_ablation_report(result, staging)
     return f"{ablation_markdown(result).rstrip()}\n\nreport in {args.out}"
 
 
@@ -264,7 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format=f"{PROG} {args.command}: %(message)s")
     logging.getLogger("allo_bag").setLevel(logging.INFO)
     try:
-        print(_COMMANDS[args.command](args))
+        with sigterm_as_interrupt():
+            print(_COMMANDS[args.command](args))
     except (CliError, TopicError) as error:
         parser.error(str(error))
     except AlloError as error:

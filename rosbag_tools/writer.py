@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
+from allo_mrad_ros.staging import StagingError, prepare_staging, put_in_place
 from rosbag_tools.bag_meta import (
     BAG_FORMAT,
     KEY_FORMAT,
@@ -39,6 +40,7 @@ from rosbag_tools.bag_meta import (
     KEY_RATE,
     KEY_SPLITS,
     KEY_TOPICS,
+    add_file_digests,
     encode_splits,
     file_sha256,
 )
@@ -258,10 +260,10 @@ def write_bag(
         factory = MessageFactory(typestore_for(distro))
     except (SequenceError, TopicError) as error:
         raise BagWriteError(str(error)) from error
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = out.parent / f".{out.name}.partial-{os.getpid()}"
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir()
+    try:
+        staging = prepare_staging(out)
+    except StagingError as error:
+        raise BagWriteError(str(error)) from None
     counts: dict[str, int] = {}
     try:
         _write(
@@ -277,15 +279,9 @@ def write_bag(
             progress=progress,
             final=out,
         )
-        if out.exists():
-            # Swap in two renames so the old bag is gone only once the new one is complete.
-            trash = out.parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(trash)
-            (staging / out.name).rename(out)
-            shutil.rmtree(trash)
-        else:
-            (staging / out.name).rename(out)
-    except (SequenceError, TopicError) as error:
+        add_file_digests(staging / out.name)
+        put_in_place(staging / out.name, out)
+    except (SequenceError, TopicError, StagingError) as error:
         raise BagWriteError(str(error)) from error
     except (OSError, WriterError) as error:
         # Disk full, permissions, or rosbags refusing: name the bag, not a temporary path.

@@ -15,6 +15,7 @@ LAYERS: dict[str, int] = {
     "errors": 0,
     "interface": 0,
     "options": 0,
+    "staging": 1,
     "camera": 1,
     "geometry": 1,
     "resources": 1,

@@ -114,9 +114,16 @@ class StageStatistics:
             for name, value in timings_ms.items():
                 self._samples.setdefault(name, deque(maxlen=self._window)).append(value)
 
-    def rate_hz(self) -> float:
-        """Frames processed per second over the window (0 with fewer than two frames)."""
+    def rate_hz(self, window_s: float | None = None) -> float:
+        """Frames processed per second.
+
+        With ``window_s``: frames in the last ``window_s`` seconds up to now, divided by
+        ``window_s`` (0 once processing stops). Without: over the stored frames.
+        """
         with self._lock:
+            if window_s is not None:
+                since = time.monotonic() - window_s
+                return sum(1 for t in self._done if t >= since) / window_s
             if len(self._done) < 2:
                 return 0.0
             span = self._done[-1] - self._done[0]

@@ -16,7 +16,7 @@ import numpy as np
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.errors import InvalidInput
-from allo_mrad_ros.geometry import PoseError, pose_matrix
+from allo_mrad_ros.geometry import PoseError, pose_matrix, unit_vector
 from allo_mrad_ros.render import CelestialBody
 
 # Encodings the node accepts for the camera image: name -> (channels, dtype, to-RGB order).
@@ -272,10 +272,12 @@ def transform_to_matrix(transform: Any) -> np.ndarray:
 def vector_to_direction(vector: Any) -> np.ndarray:
     """A unit vector from a ``geometry_msgs/Vector3`` (raises MessageError ``sun``)."""
     v = np.array([vector.x, vector.y, vector.z], dtype=np.float64)
-    norm = float(np.linalg.norm(v))
-    if not np.isfinite(v).all() or norm < 1e-9:
-        raise MessageError("sun", f"sun direction {v.tolist()} is not a finite non-zero vector")
-    return v / norm
+    try:
+        return unit_vector(v, "sun direction")
+    except PoseError:
+        raise MessageError(
+            "sun", f"sun direction {v.tolist()} is not a finite non-zero vector"
+        ) from None
 
 
 def markers_to_bodies(markers: Sequence[Any]) -> list[CelestialBody]:
@@ -300,3 +302,25 @@ def markers_to_bodies(markers: Sequence[Any]) -> list[CelestialBody]:
         except ValueError as error:
             raise MessageError("bodies", f"celestial body {marker.ns!r}: {error}") from error
     return bodies
+
+
+# Largest image side the node accepts: OpenGL implementations (OSMesa, EGL) render at most
+# 16384 pixels per side, and an image this size is already 800 MB of rgb8.
+MAX_IMAGE_SIDE = 16384
+
+
+def check_camera_size(intrinsics: CameraIntrinsics) -> CameraIntrinsics:
+    """``intrinsics`` unchanged if a camera of this size can be rendered and received.
+
+    Raises
+    ------
+    MessageError
+        With cause ``camera_info``, naming the size and the limit.
+    """
+    if max(intrinsics.width, intrinsics.height) > MAX_IMAGE_SIDE:
+        raise MessageError(
+            "camera_info",
+            f"camera_info size {intrinsics.width}x{intrinsics.height} is impossible: at most "
+            f"{MAX_IMAGE_SIDE} pixels per side",
+        )
+    return intrinsics

@@ -38,6 +38,7 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -57,6 +58,8 @@ from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import (
     NodeConfig,
     NodeParameter,
+    ParameterError,
+    command_line_parameters,
     detector_parameters,
     node_config_from,
     node_parameters,
@@ -65,6 +68,9 @@ from allo_mrad_ros.ros.parameters import (
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
 from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
 from allo_mrad_ros.view import View
+
+# Exit status when a parameter value is invalid (as for a command-line usage error).
+EXIT_INVALID_PARAMETER = 2
 
 
 def _descriptor(name: str, parameter: NodeParameter) -> ParameterDescriptor:
@@ -88,10 +94,15 @@ def _descriptor(name: str, parameter: NodeParameter) -> ParameterDescriptor:
 class MradDetectorNode(Node):
     """ROS 2 node running MRAD on the arm camera stream."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, command_line: dict[str, Any] | None = None, **kwargs: Any) -> None:
         super().__init__(interface.NODE_NAME, **kwargs)
+        self._command_line = command_line or {}
         self._declared = {**node_parameters(tf2_available()), **detector_parameters()}
-        self._values = self._declare_all()
+        try:
+            self._values = self._declare_all()
+        except ParameterError:
+            super().destroy_node()  # nothing else is built yet
+            raise
         self._config: NodeConfig = node_config_from(self._values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -106,7 +117,12 @@ class MradDetectorNode(Node):
 
         config = self._config
         self._diagnostics = Diagnostics(
-            self, config.diagnostics_period_s, lambda: self._image_slot.received, ""
+            self,
+            config.diagnostics_period_s,
+            lambda: self._image_slot.received,
+            "",
+            config.input_timeout_s,
+            config.hardware_id,
         )
         state = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
         self._pose_source = PoseSource(
@@ -127,6 +143,7 @@ class MradDetectorNode(Node):
             self._diagnostics,
             self.get_logger(),
         )
+        self._diagnostics.worker_alive = self._worker.is_alive
         self.get_logger().info(
             f"MRAD detector ready: pose from {self._pose_source.kind}, reference scale "
             f"{config.pipeline.render.reference_scale}, grid {config.pipeline.params.grid}, "
@@ -136,24 +153,43 @@ class MradDetectorNode(Node):
     # --- parameters ---------------------------------------------------------------------
 
     def _declare_all(self) -> dict[str, Any]:
-        values = {}
+        """Declare every parameter; refuse to start on any invalid value (ParameterError).
+
+        rclpy checks types and ranges inside ``declare_parameter``; its exception is replaced
+        by the package's own message. An integer given for a float is accepted and
+        re-declared as the float in use, so ``ros2 param get`` shows what the node uses.
+        """
+        values: dict[str, Any] = {}
+        problems: list[str] = []
         for name, parameter in self._declared.items():
-            value = self.declare_parameter(
-                name, parameter.default, _descriptor(name, parameter)
-            ).value
+            descriptor = _descriptor(name, parameter)
             try:
-                values[name] = validate(name, parameter, value)
+                requested = self.declare_parameter(name, parameter.default, descriptor).value
+                declared = True
+            except ParameterException:
+                override = self._parameter_overrides.get(name)
+                requested = None if override is None else override.value
+                declared = False
+            try:
+                values[name] = validate(name, parameter, requested)
             except ValueError as error:
-                # A bad value in the config file: start with the default, say so loudly.
-                self.get_logger().error(f"parameter {error}; using default {parameter.default!r}")
-                values[name] = parameter.default
-        try:
-            node_config_from(values)
-        except ValueError as error:
-            self.get_logger().error(f"detector parameters rejected ({error}); using defaults")
-            for name, parameter in self._declared.items():
-                if name.startswith("mrad."):
-                    values[name] = parameter.default
+                problems.append(str(error))
+            if not declared:
+                value = values.get(name, parameter.default)
+                self.declare_parameter(name, value, descriptor, ignore_override=True)
+        for name, text in self._command_line.items():
+            if name in self._declared:
+                try:
+                    validate(name, self._declared[name], text)
+                except ValueError as error:
+                    problems.append(str(error))
+        if not problems:
+            try:
+                node_config_from(values)
+            except ValueError as error:
+                problems.append(str(error))
+        if problems:
+            raise ParameterError("invalid parameter value: " + "; ".join(dict.fromkeys(problems)))
         return values
 
     def _on_set_parameters(self, parameters: list) -> SetParametersResult:
@@ -211,6 +247,7 @@ class MradDetectorNode(Node):
         self._outputs = Outputs(self)
 
     def _on_image(self, msg: Image | CompressedImage) -> None:
+        self._diagnostics.input_seen(msg.header.frame_id)
         config = self._config
         if not self._outputs.wanted(config.publish_reference, config.publish_overlay):
             # Nobody listens: neither render nor detect.
@@ -221,7 +258,9 @@ class MradDetectorNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            intrinsics = messages.camera_intrinsics(msg, self._config.rectified_input)
+            intrinsics = messages.check_camera_size(
+                messages.camera_intrinsics(msg, self._config.rectified_input)
+            )
         except MessageError as error:
             self._diagnostics.report(error)
             return
@@ -312,8 +351,10 @@ class MradDetectorNode(Node):
         )
 
     def destroy_node(self) -> None:
-        """Stop the processing thread, then destroy the node."""
-        self._worker.stop()
+        """Stop the processing thread (nothing is published after), then destroy the node."""
+        worker = getattr(self, "_worker", None)
+        if worker is not None:
+            worker.stop()
         super().destroy_node()
 
 
@@ -322,8 +363,11 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=argv if argv is not None else sys.argv)
     node = None
     try:
-        node = MradDetectorNode()
+        node = MradDetectorNode(command_line_parameters(argv if argv is not None else sys.argv))
         rclpy.spin(node)
+    except ParameterError as error:
+        print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETER
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -8,15 +8,26 @@ validate with one rule set.
 
 from __future__ import annotations
 
+import array
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+import yaml
+
 from allo_mrad_ros import interface
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.geometry import unit_vector
 from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, coerce_value
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 
 DETECTOR_PREFIX = "mrad."
+
+
+class ParameterError(InvalidInput):
+    """A parameter value is invalid; the message names the parameter, value and range."""
 
 
 @dataclass(frozen=True)
@@ -118,6 +129,12 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
         "diagnostics_period_s": NodeParameter(
             1.0, _number("period of /diagnostics messages", 0.1, 60.0), True
         ),
+        "input_timeout_s": NodeParameter(
+            2.0, _number("no image for this long: /diagnostics says STALE", 0.1, 3600.0), True
+        ),
+        "hardware_id": NodeParameter(
+            "", _text("hardware_id in /diagnostics; empty: the image's frame_id"), True
+        ),
     }
 
 
@@ -136,29 +153,64 @@ def validate(name: str, parameter: NodeParameter, value: Any) -> Any:
     Raises
     ------
     ValueError
-        Naming the parameter and the value.
+        :class:`ParameterError` (or the library's own ``InvalidInput``) naming the parameter,
+        the value and what is allowed.
     """
     spec = parameter.spec
     if spec.kind is list:
-        vector = list(value) if isinstance(value, list | tuple) else None
+        # rclpy hands a double array over as array.array, a YAML list as list.
+        numbers = isinstance(value, Sequence | array.array | np.ndarray) and not isinstance(
+            value, str | bytes
+        )
+        vector = list(value) if numbers else None
         if (
             vector is None
             or len(vector) != 3
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in vector)
+            or not all(
+                isinstance(v, int | float | np.number) and not isinstance(v, bool)
+                for v in vector
+            )
         ):
-            raise ValueError(f"{name} must be a list of 3 numbers, got {value!r}")
-        if sum(float(v) ** 2 for v in vector) < 1e-18:
-            raise ValueError(f"{name} must not be the zero vector")
-        return [float(v) for v in vector]
+            raise ParameterError(f"{name} must be a list of 3 numbers, got {value!r}")
+        try:
+            direction = unit_vector(vector, name, ParameterError)
+        except ParameterError as error:
+            raise ParameterError(f"{error}, got {vector!r}") from None
+        return [float(v) for v in direction]
     if spec.kind is str and not spec.choices:
         if not isinstance(value, str):
-            raise ValueError(f"{name} must be a string, got {value!r}")
+            raise ParameterError(f"{name} must be a string, got {value!r}")
         return value
     if spec.kind is bool and not isinstance(value, bool):
-        raise ValueError(f"{name} must be true or false, got {value!r}")
+        raise ParameterError(f"{name} must be true or false, got {value!r}")
     if spec.kind in (int, float) and isinstance(value, str):
-        raise ValueError(f"{name} must be a number, got {value!r}")
+        raise ParameterError(f"{name} must be a number, got {value!r}")
     return coerce_value(name, spec, value)
+
+
+def command_line_parameters(argv: Sequence[str]) -> dict[str, Any]:
+    """``-p name:=value`` / ``--param name:=value`` of ``--ros-args`` sections, values read as
+    YAML (as rcl reads them).
+
+    rcl drops a ``-p`` value whose type differs from the same parameter's value in a
+    ``--params-file``; checking these too means no value the user typed is ignored silently.
+    """
+    found: dict[str, Any] = {}
+    in_ros_args = False
+    arguments = list(argv)
+    for index, argument in enumerate(arguments):
+        if argument == "--ros-args":
+            in_ros_args = True
+        elif argument == "--":
+            in_ros_args = False
+        elif in_ros_args and argument in ("-p", "--param") and index + 1 < len(arguments):
+            name, separator, text = arguments[index + 1].partition(":=")
+            if separator:
+                try:
+                    found[name] = yaml.safe_load(text)
+                except yaml.YAMLError:
+                    found[name] = text
+    return found
 
 
 def detector_params_from(values: dict[str, Any]) -> MradParams:
@@ -192,6 +244,8 @@ class NodeConfig:
     publish_reference: bool
     publish_overlay: bool
     diagnostics_period_s: float
+    input_timeout_s: float
+    hardware_id: str
     pipeline: PipelineConfig
 
 
@@ -216,5 +270,7 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         publish_reference=values["publish_reference"],
         publish_overlay=values["publish_overlay"],
         diagnostics_period_s=float(values["diagnostics_period_s"]),
+        input_timeout_s=float(values["input_timeout_s"]),
+        hardware_id=values["hardware_id"],
         pipeline=PipelineConfig(render, detector_params_from(values)),
     )

@@ -46,6 +46,10 @@ class OutputRecorder:
         Fully qualified name of the detector node (its private topics are recorded).
     image_topic : str
         The input image topic, for end-to-end latency (empty to skip).
+    capacity : int
+        Stamps kept waiting for their other output, and input arrival times kept; beyond
+        this the oldest are forgotten (counted in ``unmatched``), so outputs the node never
+        completes (a dropped message, a skipped frame) cannot grow memory.
     """
 
     def __init__(
@@ -54,8 +58,11 @@ class OutputRecorder:
         on_frame: Callable[[RecordedFrame], None],
         node_name: str = "/" + interface.NODE_NAME,
         image_topic: str = interface.IMAGE_TOPIC,
+        capacity: int = 256,
     ) -> None:
         self._on_frame = on_frame
+        self._capacity = capacity
+        self.unmatched = 0
         self._pending: dict[int, dict[str, Image]] = {}
         self._input_arrival: dict[int, float] = {}
         self._lock = threading.Lock()
@@ -70,6 +77,7 @@ class OutputRecorder:
     def _on_input(self, msg: Image) -> None:
         with self._lock:
             self._input_arrival[stamp_to_ns(msg.header.stamp)] = time.monotonic()
+            _forget_oldest(self._input_arrival, self._capacity)
 
     def _on_anomaly(self, msg: Bool) -> None:
         self.anomaly_flags += int(msg.data)
@@ -81,6 +89,7 @@ class OutputRecorder:
                 entry = self._pending.setdefault(stamp, {})
                 entry[kind] = msg
                 if len(entry) < 2:
+                    self.unmatched += _forget_oldest(self._pending, self._capacity)
                     return
                 del self._pending[stamp]
                 sent = self._input_arrival.pop(stamp, None)
@@ -97,3 +106,11 @@ class OutputRecorder:
             )
 
         return store
+
+
+def _forget_oldest(entries: dict, capacity: int) -> int:
+    """Drop the oldest-inserted entries beyond ``capacity``; return how many."""
+    excess = len(entries) - capacity
+    for stamp in list(entries)[: max(0, excess)]:
+        del entries[stamp]
+    return max(0, excess)

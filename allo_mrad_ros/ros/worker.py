@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -76,7 +77,8 @@ class ProcessingWorker:
         self._diagnostics = diagnostics
         self._logger = logger
         self._running = True
-        self._thread = threading.Thread(target=self._run, name="mrad_processing")
+        self._publishing = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name="mrad_processing", daemon=True)
         self._thread.start()
 
     def _provider(self, intrinsics: CameraIntrinsics, config: NodeConfig) -> ReferenceProvider:
@@ -89,65 +91,120 @@ class ProcessingWorker:
         return provider
 
     def _run(self) -> None:
+        try:
+            self._loop()
+        finally:
+            if self._running:
+                self._logger.fatal("processing thread stopped: no frames are processed")
+
+    def _loop(self) -> None:
         pipeline: Pipeline | None = None
-        built_for: CameraIntrinsics | None = None
-        report = self._diagnostics.report
+        built_for: tuple | None = None
         while self._running:
             item = self._slot.take(timeout=0.2)
-            state = self._snapshot()
-            if state.intrinsics is not None and (pipeline is None or built_for != state.intrinsics):
-                # Build (or rebuild) as soon as camera_info is known, not when a frame waits.
-                try:
-                    provider = self._provider(state.intrinsics, state.config)
-                    pipeline = Pipeline(provider, state.config.pipeline)
-                    built_for = state.intrinsics
-                except (RendererError, ValueError) as error:
-                    report(MessageError("renderer", f"cannot build the renderer: {error}"))
-                    pipeline = None
-                    continue
-            elif pipeline is not None and pipeline.config != state.config.pipeline:
-                pipeline = pipeline.with_config(state.config.pipeline)
-            if item is None:
-                continue
-            msg, received = item
-            if pipeline is None:
-                report(
-                    MessageError(
-                        "camera_info",
-                        f"no camera_info on {interface.CAMERA_INFO_TOPIC} yet; frame skipped",
-                    )
-                )
-                continue
+            if not self._running:
+                break
             try:
-                image = messages.image_to_rgb(msg, (built_for.width, built_for.height))
-                view = self._view_of(msg, state)
-                if view is None:
-                    continue
-                frame = pipeline.process(image, view)
-            except MessageError as error:
-                report(error)
-                continue
-            except RendererError as error:
-                report(MessageError("renderer", f"reference rendering failed: {error}"))
-                continue
-            except ValueError as error:
-                report(MessageError("processing", f"frame rejected: {error}"))
-                continue
-            self._publish(msg, image, frame)
-            self._diagnostics.stages.record(
-                {
-                    "render": frame.timings_ms["render"],
-                    "detect": frame.timings_ms["MRAD"],
-                    "receive_to_publish": 1e3 * (time.monotonic() - received),
-                }
+                state = self._snapshot()
+                pipeline, built_for = self._pipeline_for(state, pipeline, built_for)
+                if item is not None:
+                    self._process(item, state, pipeline)
+            except Exception as error:  # one bad frame must not end the thread
+                self._diagnostics.report(
+                    MessageError(
+                        "internal",
+                        f"frame {_stamp_of(item)} ns failed: {type(error).__name__}: {error}",
+                    ),
+                    "\n" + traceback.format_exc(),
+                )
+
+    def _pipeline_for(
+        self, state: Snapshot, pipeline: Pipeline | None, built_for: tuple | None
+    ) -> tuple[Pipeline | None, tuple | None]:
+        """The pipeline for this snapshot: (re)built for new intrinsics, renderer settings or
+        mesh (one attempt per change, so a camera that cannot be rendered is reported once),
+        swapped for new detector settings."""
+        if state.intrinsics is None:
+            return pipeline, built_for
+        wanted = (state.intrinsics, state.config.mesh, state.config.pipeline.render)
+        if wanted != built_for:
+            built_for = wanted
+            if pipeline is not None:
+                pipeline.provider.close()
+                pipeline = None
+            try:
+                provider = self._provider(state.intrinsics, state.config)
+                return Pipeline(provider, state.config.pipeline), built_for
+            except (RendererError, ValueError) as error:
+                self._diagnostics.report(
+                    MessageError("renderer", f"cannot build the renderer: {error}")
+                )
+                return None, built_for
+        if pipeline is not None and pipeline.config != state.config.pipeline:
+            pipeline = pipeline.with_config(state.config.pipeline)
+        return pipeline, built_for
+
+    def _process(self, item: tuple[Any, float], state: Snapshot, pipeline: Pipeline | None) -> None:
+        msg, received = item
+        report = self._diagnostics.report
+        if pipeline is None:
+            report(
+                MessageError(
+                    "camera_info",
+                    f"no usable camera_info on {interface.CAMERA_INFO_TOPIC}; frame skipped",
+                )
             )
-            self._diagnostics.count("frames_processed")
-            if frame.primary.anomalous:
-                self._diagnostics.count("anomalous_frames")
+            return
+        intrinsics = pipeline.provider.camera
+        try:
+            image = messages.image_to_rgb(msg, (intrinsics.width, intrinsics.height))
+            view = self._view_of(msg, state)
+            if view is None:
+                return
+            frame = pipeline.process(image, view)
+        except MessageError as error:
+            report(error)
+            return
+        except RendererError as error:
+            report(MessageError("renderer", f"reference rendering failed: {error}"))
+            return
+        except ValueError as error:
+            report(MessageError("processing", f"frame rejected: {error}"))
+            return
+        with self._publishing:
+            # Checked under the lock stop() takes: nothing is published once stop() returns.
+            if not self._running:
+                return
+            self._publish(msg, image, frame)
+        self._diagnostics.stages.record(
+            {
+                "render": frame.timings_ms["render"],
+                "detect": frame.timings_ms["MRAD"],
+                "receive_to_publish": 1e3 * (time.monotonic() - received),
+            }
+        )
+        self._diagnostics.count("frames_processed")
+        if frame.primary.anomalous:
+            self._diagnostics.count("anomalous_frames")
+
+    def is_alive(self) -> bool:
+        """Whether the processing thread runs."""
+        return self._thread.is_alive()
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop after the current frame."""
-        self._running = False
+        """Stop: no output is published after this returns; waits up to ``timeout_s`` for the
+        frame in progress (the thread is a daemon, so one stuck in rendering cannot keep the
+        process alive)."""
+        with self._publishing:
+            self._running = False
         self._slot.close()
-        if self._thread.is_alive():
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout=timeout_s)
+
+
+def _stamp_of(item: tuple[Any, float] | None) -> str:
+    """The stamp (ns) of a taken item for a log line, or ``?``."""
+    try:
+        return str(messages.stamp_to_ns(item[0].header.stamp))
+    except (AttributeError, TypeError):
+        return "?"

@@ -88,6 +88,14 @@ def read_png_header(path: Path) -> PngHeader:
     return PngHeader(width, height, bit_depth, colour_type)
 
 
+def _log_level_functions() -> tuple:
+    """OpenCV's log-level getter and setter (``cv2.utils.logging`` in 5.x, top level in 4.x)."""
+    logging = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging is not None and hasattr(logging, "setLogLevel"):
+        return logging.getLogLevel, logging.setLogLevel
+    return cv2.getLogLevel, cv2.setLogLevel
+
+
 def _decode(path: Path, flags: int) -> np.ndarray:
     try:
         data = np.fromfile(path, dtype=np.uint8)
@@ -95,7 +103,15 @@ def _decode(path: Path, flags: int) -> np.ndarray:
         raise SequenceError("file not found", file=path) from None
     except OSError as error:
         raise SequenceError(f"cannot read file: {error.strerror}", file=path) from None
-    image = cv2.imdecode(data, flags) if data.size else None
+    # A corrupt file is reported below as one SequenceError; OpenCV's own warning line
+    # (or libpng's) would only come first and confuse.
+    get_level, set_level = _log_level_functions()
+    previous = get_level()
+    set_level(0)  # LOG_LEVEL_SILENT in every OpenCV version
+    try:
+        image = cv2.imdecode(data, flags) if data.size else None
+    finally:
+        set_level(previous)
     if image is None:
         raise SequenceError("cannot decode image", file=path)
     return image

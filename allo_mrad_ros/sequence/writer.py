@@ -115,7 +115,7 @@ class SequenceWriter:
         existing = [n for n in (FRAMES_FILE, META_FILE) if (self.root / n).exists()]
         if existing and not overwrite:
             raise SequenceError(
-                "folder already holds a sequence; pass overwrite=True to replace it",
+                "folder already holds a sequence; use --overwrite (overwrite=True) to replace it",
                 file=self.root / existing[0],
             )
         self.root.mkdir(parents=True, exist_ok=True)

@@ -16,10 +16,12 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
-from allo_mrad_ros.allo_import import add_import_parser
-from allo_mrad_ros.sequence import SequenceError
+from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
+from allo_mrad_ros.errors import AlloError
+from allo_mrad_ros.staging import sigterm_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 
@@ -127,22 +129,31 @@ def _run_generate(args: argparse.Namespace) -> int:
             pose_error_rad=pose_error_rad,
         )
         if args.clean:
-            from dataclasses import replace
-
             config = config.with_overrides(realism=replace(config.realism, enabled=False))
         out = args.out if args.out is not None else Path("data") / args.preset
-        report = generate(
-            config,
-            out,
-            args.seed,
-            mesh=args.mesh,
-            jobs=args.jobs,
-            overwrite=args.overwrite,
-            progress=not args.quiet,
-        )
-    except (SynthError, SequenceError) as error:
-        print(f"allo-synth generate: error: {error}", file=sys.stderr)
+        refuse_existing(out, args.overwrite)
+        # Generated beside the target and renamed at the end: never a half-written folder.
+        with staged_folder(out) as staging:
+            report = generate(
+                config,
+                staging,
+                args.seed,
+                mesh=args.mesh,
+                jobs=args.jobs,
+                overwrite=True,
+                progress=not args.quiet,
+            )
+        report = replace(report, root=out)
+    except (AlloError, SynthError) as error:
+        # Name the folder asked for, not the hidden one it was built in.
+        message = str(error)
+        if args.out is not None:
+            message = message.replace(str(staging_path(args.out)), str(args.out))
+        print(f"allo-synth generate: error: {message}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("allo-synth generate: interrupted; nothing written", file=sys.stderr)
+        return 130
     print(
         f"wrote {report.root}: {report.frames} frames in {report.seconds:.1f} s "
         f"({report.frames_per_minute:.1f} frames/min at {config.width}x{config.height})"
@@ -170,7 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``allo-synth``; returns the exit status."""
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    with sigterm_as_interrupt():
+        return args.func(args)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,135 @@
+"""Outputs that appear complete or not at all: build in a hidden sibling, rename at the end.
+
+A command that writes a folder (a bag, a report, a sequence) builds it in
+``.<name>.partial-<pid>`` next to the target and renames it into place only once it is
+complete; a failure, SIGINT or SIGTERM removes the partial folder, and partial folders left by
+processes that no longer exist (a SIGKILL, a power cut) are removed by the next run.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from os import PathLike
+from pathlib import Path
+
+from allo_mrad_ros.errors import BackendError
+
+_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)$")
+
+
+class StagingError(BackendError):
+    """The output folder cannot be created or put in place (permissions, disk, a file)."""
+
+
+def staging_path(out: Path) -> Path:
+    """The hidden sibling this process builds ``out`` in."""
+    return out.parent / f".{out.name}.partial-{os.getpid()}"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale(out: Path) -> list[Path]:
+    """Remove partial and old copies of ``out`` left by processes that no longer run."""
+    removed = []
+    if not out.parent.is_dir():
+        return removed
+    for entry in out.parent.iterdir():
+        match = _LEFTOVER.match(entry.name)
+        if match and match["name"] == out.name and not _alive(int(match["pid"])):
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(entry)
+    return removed
+
+
+def prepare_staging(out: Path) -> Path:
+    """Create (empty) the staging folder of ``out`` and its parents.
+
+    Raises
+    ------
+    StagingError
+        Naming ``out`` (not the hidden path) and the reason.
+    """
+    staging = staging_path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale(out)
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir()
+    except OSError as error:
+        raise StagingError(f"{out}: cannot create the output folder: {error}") from None
+    return staging
+
+
+def put_in_place(built: Path, out: Path) -> None:
+    """Rename the complete ``built`` to ``out``, replacing an existing ``out`` only now.
+
+    Raises
+    ------
+    StagingError
+        If a rename fails; ``out`` is then either the old or the new complete folder.
+    """
+    try:
+        if out.exists():
+            trash = out.parent / f".{out.name}.old-{os.getpid()}"
+            out.rename(trash)
+            built.rename(out)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            built.rename(out)
+    except OSError as error:
+        raise StagingError(f"{out}: cannot put the output in place: {error}") from None
+
+
+@contextmanager
+def staged_folder(out: str | PathLike[str]) -> Iterator[Path]:
+    """Yield an empty staging folder; on a normal exit it becomes ``out``.
+
+    On any exception (KeyboardInterrupt included) the staging folder is removed and ``out``
+    is left as it was; an ``OSError`` while writing becomes a :class:`StagingError` naming
+    ``out``.
+    """
+    out = Path(out)
+    staging = prepare_staging(out)
+    try:
+        try:
+            yield staging
+        except OSError as error:
+            raise StagingError(f"{out}: cannot write: {error}") from error
+        put_in_place(staging, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM raises KeyboardInterrupt, so it cleans up as Ctrl-C does.
+
+    Only in the main thread (where Python delivers signals); the previous handler comes back
+    after the block.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

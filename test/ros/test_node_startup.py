@@ -1,0 +1,77 @@
+"""Start-up with invalid parameter values: the node process refuses with one line, exit 2."""
+
+import subprocess
+import sys
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from allo_mrad_ros.ros.node import EXIT_INVALID_PARAMETER, MradDetectorNode
+from allo_mrad_ros.ros.parameters import command_line_parameters
+
+pytestmark = pytest.mark.ros
+
+
+def run_node(*arguments: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "allo_mrad_ros.ros.node", "--ros-args", *arguments],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+@pytest.mark.parametrize(
+    ("parameter", "expected"),
+    [
+        ("mrad.grid:=0", "mrad.grid must be an integer in [1, 64], got 0"),
+        ("reference_scale:=0.0", "reference_scale must be in [0.05, 1], got 0.0"),
+        ("mrad.tolerance:=.nan", "mrad.tolerance must be finite, got nan"),
+        ("diagnostics_period_s:=0.0", "diagnostics_period_s must be in [0.1, 60], got 0.0"),
+        ("mrad.grid:=abc", "mrad.grid must be a number, got 'abc'"),
+        ("mrad.kernel_fraction:=0.0", "mrad.kernel_fraction must be in (0, 1], got 0.0"),
+        ("sun_direction:=[1e300,1e300,.nan]", "sun_direction must be finite"),
+    ],
+)
+def test_invalid_value_refuses_to_start_with_one_line_naming_it(parameter, expected):
+    done = run_node("-p", "pose_source:=topic", "-p", parameter)
+    assert done.returncode == EXIT_INVALID_PARAMETER, done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and expected in lines[0], done.stderr
+
+
+def test_command_line_value_is_checked_even_where_a_params_file_sets_it(tmp_path):
+    # rcl keeps the file's value when -p gives another type: that must not pass silently.
+    params = tmp_path / "params.yaml"
+    params.write_text(
+        "/**:\n  ros__parameters:\n    pose_source: topic\n    mrad:\n      grid: 8\n"
+    )
+    done = run_node("--params-file", str(params), "-p", "mrad.grid:=abc")
+    assert done.returncode == EXIT_INVALID_PARAMETER, done.stderr
+    assert "mrad.grid must be a number, got 'abc'" in done.stderr
+
+
+def test_command_line_parameters_are_read_as_yaml_from_ros_args_only():
+    argv = ["node", "-p", "x:=1", "--ros-args", "-p", "a:=2", "--param", "b:=[1, 2.5]", "--"]
+    assert command_line_parameters(argv) == {"a": 2, "b": [1, 2.5]}
+
+
+def test_an_integer_for_a_float_parameter_is_used_and_reported_as_the_float():
+    rclpy.init()
+    try:
+        node = MradDetectorNode(
+            parameter_overrides=[
+                Parameter("pose_source", value="topic"),
+                Parameter("mrad.tolerance", value=60),
+            ]
+        )
+        try:
+            value = node.get_parameter("mrad.tolerance").value
+            assert value == 60.0 and isinstance(value, float)
+            assert node._config.pipeline.params.tolerance == 60.0
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

@@ -1,0 +1,166 @@
+"""The processing thread's shutdown and the demo recorder's memory bound (no DDS needed)."""
+
+import array
+import threading
+import types
+
+import numpy as np
+import pytest
+import rclpy  # noqa: F401 - the worker's diagnostics need rclpy (skipped on the distro route)
+from sensor_msgs.msg import Image
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.ros import worker as worker_module
+from allo_mrad_ros.ros.buffers import LatestSlot
+from allo_mrad_ros.ros.messages import fill_image
+from allo_mrad_ros.ros.parameters import node_parameters, validate
+from allo_mrad_ros.ros.recorder import OutputRecorder
+from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
+
+CAMERA = CameraIntrinsics(8, 6, 8.0, 8.0, 4.0, 3.0)
+
+
+class Quiet:
+    def __getattr__(self, name):
+        return lambda *args, **kwargs: None
+
+
+class Counting(Quiet):
+    def __init__(self):
+        self.reports = []
+        self.stages = Quiet()
+
+    def report(self, error, detail=""):
+        self.reports.append(error)
+
+
+def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monkeypatch):
+    entered, release = threading.Event(), threading.Event()
+
+    class SlowPipeline:
+        provider = types.SimpleNamespace(camera=CAMERA)
+
+        def process(self, image, view):
+            entered.set()
+            release.wait(30)
+            return types.SimpleNamespace(
+                primary=types.SimpleNamespace(anomalous=False),
+                timings_ms={"render": 0.0, "MRAD": 0.0},
+            )
+
+    monkeypatch.setattr(
+        ProcessingWorker, "_pipeline_for", lambda self, state, p, b: (SlowPipeline(), b)
+    )
+    published = []
+    slot = LatestSlot()
+    state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
+    worker = ProcessingWorker(
+        slot, lambda: state, lambda msg, s: "view", lambda *a: published.append(a),
+        Counting(), Quiet(),
+    )
+    msg = fill_image(Image(), None, np.zeros((6, 8, 3), np.uint8), "rgb8")
+    slot.put((msg, 0.0))
+    assert entered.wait(30)
+    worker.stop(timeout_s=0.1)  # the frame is still in process: the join expires
+    assert worker.is_alive()
+    release.set()
+    worker._thread.join(30)
+    assert not worker.is_alive()
+    assert published == []
+
+
+def test_the_worker_survives_an_unexpected_exception_and_reports_it(monkeypatch):
+    calls = []
+
+    def flaky(self, state, pipeline, built_for):
+        calls.append(1)
+        if len(calls) == 1:
+            raise KeyError("a bug")
+        return None, built_for
+
+    monkeypatch.setattr(ProcessingWorker, "_pipeline_for", flaky)
+    diagnostics = Counting()
+    slot = LatestSlot()
+    state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
+    worker = ProcessingWorker(slot, lambda: state, None, None, diagnostics, Quiet())
+    try:
+        slot.put(("not a message", 0.0))
+        slot.put(("another", 0.0))
+        assert _wait(lambda: len(calls) >= 3)
+        assert worker.is_alive()
+        assert diagnostics.reports[0].cause == "internal"
+        assert "KeyError" in str(diagnostics.reports[0])
+    finally:
+        worker.stop()
+
+
+def _wait(condition, timeout=30.0):
+    event = threading.Event()
+    end = worker_module.time.monotonic() + timeout
+    while worker_module.time.monotonic() < end:
+        if condition():
+            return True
+        event.wait(0.02)
+    return condition()
+
+
+class FakeNode:
+    def __init__(self):
+        self.callbacks = {}
+
+    def create_subscription(self, kind, topic, callback, qos):
+        self.callbacks[topic] = callback
+
+
+def image_at(stamp_ns, data=None, encoding="mono8"):
+    data = np.zeros((2, 2), np.uint8) if data is None else data
+    msg = fill_image(Image(), None, data, encoding)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+    return msg
+
+
+def test_recorder_forgets_the_oldest_unmatched_outputs_and_inputs():
+    node, frames = FakeNode(), []
+    recorder = OutputRecorder(node, frames.append, capacity=50)
+    score = node.callbacks["/mrad_detector/score"]
+    mask = node.callbacks["/mrad_detector/mask"]
+    image = node.callbacks["/arm_camera/image_raw"]
+    for stamp in range(1000):
+        image(image_at(stamp))
+        score(image_at(stamp, np.zeros((2, 2), np.float32), "32FC1"))
+    assert len(recorder._pending) == 50 and len(recorder._input_arrival) == 50
+    assert recorder.unmatched == 950
+    mask(image_at(999))  # a recent stamp still pairs, with its latency
+    assert len(frames) == 1 and frames[0].stamp_ns == 999 and frames[0].latency_ms is not None
+
+
+@pytest.mark.parametrize(
+    "value", [array.array("d", [0.0, 3.0, 4.0]), (0, 3, 4), np.array([0.0, 3.0, 4.0])]
+)
+def test_sun_direction_accepts_any_sequence_of_three_numbers(value):
+    parameter = node_parameters(False)["sun_direction"]
+    assert validate("sun_direction", parameter, value) == [0.0, 0.6, 0.8]
+
+
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        ([1e300, 1e300, 0.0], None),
+        ([1e-320, 0.0, 0.0], None),
+        ([0.0, 0.0, 0.0], "zero vector"),
+        ([float("inf"), 0.0, 0.0], "finite"),
+        ("1,2,3", "list of 3 numbers"),
+        ([True, 0.0, 0.0], "list of 3 numbers"),
+    ],
+)
+def test_sun_direction_is_stored_as_a_unit_vector_or_refused(value, reason):
+    parameter = node_parameters(False)["sun_direction"]
+    if reason is None:
+        unit = np.array(validate("sun_direction", parameter, value))
+        assert np.isclose(np.linalg.norm(unit), 1.0)
+        assert np.allclose(unit, np.array(value) / np.max(np.abs(value)) / np.linalg.norm(
+            np.array(value) / np.max(np.abs(value))
+        ))
+    else:
+        with pytest.raises(ValueError, match=reason):
+            validate("sun_direction", parameter, value)

@@ -1,0 +1,209 @@
+"""allo-bag with bad input, signals and failing disks: one clear line, nothing half-written,
+nothing silently wrong (issue 13 items 10-14 and 17)."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from rosbag_fixtures import CAMERA, write_tiny_sequence
+
+from allo_mrad_ros.sequence import Sequence
+from allo_mrad_ros.staging import (
+    StagingError,
+    remove_stale,
+    sigterm_as_interrupt,
+    staged_folder,
+)
+from rosbag_tools import writer as writer_module
+from rosbag_tools.cli import main
+from rosbag_tools.writer import BagWriteError, write_bag
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    return write_tiny_sequence(tmp_path_factory.mktemp("seq") / "seq", train=1)
+
+
+@pytest.fixture(scope="module")
+def bag(sequence, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bag") / "bag"
+    write_bag(sequence, out)
+    return out
+
+
+def allo_bag(*arguments: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "rosbag_tools", *arguments],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+
+
+def one_clean_line(done: subprocess.CompletedProcess, expected: str) -> None:
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and expected in lines[0], done.stderr
+
+
+def leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if ".partial-" in p.name or ".old-" in p.name)
+
+
+def test_write_under_a_file_is_one_clear_error(sequence, tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(BagWriteError, match="cannot create the output folder"):
+        write_bag(sequence, tmp_path / "file" / "bag")
+    assert main(["write", str(sequence), str(tmp_path / "file" / "bag"), "--quiet"]) == 1
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_write_into_a_read_only_folder_is_one_clear_error(sequence, tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        with pytest.raises(BagWriteError, match="cannot create the output folder"):
+            write_bag(sequence, locked / "bag")
+    finally:
+        locked.chmod(0o755)
+
+
+def test_sigterm_during_write_leaves_nothing_and_stale_partials_are_cleaned(
+    sequence, tmp_path, monkeypatch
+):
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".bag.partial-{dead.pid}"
+    (stale / "bag").mkdir(parents=True)
+    encode = writer_module._FrameEncoder.encode
+    calls = []
+
+    def terminated_midway(self, frame):
+        calls.append(frame)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return encode(self, frame)
+
+    monkeypatch.setattr(writer_module._FrameEncoder, "encode", terminated_midway)
+    previous = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
+        write_bag(sequence, tmp_path / "bag")
+    assert signal.getsignal(signal.SIGTERM) is previous
+    assert len(calls) == 2
+    assert not (tmp_path / "bag").exists()
+    assert leftovers(tmp_path) == []  # ours removed, the dead process's too
+
+
+def test_partials_of_live_processes_are_kept(tmp_path):
+    mine = tmp_path / f".out.partial-{os.getpid()}"
+    mine.mkdir()
+    assert remove_stale(tmp_path / "out") == [] and mine.is_dir()
+
+
+def test_report_on_a_full_disk_leaves_no_report(tmp_path):
+    out = tmp_path / "report"
+    with pytest.raises(StagingError, match="No space left"), staged_folder(out) as staging:
+        (staging / "metrics.json").write_text("{}")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    assert not out.exists() and leftovers(tmp_path) == []
+
+
+def test_evaluate_failing_while_writing_the_report_leaves_the_old_report(
+    bag, tmp_path, monkeypatch
+):
+    from allo_mrad_ros.evaluation import report
+
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "metrics.json").write_text('{"old": true}')
+
+    def full_disk(result, folder):
+        (Path(folder) / "metrics.md").write_text("half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(report, "write_evaluation_report", full_disk)
+    args = ["evaluate", str(bag), "--out", str(out), "--limit", "2", "--quiet", "--methods", "PAD"]
+    assert main(args) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
+    assert leftovers(tmp_path) == []
+
+
+def test_evaluate_with_a_garbage_mesh_is_one_line_even_with_worker_processes(bag, tmp_path):
+    garbage = tmp_path / "garbage.glb"
+    garbage.write_bytes(b"not a model")
+    done = allo_bag(
+        "evaluate", str(bag), "--out", str(tmp_path / "r"), "--mesh", str(garbage), "--jobs", "2"
+    )
+    one_clean_line(done, "cannot load station model")
+    assert not (tmp_path / "r").exists()
+
+
+def corrupt_middle(bag: Path, copy: Path) -> Path:
+    import shutil
+
+    shutil.copytree(bag, copy)
+    (storage,) = copy.glob("*.mcap")
+    data = bytearray(storage.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 4000] = np.random.default_rng(0).bytes(4000)
+    storage.write_bytes(bytes(data))
+    return copy
+
+
+@pytest.mark.parametrize("command", ["info", "evaluate"])
+def test_a_corrupted_bag_is_refused_not_evaluated(bag, tmp_path, command):
+    broken = corrupt_middle(bag, tmp_path / "broken")
+    extra = ["--out", str(tmp_path / "r"), "--quiet"] if command == "evaluate" else []
+    done = allo_bag(command, str(broken), *extra)
+    one_clean_line(done, "differs from the SHA-256 recorded when the bag was written")
+
+
+def test_a_mask_with_values_outside_the_labels_names_topic_and_stamp(
+    sequence, tmp_path, monkeypatch
+):
+    load_mask = Sequence.load_mask
+
+    def bad_mask(self, frame):
+        mask = load_mask(self, frame)
+        if mask is not None and frame.index == 1:
+            mask = mask.copy()
+            mask[0, 0] = 7
+        return mask
+
+    monkeypatch.setattr(Sequence, "load_mask", bad_mask)
+    out = tmp_path / "bag"
+    write_bag(sequence, out)
+    monkeypatch.undo()
+    meta = yaml.safe_load((out / "metadata.yaml").read_text())
+    assert "allo.files_sha256" in meta["rosbag2_bagfile_information"]["custom_data"]
+    done = allo_bag("evaluate", str(out), "--out", str(tmp_path / "r"), "--quiet")
+    one_clean_line(done, "mask values must be 0, 1 or 2; found [7]")
+    assert "/allo/ground_truth/mask" in done.stderr or "mask: frame" in done.stderr
+    assert " ns: " in done.stderr
+
+
+def test_overwrite_refusal_names_the_command_line_option(tmp_path):
+    from allo_mrad_ros.sequence import SequenceError, SequenceMeta, SequenceWriter
+
+    meta = SequenceMeta(name="x", camera=CAMERA, rate_hz=10.0)
+    with SequenceWriter(tmp_path / "s", meta) as writer:
+        writer.add_frame(
+            split="train",
+            camera=0,
+            image=np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8),
+            position=[0.0, 0.0, 0.0],
+            quaternion=[0.0, 0.0, 0.0, 1.0],
+            sun_direction=[1.0, 0.0, 0.0],
+        )
+    with pytest.raises(SequenceError, match="--overwrite"), SequenceWriter(tmp_path / "s", meta):
+        pass
