@@ -15,6 +15,12 @@ def write_report(path: Path, report: object) -> None:
     print(f"written: {path}")
 
 
+def finish(path: Path, report: object) -> int:
+    """Write a command's report (:func:`write_report`) and return its exit status, 0."""
+    write_report(path, report)
+    return 0
+
+
 def machine_facts() -> dict[str, object]:
     """CPU count, machine and Python version, for a report's figures to be read against."""
     return {

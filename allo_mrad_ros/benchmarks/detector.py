@@ -22,7 +22,7 @@ from types import ModuleType
 import cv2
 import numpy as np
 
-from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks import finish
 from allo_mrad_ros.benchmarks.tradeoff import PREVIOUS_DEFAULT
 from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.score import cross_score
@@ -192,8 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames must be at least 20")
     report = run(args.frames, args.warmup, args.oracle_frames, args.reference_scale, args.profile)
     print(format_report(report))
-    write_report(args.out, report)
-    return 0
+    return finish(args.out, report)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import machine_facts, write_report
+from allo_mrad_ros.benchmarks import finish, machine_facts
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence.png import encode_png
 from allo_mrad_ros.synth.config import PRESETS, preset
@@ -90,8 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         f"per frame: synthesis {report['synthesis_ms_median']:.0f} ms, "
         f"PNG encoding {report['png_ms_median']:.0f} ms (medians)"
     )
-    write_report(args.out, report)
-    return 0
+    return finish(args.out, report)
 
 
 if __name__ == "__main__":

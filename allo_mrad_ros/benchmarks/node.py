@@ -31,7 +31,7 @@ import numpy as np
 import psutil
 import rclpy
 
-from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks import finish
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.geometry import look_at
@@ -189,8 +189,7 @@ def main(argv: list[str] | None = None) -> int:
             f"every output subscribed: {report['cpu_s_per_frame_every_output']:.3f} s\n"
             f"saving: {report['saving_percent']:.1f} %\nnode log: {log}"
         )
-        write_report(args.out, report)
-        return 0
+        return finish(args.out, report)
     report = run(args.frames, args.rate, log, args.timeout)
     growth = (
         100 * (report["rss_mb_after_1000"] / report["rss_mb_after_100"] - 1)
@@ -209,8 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{report['rss_mb_after_1000']:.0f} MB after {args.frames} ({growth:+.1f} %)\n"
         f"node log: {log}"
     )
-    write_report(args.out, report)
-    return 0
+    return finish(args.out, report)
 
 
 if __name__ == "__main__":

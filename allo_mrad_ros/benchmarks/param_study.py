@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from allo_mrad_ros.benchmarks import write_report
+from allo_mrad_ros.benchmarks import finish
 from allo_mrad_ros.detector import METHODS, MradParams
 from allo_mrad_ros.example_scene import camera_effects, paste_object, station_view
 from allo_mrad_ros.metrics import MetricsAccumulator
@@ -93,8 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{name:<22}{metrics['p_ap']:>8.3f}{metrics['p_auroc']:>9.3f}"
             f"{metrics['i_auroc']:>9.3f}{metrics['p_fpr95']:>9.3f}"
         )
-    write_report(args.out, rows)
-    return 0
+    return finish(args.out, rows)
 
 
 if __name__ == "__main__":

@@ -13,10 +13,12 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from allo_mrad_ros.errors import InvalidInput
+
 Perturbation = Callable[[np.ndarray], np.ndarray]
 
 
-class PerturbationError(ValueError):
+class PerturbationError(InvalidInput):
     """A perturbation got an image it cannot handle."""
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import machine_facts, write_report
+from allo_mrad_ros.benchmarks import finish, machine_facts
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
@@ -178,8 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         f"reference render (scale {report['reference_scale']}, {shadows}): median "
         f"{report['ref_ms_median']:.1f} ms, {verdict} the {TARGET_REF_MS:.0f} ms target"
     )
-    write_report(args.out, report)
-    return 0
+    return finish(args.out, report)
 
 
 if __name__ == "__main__":

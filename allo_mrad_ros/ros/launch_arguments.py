@@ -12,11 +12,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from allo_mrad_ros import interface
+from allo_mrad_ros.errors import InvalidInput
 
 NOT_GIVEN = ""
 
 
-class LaunchArgumentError(ValueError):
+class LaunchArgumentError(InvalidInput):
     """A launch argument has a value its node parameter cannot take."""
 
 

@@ -181,18 +181,25 @@ def intrinsics_from_camera_info(msg: Any) -> CameraIntrinsics:
     MessageError
         With cause ``camera_info`` for a zero size or a non-positive focal length.
     """
-    k = np.asarray(msg.k, dtype=np.float64)
+    return _pinhole(msg, "k", 3)
+
+
+def _pinhole(msg: Any, matrix: str, columns: int) -> CameraIntrinsics:
+    """Intrinsics from the row-major ``K`` (3 columns) or ``P`` (4 columns) of a CameraInfo."""
+    m = np.asarray(getattr(msg, matrix), dtype=np.float64)
     try:
         return CameraIntrinsics(
             width=int(msg.width),
             height=int(msg.height),
-            fx=float(k[0]),
-            fy=float(k[4]),
-            cx=float(k[2]),
-            cy=float(k[5]),
+            fx=float(m[0]),
+            fy=float(m[columns + 1]),
+            cx=float(m[2]),
+            cy=float(m[columns + 2]),
         )
     except (ValueError, IndexError) as error:
-        raise MessageError("camera_info", f"camera_info is unusable: {error}") from error
+        raise MessageError(
+            "camera_info", f"camera_info {matrix.upper()} is unusable: {error}"
+        ) from error
 
 
 def camera_intrinsics(msg: Any, rectified: bool) -> CameraIntrinsics:
@@ -209,18 +216,7 @@ def camera_intrinsics(msg: Any, rectified: bool) -> CameraIntrinsics:
         unusable one.
     """
     if rectified:
-        p = np.asarray(msg.p, dtype=np.float64)
-        try:
-            return CameraIntrinsics(
-                width=int(msg.width),
-                height=int(msg.height),
-                fx=float(p[0]),
-                fy=float(p[5]),
-                cx=float(p[2]),
-                cy=float(p[6]),
-            )
-        except (ValueError, IndexError) as error:
-            raise MessageError("camera_info", f"camera_info P is unusable: {error}") from error
+        return _pinhole(msg, "p", 4)
     d = np.asarray(msg.d, dtype=np.float64)
     if d.size and (not np.isfinite(d).all() or np.any(d != 0.0)):
         raise MessageError(

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import math
 
+from allo_mrad_ros.errors import InvalidInput
 
-class SynthError(ValueError):
+
+class SynthError(InvalidInput):
     """An invalid generator setting, or a scene in which the rules cannot be met."""
 
 

@@ -13,6 +13,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from allo_mrad_ros.errors import InvalidInput
+
 from .base import (
     COLOURS,
     DEFAULT_COLOUR,
@@ -55,7 +57,7 @@ SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip"})
 """Types made of open sheets (zero thickness); all others are closed solids."""
 
 
-class ObjectError(ValueError):
+class ObjectError(InvalidInput):
     """An unknown object type or colour, or a bad seed."""
 
 
