@@ -67,6 +67,18 @@ def run(name: str, frames: int, seed: int, jobs: int, stage_frames: int) -> dict
     }
 
 
+def format_report(report: dict) -> str:
+    """The printed summary: throughput, then the per-frame stage medians."""
+    width, height = report["size"]
+    return (
+        f"{report['preset']}: {report['frames']} frames at {width}x{height} in "
+        f"{report['seconds']:.1f} s = {report['frames_per_minute']:.1f} frames/min "
+        f"({report['jobs']} job(s), {report['cpu_count']} CPUs)\n"
+        f"per frame: synthesis {report['synthesis_ms_median']:.0f} ms, "
+        f"PNG encoding {report['png_ms_median']:.0f} ms (medians)"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark, print the figures and write the JSON report."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -80,16 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     if min(args.frames, args.stage_frames, args.jobs) < 1 or args.seed < 0:
         parser.error("--frames, --stage-frames and --jobs must be >= 1, --seed >= 0")
     report = run(args.preset, args.frames, args.seed, args.jobs, args.stage_frames)
-    width, height = report["size"]
-    print(
-        f"{report['preset']}: {report['frames']} frames at {width}x{height} in "
-        f"{report['seconds']:.1f} s = {report['frames_per_minute']:.1f} frames/min "
-        f"({report['jobs']} job(s), {report['cpu_count']} CPUs)"
-    )
-    print(
-        f"per frame: synthesis {report['synthesis_ms_median']:.0f} ms, "
-        f"PNG encoding {report['png_ms_median']:.0f} ms (medians)"
-    )
+    print(format_report(report))
     return finish(args.out, report)
 
 

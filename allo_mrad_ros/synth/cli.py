@@ -62,44 +62,35 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     )
     parser.add_argument("--preset", choices=tuple(PRESETS), default="demo", help="(default demo)")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
-    parser.add_argument(
-        "--out", type=Path, default=None, help="output folder (default data/<preset>)"
-    )
-    parser.add_argument(
-        "--mesh", type=Path, default=None, help="station model (default the package's)"
-    )
+    parser.add_argument("--out", type=Path, help="output folder (default data/<preset>)")
+    parser.add_argument("--mesh", type=Path, help="station model (default the package's)")
     parser.add_argument(
         "--frames",
         type=_positive_int,
-        default=None,
         help="scale the preset to about this many frames",
     )
-    parser.add_argument("--width", type=_positive_int, default=None, help="image width")
-    parser.add_argument("--height", type=_positive_int, default=None, help="image height")
+    parser.add_argument("--width", type=_positive_int, help="image width")
+    parser.add_argument("--height", type=_positive_int, help="image height")
     parser.add_argument(
         "--jobs", type=_positive_int, default=1, help="worker processes (default 1)"
     )
     parser.add_argument(
         "--references",
         action=argparse.BooleanOptionalAction,
-        default=None,
         help="also write pre-rendered references (reported pose, nominal model and light)",
     )
-    parser.add_argument("--types", type=_types, default=None, help="comma-separated object types")
+    parser.add_argument("--types", type=_types, help="comma-separated object types")
     parser.add_argument(
-        "--position-sigma", type=_non_negative, default=None, help="base-pose perturbation, m (1)"
+        "--position-sigma", type=_non_negative, help="base-pose perturbation, m (1)"
     )
     parser.add_argument(
         "--rotation-sigma",
         type=_non_negative,
-        default=None,
         help="base-pose perturbation, rad (0.2)",
     )
+    parser.add_argument("--pose-error-m", type=_non_negative, help="reported pose error, m (0.02)")
     parser.add_argument(
-        "--pose-error-m", type=_non_negative, default=None, help="reported pose error, m (0.02)"
-    )
-    parser.add_argument(
-        "--pose-error-deg", type=_non_negative, default=None, help="reported pose error, deg (0.2)"
+        "--pose-error-deg", type=_non_negative, help="reported pose error, deg (0.2)"
     )
     parser.add_argument(
         "--clean", action="store_true", help="no camera effects or material variation (debugging)"
