@@ -78,7 +78,8 @@ bench-node-outputs: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 
 # Speed against error: defaults chosen on data/bench_val, reported on data/bench's test split
-# (both generated first if missing, ~6 + ~4 min).
+# (both generated first if missing: 510 + 330 frames, 49 + 38 min at load 15 on 2 cores with
+# the issue-11 generator; not re-measured idle).
 bench: $(STAMP) data/bench/frames.csv data/bench_val/frames.csv
 	$(PY) -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench --validation data/bench_val --out reports
 
