@@ -23,7 +23,6 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.benchmarks import finish
-from allo_mrad_ros.benchmarks.tradeoff import PREVIOUS_DEFAULT
 from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
@@ -59,7 +58,7 @@ def run(
     params = profile(profile_name)
     for _ in range(warmup):
         detect(pair.query, reference, params)
-        detect(pair.query, reference, PREVIOUS_DEFAULT)
+        detect(pair.query, reference, profile("previous"))
     totals: list[float] = []
     previous: list[float] = []
     stages: dict[str, list[float]] = {}
@@ -67,7 +66,7 @@ def run(
     for _ in range(frames):
         # Interleaved with the previous default, so both see the same machine load.
         start = time.perf_counter()
-        detect(pair.query, reference, PREVIOUS_DEFAULT)
+        detect(pair.query, reference, profile("previous"))
         previous.append(1e3 * (time.perf_counter() - start))
         start = time.perf_counter()
         result = detect(pair.query, reference, params)
