@@ -36,10 +36,8 @@ def sklearn_fpr95(labels, scores):
     return fpr[np.argmax(tpr >= 0.95)]
 
 
-@settings(max_examples=50, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 400), ties=st.booleans())
-@example(seed=6838, n=121, ties=True)  # found on a fresh clone: sklearn's thinned ROC curve
-def test_exact_metrics_match_sklearn(seed, n, ties):
+def _random_scores(seed: int, n: int, ties: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Scores that separate two classes partly, both classes present, optionally tied."""
     rng = np.random.default_rng(seed)
     labels = rng.random(n) < rng.uniform(0.05, 0.95)
     if labels.all() or not labels.any():
@@ -47,6 +45,14 @@ def test_exact_metrics_match_sklearn(seed, n, ties):
     scores = rng.normal(size=n) + labels * rng.uniform(0, 2)
     if ties:
         scores = np.round(scores * 2) / 2
+    return scores, labels
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 400), ties=st.booleans())
+@example(seed=6838, n=121, ties=True)  # found on a fresh clone: sklearn's thinned ROC curve
+def test_exact_metrics_match_sklearn(seed, n, ties):
+    scores, labels = _random_scores(seed, n, ties)
     assert roc_auc(scores, labels) == pytest.approx(roc_auc_score(labels, scores), abs=1e-12)
     assert average_precision(scores, labels) == pytest.approx(
         average_precision_score(labels, scores), abs=1e-12
@@ -57,13 +63,7 @@ def test_exact_metrics_match_sklearn(seed, n, ties):
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 400), ties=st.booleans())
 def test_trapezoid_aupr_and_interpolated_fpr95_match_sklearn(seed, n, ties):
-    rng = np.random.default_rng(seed)
-    labels = rng.random(n) < rng.uniform(0.05, 0.95)
-    if labels.all() or not labels.any():
-        labels[0] = not labels[0]
-    scores = rng.normal(size=n) + labels * rng.uniform(0, 2)
-    if ties:
-        scores = np.round(scores * 2) / 2
+    scores, labels = _random_scores(seed, n, ties)
     precision, recall, _ = precision_recall_curve(labels, scores)
     assert aupr_trapezoid(scores, labels) == pytest.approx(auc(recall, precision), abs=1e-12)
     fpr, tpr, _ = roc_curve(labels, scores, drop_intermediate=False)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import yaml
 
+from .. import interface
 from ..camera import CameraIntrinsics
 from .model import FORMAT_V1, SequenceError, SequenceMeta, read_text
 from .png import write_atomic
@@ -116,8 +117,8 @@ def _meta_from_dict(data: dict, folder: Path) -> SequenceMeta:
         name="" if name is None else str(name),
         camera=intrinsics,
         rate_hz=_number(data["rate_hz"], "rate_hz"),
-        station_frame=data.get("station_frame", "station"),
-        camera_frame=data.get("camera_frame", "arm_camera_optical"),
+        station_frame=data.get("station_frame", interface.STATION_FRAME),
+        camera_frame=data.get("camera_frame", interface.CAMERA_FRAME),
         mesh=mesh,
     )
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from allo_mrad_ros.errors import InvalidInput
 
+from .. import interface
 from ..camera import CameraIntrinsics
 from ..geometry import pose_matrix
 
@@ -175,8 +176,8 @@ class SequenceMeta:
     name: str
     camera: CameraIntrinsics
     rate_hz: float = 10.0
-    station_frame: str = "station"
-    camera_frame: str = "arm_camera_optical"
+    station_frame: str = interface.STATION_FRAME
+    camera_frame: str = interface.CAMERA_FRAME
     mesh: Path | None = None
     format: str = FORMAT_V1
 
