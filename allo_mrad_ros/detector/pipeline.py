@@ -29,7 +29,7 @@ from allo_mrad_ros.detector.regions import (
     grow_regions,
     seed_window,
 )
-from allo_mrad_ros.detector.score import cross_score, rx_score
+from allo_mrad_ros.detector.score import cross_score, cross_scores, rx_score
 
 
 @dataclass(frozen=True)
@@ -124,14 +124,19 @@ def detect(
             f"processed at process_scale={params.process_scale} "
             f"({work.shape[1]}x{work.shape[0]}); use a larger image or process_scale=1"
         )
+    # The ranking map may use another photometric model than the mask; both come from
+    # one pass that shares the cell statistics.
+    models = [params.photometric]
+    if params.pixel_score == "continuous" and params.map_photometric != params.photometric:
+        models.append(params.map_photometric)
     with timer.stage("cross_score"):
-        raw = cross_score(
+        raw, *map_raw = cross_scores(
             work,
             reference,
             params.grid,
             params.abs_floor,
             params.rel_floor,
-            params.photometric,
+            models,
             params.max_gain,
         )
     with timer.stage("scale_threshold"):
@@ -164,18 +169,7 @@ def detect(
                 blurred, seeds, params.tolerance, params.min_score, params.connectivity
             )
     with timer.stage("pixel_score"):
-        ranked = raw
-        if params.pixel_score == "continuous" and params.map_photometric != params.photometric:
-            ranked = cross_score(
-                work,
-                reference,
-                params.grid,
-                params.abs_floor,
-                params.rel_floor,
-                params.map_photometric,
-                params.max_gain,
-            )
-        score = _pixel_score(ranked, blurred, mask, params)
+        score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
     with timer.stage("decision"):
         score, mask = _restore_resolution(score, mask, full_shape, params.pixel_score)
         area, anomalous = decide(mask, params.area_threshold)

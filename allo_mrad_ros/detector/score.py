@@ -5,9 +5,16 @@ It is evaluated around the query mean in the eigenbasis of ``A = P0 - P1``:
 ``sum_i l_i y_i^2 + m . y + k`` with ``y = V^T (x - mu1)``. The coefficients are computed
 in float64 (so equal statistics cancel exactly to ``A = 0``), the per-pixel evaluation is
 two OpenCV colour transforms in float32.
+
+:func:`cross_scores` scores one query under several photometric models at once: the cell
+statistics and the photometric fit are computed once and every model's per-pixel work is
+done while a cell's pixels are in cache.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -15,7 +22,31 @@ import numpy as np
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
 from allo_mrad_ros.detector.photometric import fit_cell_affine, saturation_variance
-from allo_mrad_ros.detector.statistics import cell_statistics, regularised_precision
+from allo_mrad_ros.detector.statistics import (
+    CellStatistics,
+    cell_statistics,
+    regularised_precision,
+)
+
+PHOTOMETRIC_MODELS = ("none", "cell_affine")
+
+
+@dataclass(frozen=True)
+class CellModels:
+    """The two Gaussians a cross score compares, per cell.
+
+    Attributes
+    ----------
+    ref_mean, query_mean : numpy.ndarray
+        (G*G, 3) float64 means on the 0..255 scale.
+    ref_precision, query_precision : numpy.ndarray
+        (G*G, 3, 3) float64 precision matrices.
+    """
+
+    ref_mean: np.ndarray
+    ref_precision: np.ndarray
+    query_mean: np.ndarray
+    query_precision: np.ndarray
 
 
 def cross_score(
@@ -48,40 +79,93 @@ def cross_score(
     numpy.ndarray
         H x W float32 raw score of the query, finite.
     """
+    return cross_scores(query, reference, grid, abs_floor, rel_floor, (photometric,), max_gain)[0]
+
+
+def cross_scores(
+    query: np.ndarray,
+    reference: np.ndarray,
+    grid: int,
+    abs_floor: float,
+    rel_floor: float,
+    photometrics: Sequence[str],
+    max_gain: float = 2.0,
+) -> list[np.ndarray]:
+    """Return :func:`cross_score` under each photometric model, sharing the statistics.
+
+    Parameters
+    ----------
+    query, reference : numpy.ndarray
+        Validated H x W x 3 images with the same aspect ratio (any resolutions).
+    grid : int
+        Cells per side.
+    abs_floor, rel_floor : float
+        Covariance regularisation (see :func:`regularised_precision`).
+    photometrics : sequence of {"none", "cell_affine"}
+        One score map is returned per entry, in order.
+    max_gain : float
+        Gain limit of the ``cell_affine`` fit.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        H x W float32 raw scores, finite, each equal to the single-model result.
+    """
+    for photometric in photometrics:
+        if photometric not in PHOTOMETRIC_MODELS:
+            raise ValueError(
+                f"photometric must be 'none' or 'cell_affine', got {photometric!r}"
+            )
     ref_stats = cell_statistics(reference, grid)
     query_stats = cell_statistics(query, grid)
-    if photometric == "none":
-        ref_precision = regularised_precision(ref_stats.cov, abs_floor, rel_floor)
-        query_precision = regularised_precision(query_stats.cov, abs_floor, rel_floor)
-        ref_mean = ref_stats.mean
-    elif photometric == "cell_affine":
-        # Score in the reference's photometric units (x_ref = (x - offset) / gain), so the
-        # regularisation floors mean the same whatever the query's exposure: a darker
-        # query does not hide its anomalies under a floor sized for the render.
-        gain, offset = fit_cell_affine(query, reference, grid, max_gain)
-        ref_mean = gain * ref_stats.mean + offset
-        inverse = 1.0 / gain
-        in_ref_units = query_stats.cov * inverse[:, :, None] * inverse[:, None, :]
-        # Both models are widened where the reference is saturated, so identical images
-        # still cancel exactly.
-        widening = saturation_variance(reference, grid, max_gain)
-        ref_precision = _to_query_units(
-            regularised_precision(ref_stats.cov + widening, abs_floor, rel_floor),
-            inverse,
-        )
-        query_precision = _to_query_units(
-            regularised_precision(in_ref_units + widening, abs_floor, rel_floor),
-            inverse,
-        )
-    else:
-        raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
-    return _evaluate(
-        to_float32(query),
-        grid,
-        ref_mean,
-        ref_precision,
-        query_stats.mean,
-        query_precision,
+    affine = None
+    models = []
+    for photometric in photometrics:
+        if photometric == "none":
+            models.append(_plain_models(ref_stats, query_stats, abs_floor, rel_floor))
+            continue
+        if affine is None:
+            gain, offset = fit_cell_affine(query, reference, grid, max_gain)
+            affine = (gain, offset, saturation_variance(reference, grid, max_gain))
+        models.append(_affine_models(ref_stats, query_stats, *affine, abs_floor, rel_floor))
+    return _evaluate(to_float32(query), grid, models)
+
+
+def _plain_models(
+    ref_stats: CellStatistics, query_stats: CellStatistics, abs_floor: float, rel_floor: float
+) -> CellModels:
+    return CellModels(
+        ref_mean=ref_stats.mean,
+        ref_precision=regularised_precision(ref_stats.cov, abs_floor, rel_floor),
+        query_mean=query_stats.mean,
+        query_precision=regularised_precision(query_stats.cov, abs_floor, rel_floor),
+    )
+
+
+def _affine_models(
+    ref_stats: CellStatistics,
+    query_stats: CellStatistics,
+    gain: np.ndarray,
+    offset: np.ndarray,
+    widening: np.ndarray,
+    abs_floor: float,
+    rel_floor: float,
+) -> CellModels:
+    # Score in the reference's photometric units (x_ref = (x - offset) / gain), so the
+    # regularisation floors mean the same whatever the query's exposure: a darker query
+    # does not hide its anomalies under a floor sized for the render. Both models are
+    # widened where the reference is saturated, so identical images still cancel exactly.
+    inverse = 1.0 / gain
+    in_ref_units = query_stats.cov * inverse[:, :, None] * inverse[:, None, :]
+    return CellModels(
+        ref_mean=gain * ref_stats.mean + offset,
+        ref_precision=_to_query_units(
+            regularised_precision(ref_stats.cov + widening, abs_floor, rel_floor), inverse
+        ),
+        query_mean=query_stats.mean,
+        query_precision=_to_query_units(
+            regularised_precision(in_ref_units + widening, abs_floor, rel_floor), inverse
+        ),
     )
 
 
@@ -94,60 +178,78 @@ def rx_score(image: np.ndarray, abs_floor: float, rel_floor: float) -> np.ndarra
     """Return the global RX score: squared Mahalanobis distance to the image's own model."""
     stats = cell_statistics(image, 1)
     precision = regularised_precision(stats.cov, abs_floor, rel_floor)
-    return _evaluate(
-        to_float32(image), 1, stats.mean, precision, stats.mean, np.zeros_like(precision)
-    )
+    model = CellModels(stats.mean, precision, stats.mean, np.zeros_like(precision))
+    return _evaluate(to_float32(image), 1, [model])[0]
 
 
 def quadratic_coefficients(
     mu0: np.ndarray, p0: np.ndarray, mu1: np.ndarray, p1: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Coefficients of ``(x-mu0)^T p0 (x-mu0) - (x-mu1)^T p1 (x-mu1)`` around ``mu1``.
+
+    Works on one cell (``mu`` of shape (3,), ``p`` of shape (3, 3)) or on a stack of cells
+    (leading dimensions broadcast).
 
     Returns
     -------
     transform : numpy.ndarray
-        3x4 affine map ``x -> y = V^T (x - mu1)``.
+        (..., 3, 4) affine map ``x -> y = V^T (x - mu1)``.
     eigenvalues : numpy.ndarray
-        (3,) eigenvalues ``l`` of ``A = p0 - p1``.
+        (..., 3) eigenvalues ``l`` of ``A = p0 - p1``.
     linear : numpy.ndarray
-        (3,) coefficients ``m`` of ``y``.
-    constant : float
-        ``k``, the score at ``x = mu1``.
+        (..., 3) coefficients ``m`` of ``y``.
+    constant : numpy.ndarray
+        (...) ``k``, the score at ``x = mu1``.
     """
     a = p0 - p1
-    a = 0.5 * (a + a.T)
+    a = 0.5 * (a + np.swapaxes(a, -1, -2))
     eigenvalues, vectors = np.linalg.eigh(a)
-    delta = mu1 - mu0
-    linear = vectors.T @ (2.0 * p0 @ delta)
-    constant = float(delta @ p0 @ delta)
-    transform = np.hstack([vectors.T, (-vectors.T @ mu1)[:, None]])
+    vectors_t = np.swapaxes(vectors, -1, -2)
+    delta = (mu1 - mu0)[..., :, None]
+    p0_delta = p0 @ delta
+    linear = (vectors_t @ (2.0 * p0_delta))[..., 0]
+    constant = (np.swapaxes(delta, -1, -2) @ p0_delta)[..., 0, 0]
+    transform = np.concatenate([vectors_t, -(vectors_t @ mu1[..., :, None])], axis=-1)
     return transform, eigenvalues, linear, constant
 
 
 def _evaluate(
-    image: np.ndarray,
-    grid: int,
-    mean0: np.ndarray,
-    precision0: np.ndarray,
-    mean1: np.ndarray,
-    precision1: np.ndarray,
-) -> np.ndarray:
+    image: np.ndarray, grid: int, models: Sequence[CellModels]
+) -> list[np.ndarray]:
     height, width = image.shape[:2]
-    score = np.empty((height, width), dtype=np.float32)
-    for index, cell in enumerate(cell_slices(height, width, grid)):
+    prepared = []
+    for model in models:
         transform, eigenvalues, linear, constant = quadratic_coefficients(
-            mean0[index], precision0[index], mean1[index], precision1[index]
+            model.ref_mean, model.ref_precision, model.query_mean, model.query_precision
         )
-        if not eigenvalues.any() and not linear.any():
-            score[cell] = constant  # identical statistics: no per-pixel work
-            continue
-        y = cv2.transform(image[cell], transform.astype(np.float32))
-        quadratic = cv2.transform(cv2.multiply(y, y), eigenvalues[None, :].astype(np.float32))
-        affine = np.append(linear, constant)[None, :].astype(np.float32)
-        np.add(quadratic, cv2.transform(y, affine), out=score[cell])
-    if not cv2.checkRange(score):
-        # Only reachable with unregularised, near-singular statistics: saturate, never NaN.
-        big = float(np.finfo(np.float32).max)
-        np.nan_to_num(score, copy=False, nan=0.0, posinf=big, neginf=-big)
-    return score
+        # A cell whose two models are identical scores its constant: no per-pixel work.
+        trivial = ~(eigenvalues.any(axis=-1) | linear.any(axis=-1))
+        prepared.append(
+            (
+                transform.astype(np.float32),
+                eigenvalues[:, None, :].astype(np.float32),
+                np.concatenate([linear, constant[:, None]], axis=-1)[:, None, :].astype(
+                    np.float32
+                ),
+                constant,
+                trivial,
+            )
+        )
+    scores = [np.empty((height, width), dtype=np.float32) for _ in models]
+    for index, cell in enumerate(cell_slices(height, width, grid)):
+        pixels = image[cell]
+        for score, (transform, eigenvalues, affine, constant, trivial) in zip(
+            scores, prepared, strict=True
+        ):
+            if trivial[index]:
+                score[cell] = constant[index]
+                continue
+            y = cv2.transform(pixels, transform[index])
+            quadratic = cv2.transform(cv2.multiply(y, y), eigenvalues[index])
+            np.add(quadratic, cv2.transform(y, affine[index]), out=score[cell])
+    for score in scores:
+        if not cv2.checkRange(score):
+            # Only reachable with unregularised, near-singular statistics: saturate, never NaN.
+            big = float(np.finfo(np.float32).max)
+            np.nan_to_num(score, copy=False, nan=0.0, posinf=big, neginf=-big)
+    return scores
