@@ -113,9 +113,7 @@ def cross_scores(
     """
     for photometric in photometrics:
         if photometric not in PHOTOMETRIC_MODELS:
-            raise ValueError(
-                f"photometric must be 'none' or 'cell_affine', got {photometric!r}"
-            )
+            raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
     ref_stats = cell_statistics(reference, grid)
     query_stats = cell_statistics(query, grid)
     affine = None
@@ -213,9 +211,7 @@ def quadratic_coefficients(
     return transform, eigenvalues, linear, constant
 
 
-def _evaluate(
-    image: np.ndarray, grid: int, models: Sequence[CellModels]
-) -> list[np.ndarray]:
+def _evaluate(image: np.ndarray, grid: int, models: Sequence[CellModels]) -> list[np.ndarray]:
     height, width = image.shape[:2]
     prepared = []
     for model in models:
@@ -228,9 +224,7 @@ def _evaluate(
             (
                 transform.astype(np.float32),
                 eigenvalues[:, None, :].astype(np.float32),
-                np.concatenate([linear, constant[:, None]], axis=-1)[:, None, :].astype(
-                    np.float32
-                ),
+                np.concatenate([linear, constant[:, None]], axis=-1)[:, None, :].astype(np.float32),
                 constant,
                 trivial,
             )
