@@ -70,21 +70,21 @@ def _statistics_uint8(image: np.ndarray, slices: list[tuple[slice, slice]]) -> C
     cv2.mixChannels([wide], [rotated], _ROTATE_CHANNELS)
     cross = wide * rotated
     n_cells = len(slices)
-    mean = np.empty((n_cells, 3))
-    cov = np.empty((n_cells, 3, 3))
+    sums = np.empty((n_cells, 3))
+    second = np.zeros((n_cells, 3, 3))
     count = np.empty(n_cells, dtype=np.int64)
+    diagonal = np.arange(3)
     for index, cell in enumerate(slices):
-        n = image[cell].shape[0] * image[cell].shape[1]
-        sums = np.array(cv2.sumElems(image[cell])[:3])
-        sq = np.array(cv2.sumElems(squares[cell])[:3])
-        cr = np.array(cv2.sumElems(cross[cell])[:3])
-        second = np.diag(sq)
-        second[_CROSS_A, _CROSS_B] = cr
-        second[_CROSS_B, _CROSS_A] = cr
-        mean[index] = sums / n
-        cov[index] = (second - np.outer(sums, sums) / n) / max(n - 1, 1)
-        count[index] = n
-    return CellStatistics(mean=mean, cov=cov, count=count)
+        sums[index] = cv2.sumElems(image[cell])[:3]
+        second[index, diagonal, diagonal] = cv2.sumElems(squares[cell])[:3]
+        cross_sums = cv2.sumElems(cross[cell])[:3]
+        second[index, _CROSS_A, _CROSS_B] = cross_sums
+        second[index, _CROSS_B, _CROSS_A] = cross_sums
+        count[index] = (cell[0].stop - cell[0].start) * (cell[1].stop - cell[1].start)
+    n = count.astype(np.float64)[:, None]
+    outer = sums[:, :, None] * sums[:, None, :]
+    cov = (second - outer / n[:, :, None]) / np.maximum(n - 1, 1)[:, :, None]
+    return CellStatistics(mean=sums / n, cov=cov, count=count)
 
 
 def _statistics_float(image: np.ndarray, slices: list[tuple[slice, slice]]) -> CellStatistics:
