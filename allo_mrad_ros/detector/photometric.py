@@ -158,7 +158,9 @@ def saturation_variance(reference: np.ndarray, grid: int, max_gain: float) -> np
         (G*G, 3, 3) float64 covariances in 8-bit units squared.
     """
     pixels = to_float32(reference)
-    saturated = pixels.max(axis=2) >= SATURATED
+    # NumPy's max over a length-3 last axis is ~50x slower than two elementwise maxima.
+    brightest = np.maximum(np.maximum(pixels[:, :, 0], pixels[:, :, 1]), pixels[:, :, 2])
+    saturated = brightest >= SATURATED
     slices = cell_slices(pixels.shape[0], pixels.shape[1], grid)
     half_range = 0.5 * 255.0 * (1.0 - 1.0 / max_gain)
     out = np.zeros((len(slices), 3, 3))

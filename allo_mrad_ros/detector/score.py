@@ -27,6 +27,7 @@ from allo_mrad_ros.detector.statistics import (
     cell_statistics,
     regularised_precision,
 )
+from allo_mrad_ros.detector.threads import for_each_block
 
 PHOTOMETRIC_MODELS = ("none", "cell_affine")
 
@@ -230,17 +231,23 @@ def _evaluate(image: np.ndarray, grid: int, models: Sequence[CellModels]) -> lis
             )
         )
     scores = [np.empty((height, width), dtype=np.float32) for _ in models]
-    for index, cell in enumerate(cell_slices(height, width, grid)):
-        pixels = image[cell]
-        for score, (transform, eigenvalues, affine, constant, trivial) in zip(
-            scores, prepared, strict=True
-        ):
-            if trivial[index]:
-                score[cell] = constant[index]
-                continue
-            y = cv2.transform(pixels, transform[index])
-            quadratic = cv2.transform(cv2.multiply(y, y), eigenvalues[index])
-            np.add(quadratic, cv2.transform(y, affine[index]), out=score[cell])
+    slices = cell_slices(height, width, grid)
+
+    def evaluate_cells(indices: range) -> None:
+        for index in indices:
+            cell = slices[index]
+            pixels = image[cell]
+            for score, (transform, eigenvalues, affine, constant, trivial) in zip(
+                scores, prepared, strict=True
+            ):
+                if trivial[index]:
+                    score[cell] = constant[index]
+                    continue
+                y = cv2.transform(pixels, transform[index])
+                quadratic = cv2.transform(cv2.multiply(y, y), eigenvalues[index])
+                np.add(quadratic, cv2.transform(y, affine[index]), out=score[cell])
+
+    for_each_block(evaluate_cells, len(slices))
     for score in scores:
         if not cv2.checkRange(score):
             # Only reachable with unregularised, near-singular statistics: saturate, never NaN.

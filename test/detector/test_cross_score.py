@@ -145,3 +145,37 @@ def test_shuffling_reference_pixels_inside_a_cell_keeps_the_score(seed, grid):
         cross_score(query, reference, grid, ABS_FLOOR, REL_FLOOR),
         cross_score(query, shuffled, grid, ABS_FLOOR, REL_FLOOR),
     )
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_cells_split_over_threads_give_the_single_thread_result(threads):
+    import cv2
+
+    from allo_mrad_ros.detector.score import cross_scores
+
+    rng = np.random.default_rng(7)
+    query = degenerate_image(rng, 96, 128)
+    reference = degenerate_image(rng, 48, 64)
+    previous = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        expected = cross_scores(query, reference, 6, ABS_FLOOR, REL_FLOOR, ["none", "cell_affine"])
+        cv2.setNumThreads(threads)
+        split = cross_scores(query, reference, 6, ABS_FLOOR, REL_FLOOR, ["none", "cell_affine"])
+    finally:
+        cv2.setNumThreads(previous)
+    for one, many in zip(expected, split, strict=True):
+        np.testing.assert_array_equal(one, many)
+    assert_matches_oracle(query, reference, 6)
+
+
+def test_several_models_in_one_pass_equal_one_model_at_a_time():
+    from allo_mrad_ros.detector.score import cross_scores
+
+    rng = np.random.default_rng(8)
+    query = degenerate_image(rng, 60, 80)
+    reference = degenerate_image(rng, 30, 40)
+    both = cross_scores(query, reference, 4, ABS_FLOOR, REL_FLOOR, ["cell_affine", "none"])
+    for photometric, score in zip(["cell_affine", "none"], both, strict=True):
+        single = cross_score(query, reference, 4, ABS_FLOOR, REL_FLOOR, photometric)
+        np.testing.assert_array_equal(single, score)
