@@ -14,6 +14,7 @@ import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.threads import for_each_block
 
 # Channel products (c, next c): (0,1), (1,2), (2,0) cover the off-diagonal of a 3x3
 # covariance; cv2.mixChannels builds the rotated image without NumPy's fancy-index copies.
@@ -64,23 +65,26 @@ def cell_statistics(image: np.ndarray, grid: int) -> CellStatistics:
 def _statistics_uint8(image: np.ndarray, slices: list[tuple[slice, slice]]) -> CellStatistics:
     # Products of 8-bit values fit in uint16 and their sums are exact in float64, so the
     # covariance is exact up to the final division.
-    wide = image.astype(np.uint16)
-    squares = wide * wide
-    rotated = np.empty_like(wide)
-    cv2.mixChannels([wide], [rotated], _ROTATE_CHANNELS)
-    cross = wide * rotated
     n_cells = len(slices)
     sums = np.empty((n_cells, 3))
     second = np.zeros((n_cells, 3, 3))
     count = np.empty(n_cells, dtype=np.int64)
     diagonal = np.arange(3)
-    for index, cell in enumerate(slices):
-        sums[index] = cv2.sumElems(image[cell])[:3]
-        second[index, diagonal, diagonal] = cv2.sumElems(squares[cell])[:3]
-        cross_sums = cv2.sumElems(cross[cell])[:3]
-        second[index, _CROSS_A, _CROSS_B] = cross_sums
-        second[index, _CROSS_B, _CROSS_A] = cross_sums
-        count[index] = (cell[0].stop - cell[0].start) * (cell[1].stop - cell[1].start)
+
+    def accumulate(indices: range) -> None:
+        for index in indices:
+            cell = slices[index]
+            wide = image[cell].astype(np.uint16)
+            rotated = np.empty_like(wide)
+            cv2.mixChannels([wide], [rotated], _ROTATE_CHANNELS)
+            sums[index] = cv2.sumElems(wide)[:3]
+            second[index, diagonal, diagonal] = cv2.sumElems(wide * wide)[:3]
+            cross_sums = cv2.sumElems(wide * rotated)[:3]
+            second[index, _CROSS_A, _CROSS_B] = cross_sums
+            second[index, _CROSS_B, _CROSS_A] = cross_sums
+            count[index] = wide.shape[0] * wide.shape[1]
+
+    for_each_block(accumulate, n_cells)
     n = count.astype(np.float64)[:, None]
     outer = sums[:, :, None] * sums[:, None, :]
     cov = (second - outer / n[:, :, None]) / np.maximum(n - 1, 1)[:, :, None]
