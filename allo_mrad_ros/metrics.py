@@ -227,7 +227,8 @@ class AlloMetrics:
 class MetricsAccumulator:
     """Accumulate frames and compute the :class:`AlloMetrics`.
 
-    The image score is the detector's anomalous area; the image label is whether the
+    The image score is the detector's frame score (``DetectionResult.image_score``: the
+    top of its pixel map, or the mask's area); the image label is whether the
     ground-truth mask has any class-2 pixel.
     """
 

@@ -67,7 +67,7 @@ def evaluate(method: str, params: MradParams, scenes: list) -> dict[str, float]:
     accumulator = MetricsAccumulator()
     for query, reference, mask in scenes:
         result = METHODS[method](query, reference, params)
-        accumulator.update(result.score, result.area, mask)
+        accumulator.update(result.score, result.image_score, mask)
     return accumulator.compute().as_dict()
 
 

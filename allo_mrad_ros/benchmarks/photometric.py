@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                 for v_name, (method, params) in detectors.items():
                     result = METHODS[method](query, reference, params)
                     tally = tallies[v_name, p_name]
-                    tally.metrics.update(result.score, result.area, truth)
+                    tally.metrics.update(result.score, result.image_score, truth)
                     if not frame.is_anomalous:
                         tally.normal_flagged.append(result.area / result.mask.size)
     finally:

@@ -112,7 +112,7 @@ class Sweep:
                 outcome.detect_ms.append(detect)
                 outcome.latency_ms.append(render_ms[s.render] + detect)
                 score = result.mask.astype(np.float32) if s.binary else result.score
-                outcome.metrics.update(score, result.area, truth)
+                outcome.metrics.update(score, result.image_score, truth)
                 outcome.counts.append(frame_counts(score, truth))
         return outcomes
 

@@ -17,6 +17,7 @@ NoiseRemoval = Literal["local_std", "cell_spread", "none"]
 PixelScore = Literal["continuous", "regions", "blurred"]
 Growth = Literal["tolerance", "hysteresis"]
 Photometric = Literal["none", "cell_affine"]
+ImageScore = Literal["area", "map_top"]
 
 SCORE_RANGE = 255.0
 
@@ -93,6 +94,13 @@ class MradParams:
         Largest per-channel gain (and smallest, its inverse) ``cell_affine`` may apply, >= 1.
     bit_depth : int
         Significant bits of uint16 input (e.g. 12 for a 12-bit camera), 9..16.
+    image_score : {"area", "map_top"}
+        The frame's anomaly score, what image-level metrics (I.AUROC) rank: ``area`` is the
+        mask's area (the paper's); ``map_top`` the mean of the top ``image_top_fraction``
+        of the pixel score map (anomalib ranks frames by the map's maximum; a top fraction
+        does not hang on one pixel). The anomalous flag always comes from the mask's area.
+    image_top_fraction : float
+        Fraction of the processed pixels ``map_top`` averages, (0, 1].
     """
 
     grid: int = 8
@@ -118,6 +126,8 @@ class MradParams:
     map_photometric: Photometric = "none"
     max_gain: float = 2.0
     bit_depth: int = 16
+    image_score: ImageScore = "map_top"
+    image_top_fraction: float = 1e-4
 
     def __post_init__(self) -> None:
         for name, spec in PARAMETER_SPECS.items():
@@ -254,6 +264,18 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
     ),
     "max_gain": ParameterSpec(float, "largest per-channel gain of cell_affine", 1, 100),
     "bit_depth": ParameterSpec(int, "significant bits of uint16 input images", 9, 16),
+    "image_score": ParameterSpec(
+        str,
+        "frame score that image metrics rank: area (of the mask) or map_top (top of the map)",
+        choices=("area", "map_top"),
+    ),
+    "image_top_fraction": ParameterSpec(
+        float,
+        "fraction of the processed pixels the map_top image score averages",
+        0,
+        1,
+        low_open=True,
+    ),
 }
 
 
@@ -266,6 +288,7 @@ _PAPER_OPTIMUM = MradParams(
     photometric="none",
     map_photometric="none",
     growth="tolerance",
+    image_score="area",
 )
 
 PROFILES: dict[str, MradParams] = {

@@ -45,9 +45,12 @@ class DetectionResult:
     mask : numpy.ndarray
         H x W uint8, 0 or 255.
     area : int
-        Number of anomalous pixels in ``mask``; also the image-level score.
+        Number of anomalous pixels in ``mask``.
     anomalous : bool
         ``area`` exceeds the area threshold.
+    image_score : float
+        The frame's anomaly score that image-level metrics rank (see
+        :attr:`MradParams.image_score`).
     timings_ms : dict
         Milliseconds per stage, in pipeline order, plus ``total``.
     """
@@ -57,6 +60,7 @@ class DetectionResult:
     mask: np.ndarray
     area: int
     anomalous: bool
+    image_score: float
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -83,6 +87,29 @@ def decide(mask: np.ndarray, area_threshold: float) -> tuple[int, bool]:
     """Stage 6: the mask's area and whether it exceeds ``area_threshold`` of the image."""
     area = int(cv2.countNonZero(mask))
     return area, area > area_threshold * mask.size
+
+
+def image_score(score: np.ndarray, area: int, params: MradParams) -> float:
+    """Stage 6: the frame's anomaly score, what image-level metrics rank.
+
+    Parameters
+    ----------
+    score : numpy.ndarray
+        The pixel score map at the processing resolution.
+    area : int
+        The mask's area (the ``area`` rule's score).
+    params : MradParams
+        ``image_score`` and ``image_top_fraction`` are used.
+
+    Returns
+    -------
+    float
+    """
+    if params.image_score == "area":
+        return float(area)
+    flat = score.ravel()
+    count = max(1, round(params.image_top_fraction * flat.size))
+    return float(np.partition(flat, flat.size - count)[flat.size - count :].mean(dtype=np.float64))
 
 
 def detect(
@@ -171,9 +198,11 @@ def detect(
     with timer.stage("pixel_score"):
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
     with timer.stage("decision"):
+        work_score = score
         score, mask = _restore_resolution(score, mask, full_shape, params.pixel_score)
         area, anomalous = decide(mask, params.area_threshold)
-    return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
+        frame_score = image_score(work_score, area, params)
+    return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish())
 
 
 def _pixel_score(
@@ -232,7 +261,8 @@ def _threshold_only(raw: np.ndarray, params: MradParams, timer: _StageTimer) -> 
         mask = cv2.compare(threshold_scores(score.copy(), params.min_score), 0.0, cv2.CMP_GT)
     with timer.stage("decision"):
         area, anomalous = decide(mask, params.area_threshold)
-    return DetectionResult(score, raw, mask, area, anomalous, timer.finish())
+        frame_score = image_score(score, area, params)
+    return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish())
 
 
 def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:

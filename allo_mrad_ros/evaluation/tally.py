@@ -49,7 +49,7 @@ class MethodOutcome:
     """One method on one frame: pixel counts, image score and decision, timings."""
 
     counts: SparseCounts
-    area: float
+    image_score: float
     anomalous: bool
     timings_ms: dict[str, float]
     overlap: ObjectOverlap | None = None
@@ -62,7 +62,7 @@ class MethodOutcome:
         has_object = bool(np.any(truth == POSITIVE_CLASS))
         return cls(
             frame_counts(result.score, truth),
-            float(result.area),
+            float(result.image_score),
             bool(result.anomalous),
             timings_ms,
             object_overlap(result.mask, truth) if has_object else None,
@@ -117,7 +117,7 @@ class Tally:
     def add(self, outcome: MethodOutcome, truth: bool) -> None:
         """Add one frame."""
         outcome.counts.add_to(self.histogram)
-        self.image_scores.append(outcome.area)
+        self.image_scores.append(outcome.image_score)
         self.image_labels.append(truth)
         self.decisions.append(outcome.anomalous)
 

@@ -70,7 +70,7 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
                 ).rgb
             results = {name: DETECTORS[name](image, reference, params) for name in methods}
             for name, result in results.items():
-                accumulators[name].update(result.score, result.area, mask)
+                accumulators[name].update(result.score, result.image_score, mask)
                 if frame.is_anomalous:
                     overlaps.setdefault((frame.anomaly, name), []).append(
                         object_overlap(result.mask, mask)
@@ -80,7 +80,7 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
             for anomaly in types or {f.anomaly for f in chosen if f.is_anomalous}:
                 group = by_type.setdefault(anomaly, {m: MetricsAccumulator() for m in methods})
                 for name, result in results.items():
-                    group[name].update(result.score, result.area, mask)
+                    group[name].update(result.score, result.image_score, mask)
     finally:
         renderer.close()
     overall = {m: a.compute().as_dict() for m, a in accumulators.items()}

@@ -66,6 +66,7 @@ def frame() -> ProcessedFrame:
         mask=mask,
         area=int(np.count_nonzero(mask)),
         anomalous=True,
+        image_score=40.0,
     )
     return ProcessedFrame(reference=np.zeros((45, 80, 3), np.uint8), results={"MRAD": result})
 
