@@ -127,7 +127,7 @@ class MradParams:
     max_gain: float = 2.0
     bit_depth: int = 16
     image_score: ImageScore = "map_top"
-    image_top_fraction: float = 1e-4
+    image_top_fraction: float = 1e-3
 
     def __post_init__(self) -> None:
         for name, spec in PARAMETER_SPECS.items():
