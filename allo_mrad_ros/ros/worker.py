@@ -150,7 +150,7 @@ class ProcessingWorker:
         finally:
             if self._running:
                 self._logger.fatal(
-                    f"processing thread {threading.current_thread().name} stopped: "
+                    f"processing thread stopped ({threading.current_thread().name}): "
                     "no frames are processed"
                 )
 
