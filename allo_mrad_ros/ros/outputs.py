@@ -9,8 +9,6 @@ reference. Every publisher accepts QoS overrides (``qos_overrides.<topic>.publis
 
 from __future__ import annotations
 
-import array
-
 import cv2
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -34,7 +32,7 @@ REGION_LINE_WIDTH = 2.0
 
 def connected_boxes(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
     """``(x, y, width, height)`` of each 8-connected region of a mask, in pixels."""
-    if mask.dtype != np.uint8:  # OpenCV takes any non-zero uint8 as foreground
+    if mask.dtype != np.uint8:  # OpenCV takes any non-zero uint8 as foreground: no copy
         mask = (mask > 0).astype(np.uint8)
     count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     return [tuple(int(v) for v in stats[i, :4]) for i in range(1, count)]
@@ -77,38 +75,6 @@ def result_status(
     return status
 
 
-class KeptImage:
-    """The pixel buffer of one output's ``sensor_msgs/Image``, refilled frame after frame.
-
-    rclpy copies a message's data while ``publish`` runs, so the next frame may overwrite
-    the buffer: a 1080p output then costs one copy into memory already paged in, not a new
-    8 MB allocation (and its page faults) per frame.
-    """
-
-    def __init__(self) -> None:
-        self.data = array.array("B")
-
-    def pixels(self, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
-        """The kept buffer as a writable array of ``shape`` and ``dtype`` (resized if needed)."""
-        dtype = np.dtype(dtype)
-        size = int(np.prod(shape)) * dtype.itemsize
-        if len(self.data) != size:
-            self.data = array.array("B", bytes(size))  # a new one: views of the old stay valid
-        return np.frombuffer(self.data, dtype=dtype).reshape(shape)
-
-    def message(self, header: object, pixels: np.ndarray, encoding: str) -> Image:
-        """An Image of ``pixels`` (copied into the buffer unless already written there)."""
-        target = self.pixels(pixels.shape, pixels.dtype)
-        written = pixels.ctypes.data == target.ctypes.data and pixels.strides == target.strides
-        if not written:
-            np.copyto(target, pixels)
-        msg = Image(header=header, encoding=encoding, is_bigendian=0)
-        msg.height, msg.width = int(pixels.shape[0]), int(pixels.shape[1])
-        msg.step = int(target.strides[0])
-        msg.data = self.data
-        return msg
-
-
 class Outputs:
     """The node's output publishers; each builds its message only for a subscriber."""
 
@@ -127,7 +93,6 @@ class Outputs:
         self.reference = publisher(Image, interface.REFERENCE_OUTPUT, 5)
         self.reference_info = publisher(CameraInfo, interface.REFERENCE_INFO_OUTPUT, 5)
         self.overlay = publisher(Image, interface.OVERLAY_OUTPUT, 5)
-        self._kept = {name: KeptImage() for name in ("score", "mask", "overlay")}
 
     def wanted(self, publish_reference: bool, publish_overlay: bool) -> bool:
         """Whether any output has a subscriber (if not, a frame need not be processed)."""
@@ -152,12 +117,10 @@ class Outputs:
         """Build and publish every subscribed output with the input image's ``header``."""
         result = frame.primary
         fill = messages.fill_image
-        kept = self._kept
         if self.score.get_subscription_count():
-            score = result.score.astype(np.float32, copy=False)
-            self.score.publish(kept["score"].message(header, score, interface.SCORE_ENCODING))
+            self.score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
         if self.mask.get_subscription_count():
-            self.mask.publish(kept["mask"].message(header, result.mask, interface.MONO8))
+            self.mask.publish(fill(Image(), header, result.mask, interface.MONO8))
         self.anomaly.publish(Bool(data=bool(result.anomalous)))
         if self.result.get_subscription_count() or self.regions.get_subscription_count():
             boxes = connected_boxes(result.mask)
@@ -180,10 +143,8 @@ class Outputs:
                 info.header = header
                 self.reference_info.publish(info)
         if publish_overlay and self.overlay.get_subscription_count():
-            # Drawn straight into the message's buffer: one copy of the image, not two.
-            drawn = kept["overlay"].pixels(image.shape, np.uint8)
-            outline(_as_uint8(image), result.mask, OVERLAY_COLOUR, out=drawn)
-            self.overlay.publish(kept["overlay"].message(header, drawn, interface.RGB8))
+            overlay = outline(_as_uint8(image), result.mask, OVERLAY_COLOUR)
+            self.overlay.publish(fill(Image(), header, overlay, interface.RGB8))
 
 
 def _as_uint8(image: np.ndarray) -> np.ndarray:

@@ -298,7 +298,8 @@ def test_a_dead_detect_thread_makes_the_worker_not_alive_and_says_so(monkeypatch
         run.put(1)
         assert wait_until(lambda: not run.worker.is_alive())
         assert [t.name for t in run.worker._threads if t.is_alive()] == ["mrad_render"]
-        assert any("processing thread stopped (mrad_detect)" in line for line in run.logger.fatal_lines)
+        lines = run.logger.fatal_lines
+        assert any("processing thread stopped (mrad_detect)" in line for line in lines)
     finally:
         run.worker.stop()
 
