@@ -66,6 +66,7 @@ def profile_frames(frames: int, subscribed: tuple[str, ...]) -> tuple[pstats.Sta
         pipeline = Pipeline(provider)
         view = View(pose, np.asarray(SUN, dtype=np.float64) / np.linalg.norm(SUN))
         size = (ALLO_INTRINSICS.width, ALLO_INTRINSICS.height)
+        score_map = "score" in subscribed  # as the node: the ranking map only for a reader
         stage_ms: dict[str, list[float]] = {"decode": [], "render": [], "detect": [], "publish": []}
 
         def one(msg: Image, record: bool) -> None:
@@ -74,11 +75,11 @@ def profile_frames(frames: int, subscribed: tuple[str, ...]) -> tuple[pstats.Sta
             t1 = time.perf_counter()
             reference = provider.render(view)
             t2 = time.perf_counter()
-            results, _ = pipeline.detect(image, reference)
+            results, _ = pipeline.detect(image, reference, score_map=score_map)
             t3 = time.perf_counter()
             frame = type("Frame", (), {})()
             frame.primary, frame.reference = next(iter(results.values())), reference
-            outputs.publish(msg.header, image, frame, None, False, True)
+            outputs.publish(msg.header, image, frame, None, False, True, score_map)
             t4 = time.perf_counter()
             if record:
                 for name, (a, b) in zip(

@@ -144,6 +144,7 @@ class MradDetectorNode(Node):
             self._diagnostics,
             self.get_logger(),
             config.pipelined,
+            lambda: self._outputs.score.get_subscription_count() > 0,
         )
         self._diagnostics.worker_alive = self._worker.is_alive
         self.get_logger().info(
@@ -335,7 +336,9 @@ class MradDetectorNode(Node):
 
     # --- outputs ------------------------------------------------------------------------
 
-    def _publish(self, msg: Image, image: np.ndarray, frame: ProcessedFrame) -> None:
+    def _publish(
+        self, msg: Image, image: np.ndarray, frame: ProcessedFrame, score_map: bool = True
+    ) -> None:
         config = self._config
         with self._lock:
             camera = self._intrinsics
@@ -351,6 +354,7 @@ class MradDetectorNode(Node):
             reference_camera,
             config.publish_reference,
             config.publish_overlay,
+            score_map,
         )
 
     def destroy_node(self) -> None:

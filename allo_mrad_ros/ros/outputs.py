@@ -113,11 +113,16 @@ class Outputs:
         reference_camera: CameraIntrinsics | None,
         publish_reference: bool,
         publish_overlay: bool,
+        score_map: bool = True,
     ) -> None:
-        """Build and publish every subscribed output with the input image's ``header``."""
+        """Build and publish every subscribed output with the input image's ``header``.
+
+        ``score_map`` False: the frame's score is not the ranking map (no one subscribed
+        when it was detected), so ``~/score`` is left out for this frame.
+        """
         result = frame.primary
         fill = messages.fill_image
-        if self.score.get_subscription_count():
+        if score_map and self.score.get_subscription_count():
             self.score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
         if self.mask.get_subscription_count():
             self.mask.publish(fill(Image(), header, result.mask, interface.MONO8))

@@ -97,13 +97,17 @@ class ProcessingWorker:
         ``(image message, snapshot) -> View or None``: pose and lighting at the image stamp
         (None when no pose is known; the callee counts and logs that).
     publish : callable
-        ``(image message, image, ProcessedFrame)``: publishes the outputs.
+        ``(image message, image, ProcessedFrame, score map made)``: publishes the outputs
+        (``~/score`` only when the map was made for it).
     diagnostics : Diagnostics
         Counters, error reports, stage timings.
     logger : rclpy logger
         For the renderer-ready line.
     pipelined : bool
         Render the next frame while this one is detected (two threads); False: one thread.
+    score_wanted : callable
+        Whether anyone reads the score map now (``~/score`` subscribed); if not, the
+        detector skips the ranking map (:meth:`~allo_mrad_ros.pipeline.Pipeline.detect`).
     """
 
     def __init__(
@@ -111,10 +115,11 @@ class ProcessingWorker:
         slot: LatestSlot,
         snapshot: Callable[[], Snapshot],
         view_of: Callable[[Any, Snapshot], View | None],
-        publish: Callable[[Any, np.ndarray, ProcessedFrame], None],
+        publish: Callable[[Any, np.ndarray, ProcessedFrame, bool], None],
         diagnostics: Diagnostics,
         logger: Any,
         pipelined: bool = True,
+        score_wanted: Callable[[], bool] = lambda: True,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -123,6 +128,7 @@ class ProcessingWorker:
         self._diagnostics = diagnostics
         self._logger = logger
         self.pipelined = pipelined
+        self._score_wanted = score_wanted
         self._running = True
         self._stopping = threading.Event()
         self._publishing = threading.Lock()
@@ -297,7 +303,10 @@ class ProcessingWorker:
 
     def _detect_and_publish(self, rendered: RenderedFrame) -> None:
         try:
-            results, detect_ms = rendered.pipeline.detect(rendered.image, rendered.reference)
+            score_map = self._score_wanted()
+            results, detect_ms = rendered.pipeline.detect(
+                rendered.image, rendered.reference, score_map=score_map
+            )
         except ValueError as error:
             self._diagnostics.report(MessageError("processing", f"frame rejected: {error}"))
             return
@@ -308,7 +317,7 @@ class ProcessingWorker:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
             if not self._running:
                 return
-            self._publish(rendered.msg, rendered.image, frame)
+            self._publish(rendered.msg, rendered.image, frame, score_map)
         self._diagnostics.stages.record(
             {
                 "render": rendered.render_ms,

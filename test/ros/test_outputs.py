@@ -108,6 +108,15 @@ def test_every_subscribed_output_is_published_with_the_image_header(outputs):
     }
 
 
+def test_a_frame_detected_without_the_score_map_leaves_the_score_out(outputs):
+    fakes = subscribe(outputs, *NAMES)
+    header = Header(frame_id="cam")
+    image = np.zeros((90, 160, 3), np.uint8)
+    outputs.publish(header, image, frame(), None, True, True, score_map=False)
+    assert fakes["score"].sent == []
+    assert all(len(fakes[name].sent) == 1 for name in ("mask", "overlay", "result"))
+
+
 def test_switched_off_outputs_stay_off_even_when_subscribed(outputs):
     fakes = subscribe(outputs, *NAMES)
     publish(outputs, reference=False, overlay=False)

@@ -55,7 +55,7 @@ class Stages:
     def __init__(self, render_s=0.0, detect_s=0.0):
         self.render_s, self.detect_s = render_s, detect_s
         self.gl_threads, self.detect_threads = [], []
-        self.built, self.closed = [], []
+        self.built, self.closed, self.score_maps = [], [], []
         self.gate = threading.Event()
         self.gate.set()
         self.detecting = threading.Event()
@@ -88,8 +88,9 @@ class Stages:
             def with_config(self, config):
                 return Pipeline(self.provider, config)
 
-            def detect(self, image, reference):
+            def detect(self, image, reference, score_map=True):
                 stages.detect_threads.append(threading.get_ident())
+                stages.score_maps.append(score_map)
                 stages.detecting.set()
                 stages.gate.wait(30)
                 time.sleep(seconds(stages.detect_s))
@@ -112,8 +113,9 @@ def image_at(stamp_ns, camera=CAMERA):
 class Run:
     """A worker on stand-in stages, fed by the test; records what it publishes and when."""
 
-    def __init__(self, pipelined, camera=CAMERA):
+    def __init__(self, pipelined, camera=CAMERA, score_wanted=lambda: True):
         self.slot = LatestSlot()
+        self.score_maps = []  # what publish was told, per frame
         self.camera = camera
         self.diagnostics = Recording()
         self.logger = Recording()
@@ -122,12 +124,13 @@ class Run:
             self.slot,
             lambda: Snapshot(self.camera, CONFIG, np.ones(3), 1.0, ()),
             lambda msg, state: "view",
-            lambda msg, image, frame: self.published.append(
+            lambda msg, image, frame, score_map: self.published.append(
                 (stamp_to_ns(msg.header.stamp), time.monotonic())
-            ),
+            ) or self.score_maps.append(score_map),
             self.diagnostics,
             self.logger,
             pipelined,
+            score_wanted,
         )
 
     def put(self, stamp_ns):
@@ -284,13 +287,32 @@ def test_stop_ends_every_thread_promptly_while_frames_flow(monkeypatch, pipeline
     assert run.logger.fatal_lines == []  # a requested stop is no failure
 
 
+@pytest.mark.parametrize("pipelined", [True, False])
+def test_the_score_map_is_made_and_published_only_while_someone_reads_it(
+    monkeypatch, pipelined
+):
+    stages = Stages()
+    stages.install(monkeypatch)
+    readers = [0]
+    run = Run(pipelined, score_wanted=lambda: readers[0] > 0)
+    try:
+        run.feed_until(3)
+        readers[0] = 1
+        count = len(run.published)
+        run.feed_until(count + 3)
+    finally:
+        run.worker.stop()
+    assert stages.score_maps == run.score_maps  # publish is told what detect made
+    assert run.score_maps[:3] == [False] * 3 and run.score_maps[-2:] == [True] * 2
+
+
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
 def test_a_dead_detect_thread_makes_the_worker_not_alive_and_says_so(monkeypatch):
     stages = Stages()
     stages.install(monkeypatch)
     run = Run(True)
 
-    def die(msg, image, frame):
+    def die(msg, image, frame, score_map):
         raise SystemExit("injected fault")
 
     run.worker._publish = die

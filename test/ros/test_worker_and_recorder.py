@@ -45,7 +45,7 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(
             camera=CAMERA, render=lambda view: "reference", close=lambda: None
         )
 
-        def detect(self, image, reference):
+        def detect(self, image, reference, score_map=True):
             entered.set()
             release.wait(30)
             return {"MRAD": types.SimpleNamespace(anomalous=False)}, {"MRAD": 0.0}
