@@ -65,6 +65,8 @@ class HandOver(Generic[T]):
         self._item: T | None = None
         self._condition = threading.Condition()
         self._closed = False
+        # Monotonic time of the last take: when the consumer started on its current item.
+        self.taken_at: float | None = None
 
     def wait_empty(self, timeout: float | None = None) -> bool:
         """Wait up to ``timeout`` seconds for the slot to be empty; False if full or closed."""
@@ -88,6 +90,7 @@ class HandOver(Generic[T]):
             self._condition.wait_for(lambda: self._item is not None or self._closed, timeout)
             item, self._item = self._item, None
             if item is not None:
+                self.taken_at = time.monotonic()  # set before the producer can wake
                 self._condition.notify_all()
             return item
 

@@ -135,7 +135,6 @@ class ProcessingWorker:
         self._handover: HandOver[RenderedFrame] = HandOver()
         self._render_ms = _RunningMean()
         self._detect_ms = _RunningMean()
-        self._detect_started: float | None = None
         loops = (
             [("mrad_render", self._render_loop), ("mrad_detect", self._detect_loop)]
             if pipelined
@@ -198,9 +197,12 @@ class ProcessingWorker:
                 self._report_failure((rendered.msg, rendered.received), error)
 
     def _wait_for_detect_to_near_its_end(self) -> None:
-        """Sleep until the frame in detection is about one render time from published."""
+        """Sleep until the frame in detection is about one render time from published.
+
+        The detect thread started on it when it took it from the hand-over; if it is idle
+        already, the time is past and the render starts at once."""
         started, detect_ms, render_ms = (
-            self._detect_started,
+            self._handover.taken_at,
             self._detect_ms.value,
             self._render_ms.value,
         )
@@ -260,6 +262,7 @@ class ProcessingWorker:
         self, item: tuple[Any, float], state: Snapshot, pipeline: Pipeline | None
     ) -> RenderedFrame | None:
         """Decode the image, look its view up and render its reference (None: reported)."""
+        stage_start = time.perf_counter()
         msg, received = item
         report = self._diagnostics.report
         if pipeline is None:
@@ -288,17 +291,16 @@ class ProcessingWorker:
         except ValueError as error:
             report(MessageError("processing", f"frame rejected: {error}"))
             return None
-        self._render_ms.add(render_ms)
+        # The whole stage (a TF lookup may wait) is what the detect thread waits for.
+        self._render_ms.add(1e3 * (time.perf_counter() - stage_start))
         return RenderedFrame(msg, received, image, reference, pipeline, render_ms)
 
     def _detect(self, rendered: RenderedFrame) -> None:
         """Detect, publish (unless stopping), count and time one rendered frame."""
         start = time.perf_counter()
-        self._detect_started = time.monotonic()
         try:
             self._detect_and_publish(rendered)
         finally:
-            self._detect_started = None
             self._detect_ms.add(1e3 * (time.perf_counter() - start))
 
     def _detect_and_publish(self, rendered: RenderedFrame) -> None:

@@ -330,7 +330,9 @@ def test_the_hand_over_holds_one_frame_and_wakes_waiters_on_close():
     handover = HandOver()
     assert handover.put("a", timeout=0.1)
     assert not handover.wait_empty(0.01) and not handover.put("b", timeout=0.01)
-    assert handover.take(0.1) == "a" and handover.take(0.01) is None
+    before = time.monotonic()
+    assert handover.take(0.1) == "a" and before <= handover.taken_at <= time.monotonic()
+    assert handover.take(0.01) is None and handover.taken_at >= before
     woke = []
     waiter = threading.Thread(target=lambda: woke.append(handover.take(30)))
     waiter.start()
