@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz test-distro lint bench bench-detector bench-render bench-node bench-node-outputs bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz test-distro lint bench bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -70,8 +70,16 @@ bench-render: $(STAMP)
 	$(PY) -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json
 
 bench-node: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --rate 30 --out reports/bench_node.json
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
+
+# Before/after of issue 15 in one run: per camera mode the one-thread node, then the pipelined.
+bench-node-compare: $(STAMP)
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --compare-serial --out reports/bench_node_compare.json
+
+# One frame of the node's path under cProfile (decode, render, detect, outputs), 1080p.
+profile-node: $(STAMP)
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node_profile --frames 20 --out reports/profile_node.json
 
 # Only the lazy-output comparison of bench-node: CPU per frame, ~/mask alone vs every output.
 bench-node-outputs: $(STAMP)

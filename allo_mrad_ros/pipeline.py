@@ -26,6 +26,8 @@ from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRender
 from allo_mrad_ros.view import View
 
 RENDER_BACKENDS = ("", "osmesa", "egl")
+# The cheapest score map of MradParams.pixel_score, made when no one reads the map.
+UNREAD_PIXEL_SCORE = "blurred"
 
 
 class ProcessingError(InvalidInput):
@@ -244,6 +246,12 @@ class Pipeline:
             )
         self._provider = provider
         self._config = config
+        # What the methods run with when no one reads the score map (see detect()).
+        self._params_without_map = (
+            config.params
+            if config.params.pixel_score == UNREAD_PIXEL_SCORE
+            else config.params.replace(pixel_score=UNREAD_PIXEL_SCORE)
+        )
 
     @property
     def provider(self) -> ReferenceProvider:
@@ -260,13 +268,21 @@ class Pipeline:
         return Pipeline(self._provider, config)
 
     def detect(
-        self, image: np.ndarray, reference: np.ndarray
+        self, image: np.ndarray, reference: np.ndarray, score_map: bool = True
     ) -> tuple[dict[str, DetectionResult], dict[str, float]]:
-        """Run every method on ``image`` against ``reference``; results and ms per method."""
+        """Run every method on ``image`` against ``reference``; results and ms per method.
+
+        ``score_map=False`` when no one reads the results' ``score`` (the node with no
+        ``~/score`` subscriber): the methods then make the cheapest map,
+        ``pixel_score="blurred"``, instead of the configured one. The mask, area and
+        decision do not depend on ``pixel_score``, so they are the same; the ``continuous``
+        ranking map (a second cross score under the default parameters) is skipped.
+        """
+        params = self._config.params if score_map else self._params_without_map
         results, timings = {}, {}
         for name in self._config.methods:
             start = time.perf_counter()
-            results[name] = METHODS[name](image, reference, self._config.params)
+            results[name] = METHODS[name](image, reference, params)
             timings[name] = 1e3 * (time.perf_counter() - start)
         return results, timings
 

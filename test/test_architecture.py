@@ -53,11 +53,12 @@ ROS_PACKAGES = {
     "launch_ros",
 }
 # Where ROS may be imported: the node and its helpers, the live demo, the node benchmark and
-# the bag player.
+# profiler, and the bag player.
 ROS_EDGE = (
     "allo_mrad_ros.ros",
     "allo_mrad_ros.demo",
     "allo_mrad_ros.benchmarks.node",
+    "allo_mrad_ros.benchmarks.node_profile",
     "rosbag_tools.play",
 )
 

@@ -132,3 +132,34 @@ def test_parameters_from_text_and_numbers_have_one_coercion():
         params_from("x")
     config = PipelineConfig().replace(reference_scale=0.25, methods=("PAD",))
     assert config.render.reference_scale == 0.25 and config.methods == ("PAD",)
+
+
+def test_with_no_reader_of_the_score_map_the_mask_stays_and_the_ranking_map_is_skipped(
+    monkeypatch,
+):
+    from types import SimpleNamespace
+
+    from allo_mrad_ros.detector import pipeline as detector_pipeline
+    from allo_mrad_ros.example_scene import example_pair
+
+    pair = example_pair(360, 640)
+    reference = pair.reference[::2, ::2]
+    config = PipelineConfig(RenderSettings(0.5, shadows=False))
+    assert config.params.pixel_score == "continuous"  # the default makes a ranking map
+    processor = Pipeline(SimpleNamespace(settings=config.render), config)
+    calls = []
+    cross_score = detector_pipeline.cross_score
+    monkeypatch.setattr(
+        detector_pipeline, "cross_score", lambda *a: calls.append(1) or cross_score(*a)
+    )
+    mapped = processor.detect(pair.query, reference)[0]["MRAD"]
+    with_map = len(calls)
+    unmapped = processor.detect(pair.query, reference, score_map=False)[0]["MRAD"]
+    assert with_map == 2 and len(calls) - with_map == 1  # the map's own cross score is skipped
+    assert mapped.anomalous and unmapped.anomalous and mapped.area == unmapped.area
+    np.testing.assert_array_equal(mapped.mask, unmapped.mask)
+    blurred = detector_pipeline.detect(
+        pair.query, reference, config.params.replace(pixel_score="blurred")
+    )
+    np.testing.assert_array_equal(unmapped.score, blurred.score)
+    assert not np.array_equal(mapped.score, unmapped.score)

@@ -1,13 +1,18 @@
-"""Benchmark of the running ``mrad_detector`` node at 1920x1080 (``make bench-node``).
+"""Benchmark of the running ``mrad_detector`` node at camera rates (``make bench-node``).
 
-The node runs as its own process with its default parameters; a
-camera feed in this process publishes rendered full-HD frames, poses and the sun at
-``--rate`` Hz with wall-clock stamps, and records when each mask arrives. Reports the
-sustained output rate, the latency from image stamp to received mask, and the node's
-resident memory after 100 and after 1,000 processed frames. ROS traffic stays on loopback
+The node runs as its own process with its default parameters; a camera feed in this process
+publishes rendered frames, poses and the sun with wall-clock stamps, subscribes to the
+default outputs (``~/mask``, ``~/score``, ``~/overlay``, ``~/anomaly``) and records when each
+mask arrives. For each camera mode (1920x1080 at 30 Hz, 1280x720 at 60 Hz) it reports the
+frames processed per second and dropped, the latency from image stamp to received mask
+(p50, p95, p99), the node's CPU seconds per processed frame and its resident memory after
+100 and after 1,000 processed frames. ROS traffic stays on loopback
 (``config/fastdds_loopback.xml``).
 
-Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``
+Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``;
+``--serial`` runs the node with ``pipelined:=false`` (one thread, as before issue 15) and
+``--compare-serial`` runs, per mode, the serial node and then the pipelined one back to back,
+so both are measured under the same machine load.
 
 ``--compare-outputs`` measures instead the node's CPU seconds per frame with only ``~/mask``
 subscribed against every output subscribed (score, overlay, reference and its camera_info,
@@ -32,7 +37,7 @@ import psutil
 import rclpy
 
 from allo_mrad_ros.benchmarks import finish
-from allo_mrad_ros.camera import ALLO_INTRINSICS
+from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
@@ -42,24 +47,34 @@ from allo_mrad_ros.ros.feed import OUTPUT_TYPES, CameraFeed, start_node, stop_no
 SUN = (0.3, -0.5, 0.8)
 
 
-def _frames() -> tuple[np.ndarray, list[np.ndarray]]:
+# Camera modes measured: name -> (width, height, frame rate in Hz). The first is reported at
+# the top level of the JSON report (the keys of earlier reports), the others under their name.
+MODES = {"1080p30": (1920, 1080, 30.0), "720p60": (1280, 720, 60.0)}
+
+
+def camera_of(width: int, height: int) -> CameraIntrinsics:
+    """The ALLO camera's field of view at ``width`` x ``height``."""
+    return ALLO_INTRINSICS.scaled(width / ALLO_INTRINSICS.width)
+
+
+def _frames(camera: CameraIntrinsics = ALLO_INTRINSICS) -> tuple[np.ndarray, list[np.ndarray]]:
     pose = look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])
-    with ReferenceRenderer(None, ALLO_INTRINSICS, scale=1.0) as camera:
-        clean = camera.render(pose, SUN).rgb
+    with ReferenceRenderer(None, camera, scale=1.0) as renderer:
+        clean = renderer.render(pose, SUN).rgb
     with_object, _ = paste_object(clean, seed=1, centre=(0.5, 0.15), size=0.08)
     return pose, [clean, with_object]
 
 
 @contextmanager
 def _node_session(
-    log_path: Path, feed_options: dict, *node_args: str
+    log_path: Path, feed_options: dict, *node_args: str, camera: CameraIntrinsics = ALLO_INTRINSICS
 ) -> Iterator[tuple[CameraFeed, psutil.Process]]:
     """Start the node and a camera feed on loopback DDS; stop both whatever happens."""
     os.environ.setdefault(
         "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
     )
     rclpy.init()
-    feed = CameraFeed(ALLO_INTRINSICS, keep_messages=False, **feed_options)
+    feed = CameraFeed(camera, keep_messages=False, **feed_options)
     process = start_node(log_path, *node_args)
     try:
         if not feed.wait_for_node(60.0):
@@ -73,10 +88,18 @@ def _node_session(
         rclpy.shutdown()
 
 
-def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
-    """Drive the node and measure; returns the report dictionary."""
-    pose, images = _frames()
-    with _node_session(log_path, {}) as (feed, node):
+def run(
+    frames: int,
+    rate_hz: float,
+    log_path: Path,
+    timeout_s: float,
+    camera: CameraIntrinsics = ALLO_INTRINSICS,
+    pipelined: bool = True,
+) -> dict:
+    """Drive the node at ``rate_hz`` until ``frames`` masks arrived; the report dictionary."""
+    pose, images = _frames(camera)
+    node_args = (f"pipelined:={str(pipelined).lower()}",)
+    with _node_session(log_path, {}, *node_args, camera=camera) as (feed, node):
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
             feed.publish_frame(time.time_ns(), images[0], pose, SUN)
@@ -85,6 +108,7 @@ def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
         published: list[int] = []
         rss_mb: dict[int, float] = {}
         period = 1.0 / rate_hz
+        cpu_before = node.cpu_times()
         start = time.monotonic()
         next_time = start
         while len(feed.arrival["mask"]) < frames and time.monotonic() - start < timeout_s:
@@ -98,26 +122,47 @@ def run(frames: int, rate_hz: float, log_path: Path, timeout_s: float) -> dict:
             for mark in (100, frames):
                 if done >= mark and mark not in rss_mb:
                     rss_mb[mark] = node.memory_info().rss / 2**20
+        cpu_after = node.cpu_times()
         feed.spin(1.0)
     arrivals = feed.arrival["mask"]
     stamps = sorted(arrivals)
     latencies = np.array([1e3 * (arrivals[s] - s / 1e9) for s in stamps])
     times = sorted(arrivals.values())
     fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
+    cpu_s = (cpu_after.user - cpu_before.user) + (cpu_after.system - cpu_before.system)
+    before, after = rss_mb.get(100), rss_mb.get(frames)
     return {
-        "image": f"{ALLO_INTRINSICS.width}x{ALLO_INTRINSICS.height}",
+        "image": f"{camera.width}x{camera.height}",
         "input_rate_hz": rate_hz,
+        "pipelined": pipelined,
         "frames_published": len(published),
         "frames_processed": len(stamps),
         "frames_dropped": len(published) - len(stamps),
         "fps": fps,
         "latency_ms_p50": float(np.median(latencies)),
         "latency_ms_p95": float(np.percentile(latencies, 95)),
+        "latency_ms_p99": float(np.percentile(latencies, 99)),
         "latency_ms_max": float(latencies.max()),
-        "rss_mb_after_100": rss_mb.get(100),
-        "rss_mb_after_1000": rss_mb.get(frames),
+        "cpu_s_per_frame": cpu_s / max(len(stamps), 1),
+        "rss_mb_after_100": before,
+        "rss_mb_after_1000": after,
         "rss_frames_mark": frames,
+        "rss_growth_percent": 100 * (after / before - 1) if before and after else None,
+        "load_average_after": list(os.getloadavg()),
     }
+
+
+def _summary_line(name: str, report: dict) -> str:
+    growth = report["rss_growth_percent"]
+    return (
+        f"{name:8} {'pipelined' if report['pipelined'] else 'serial':9} "
+        f"{report['fps']:6.2f} {report['frames_dropped']:4d}/{report['frames_published']:<5d} "
+        f"{report['latency_ms_p50']:6.0f} {report['latency_ms_p95']:6.0f} "
+        f"{report['latency_ms_p99']:6.0f} {report['cpu_s_per_frame']:7.3f} "
+        f"{report['rss_mb_after_1000'] or float('nan'):7.0f} "
+        f"{float('nan') if growth is None else growth:+6.1f}% "
+        f"{report['load_average_after'][0]:5.2f}"
+    )
 
 
 def _lock_step(feed: CameraFeed, pose: np.ndarray, images: list, frames: int) -> int:
@@ -168,9 +213,21 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=1000, help="processed frames to measure")
-    parser.add_argument("--rate", type=float, default=10.0, help="input frame rate, Hz")
-    parser.add_argument("--timeout", type=float, default=600.0, help="seconds")
+    parser.add_argument(
+        "--modes",
+        default=",".join(MODES),
+        help=f"comma-separated camera modes of {list(MODES)}; the first goes to the top level",
+    )
+    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per mode")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_node.json"))
+    parser.add_argument(
+        "--serial", action="store_true", help="run the node with pipelined:=false only"
+    )
+    parser.add_argument(
+        "--compare-serial",
+        action="store_true",
+        help="per mode, the serial node then the pipelined one, back to back",
+    )
     parser.add_argument(
         "--compare-outputs",
         action="store_true",
@@ -179,8 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=5, help="blocks per mode (compare)")
     parser.add_argument("--block", type=int, default=8, help="frames per block (compare)")
     args = parser.parse_args(argv)
-    log = Path(tempfile.mkdtemp(prefix="bench_node_")) / "node.log"
+    log_dir = Path(tempfile.mkdtemp(prefix="bench_node_"))
     if args.compare_outputs:
+        log = log_dir / "node.log"
         report = compare_outputs(args.rounds, args.block, log)
         print(
             f"mrad_detector at {report['image']}, CPU seconds per frame (node process, "
@@ -190,25 +248,33 @@ def main(argv: list[str] | None = None) -> int:
             f"saving: {report['saving_percent']:.1f} %\nnode log: {log}"
         )
         return finish(args.out, report)
-    report = run(args.frames, args.rate, log, args.timeout)
-    growth = (
-        100 * (report["rss_mb_after_1000"] / report["rss_mb_after_100"] - 1)
-        if report["rss_mb_after_1000"] and report["rss_mb_after_100"]
-        else float("nan")
-    )
-    report["rss_growth_percent"] = growth
+    modes = [name.strip() for name in args.modes.split(",") if name.strip()]
+    unknown = sorted(set(modes) - set(MODES))
+    if unknown or not modes:
+        parser.error(f"unknown mode(s) {unknown or modes}; choose from {list(MODES)}")
+    variants = [False, True] if args.compare_serial else [not args.serial]
+    results: dict[tuple[str, bool], dict] = {}
     print(
-        f"mrad_detector at {report['image']}, input {args.rate:g} Hz, default parameters\n"
-        f"frames published {report['frames_published']}, processed {report['frames_processed']}, "
-        f"dropped as stale {report['frames_dropped']}\n"
-        f"sustained output rate: {report['fps']:.2f} frames/s\n"
-        f"latency image stamp -> mask received: p50 {report['latency_ms_p50']:.0f} ms, "
-        f"p95 {report['latency_ms_p95']:.0f} ms, max {report['latency_ms_max']:.0f} ms\n"
-        f"node resident memory: {report['rss_mb_after_100']:.0f} MB after 100 frames, "
-        f"{report['rss_mb_after_1000']:.0f} MB after {args.frames} ({growth:+.1f} %)\n"
-        f"node log: {log}"
+        f"mrad_detector, default parameters and outputs (mask, score, overlay), "
+        f"{args.frames} frames per run, {os.cpu_count()} CPUs\n"
+        f"{'mode':8} {'worker':9} {'fps':>6} {'dropped':>10} {'p50':>6} {'p95':>6} {'p99':>6} "
+        f"{'cpu s/f':>7} {'RSS MB':>7} {'growth':>7} {'load':>5}"
     )
-    return finish(args.out, report)
+    for name in modes:
+        width, height, rate = MODES[name]
+        for pipelined in variants:
+            log = log_dir / f"node_{name}_{'pipelined' if pipelined else 'serial'}.log"
+            report = run(args.frames, rate, log, args.timeout, camera_of(width, height), pipelined)
+            results[name, pipelined] = report
+            print(_summary_line(name, report), flush=True)
+    first, main_variant = modes[0], variants[-1]
+    combined = dict(results[first, main_variant])
+    for name in modes[1:]:
+        combined[name] = results[name, main_variant]
+    if args.compare_serial:
+        combined["serial"] = {name: results[name, False] for name in modes}
+    print(f"node logs: {log_dir}")
+    return finish(args.out, combined)
 
 
 if __name__ == "__main__":

@@ -53,6 +53,54 @@ class LatestSlot(Generic[T]):
             self._condition.notify_all()
 
 
+class HandOver(Generic[T]):
+    """A queue of one item between two threads (render stage to detect stage).
+
+    The producer waits with :meth:`wait_empty` until the consumer has taken the previous
+    item, so at most one finished item ever waits and the producer never works more than
+    one item ahead.
+    """
+
+    def __init__(self) -> None:
+        self._item: T | None = None
+        self._condition = threading.Condition()
+        self._closed = False
+        # Monotonic time of the last take: when the consumer started on its current item.
+        self.taken_at: float | None = None
+
+    def wait_empty(self, timeout: float | None = None) -> bool:
+        """Wait up to ``timeout`` seconds for the slot to be empty; False if full or closed."""
+        with self._condition:
+            self._condition.wait_for(lambda: self._item is None or self._closed, timeout)
+            return self._item is None and not self._closed
+
+    def put(self, item: T, timeout: float | None = None) -> bool:
+        """Store ``item`` once the slot is empty; False (item not stored) on timeout or close."""
+        with self._condition:
+            self._condition.wait_for(lambda: self._item is None or self._closed, timeout)
+            if self._item is not None or self._closed:
+                return False
+            self._item = item
+            self._condition.notify_all()
+            return True
+
+    def take(self, timeout: float | None = None) -> T | None:
+        """Wait up to ``timeout`` seconds for an item and remove it (None on timeout/close)."""
+        with self._condition:
+            self._condition.wait_for(lambda: self._item is not None or self._closed, timeout)
+            item, self._item = self._item, None
+            if item is not None:
+                self.taken_at = time.monotonic()  # set before the producer can wake
+                self._condition.notify_all()
+            return item
+
+    def close(self) -> None:
+        """Wake every waiting thread for shutdown."""
+        with self._condition:
+            self._closed = True
+            self._condition.notify_all()
+
+
 class StampedBuffer(Generic[T]):
     """The most recent ``capacity`` values by stamp, looked up by nearest stamp."""
 

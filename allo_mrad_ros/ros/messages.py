@@ -19,12 +19,14 @@ from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import PoseError, pose_matrix, unit_vector
 from allo_mrad_ros.render import CelestialBody
 
-# Encodings the node accepts for the camera image: name -> (channels, dtype, to-RGB order).
-_COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, tuple[int, ...] | None]] = {
+# Encodings the node accepts for the camera image: name -> (channels, dtype, OpenCV
+# conversion to RGB or None). cv2.cvtColor converts in one pass, where a NumPy channel
+# index would gather into a temporary and copy again.
+_COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "rgb8": (3, np.dtype(np.uint8), None),
-    "bgr8": (3, np.dtype(np.uint8), (2, 1, 0)),
-    "rgba8": (4, np.dtype(np.uint8), (0, 1, 2)),
-    "bgra8": (4, np.dtype(np.uint8), (2, 1, 0)),
+    "bgr8": (3, np.dtype(np.uint8), cv2.COLOR_BGR2RGB),
+    "rgba8": (4, np.dtype(np.uint8), cv2.COLOR_RGBA2RGB),
+    "bgra8": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2RGB),
     "mono8": (1, np.dtype(np.uint8), None),
     "rgb16": (3, np.dtype(">u2"), None),
     "mono16": (1, np.dtype(">u2"), None),
@@ -48,7 +50,7 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
             f"image encoding {msg.encoding!r} is not supported; "
             f"use one of {sorted(_COLOUR_ENCODINGS)}",
         )
-    channels, dtype, order = _COLOUR_ENCODINGS[encoding]
+    channels, dtype, conversion = _COLOUR_ENCODINGS[encoding]
     width, height = int(msg.width), int(msg.height)
     if width <= 0 or height <= 0:
         raise MessageError("size", f"image size {width}x{height} is empty")
@@ -67,9 +69,10 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     if dtype.itemsize == 2 and not msg.is_bigendian:
         dtype = dtype.newbyteorder("<")
     rows = data.reshape(height, step)[:, :row_bytes]
+    if conversion is not None:
+        # 8-bit only: OpenCV reads the padded rows in place and writes one new image.
+        return cv2.cvtColor(rows.reshape(height, width, channels), conversion)
     pixels = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
-    if order is not None:
-        pixels = pixels[..., list(order)]
     if pixels.dtype.byteorder not in ("=", "|"):
         pixels = pixels.astype(pixels.dtype.newbyteorder("="))
     return pixels
@@ -106,7 +109,7 @@ def _decode_compressed(msg: Any, expected_size: tuple[int, int] | None) -> np.nd
     _check_size(pixels.shape[1], pixels.shape[0], expected_size)
     if pixels.ndim == 2:
         return pixels[..., None]
-    return pixels[..., [2, 1, 0]]
+    return cv2.cvtColor(pixels, cv2.COLOR_BGRA2RGB if pixels.shape[2] == 4 else cv2.COLOR_BGR2RGB)
 
 
 def is_compressed(msg: Any) -> bool:
@@ -136,7 +139,7 @@ def image_to_rgb(msg: Any, expected_size: tuple[int, int] | None = None) -> np.n
         else _decode(msg, expected_size)
     )
     if pixels.shape[2] == 1:
-        pixels = np.repeat(pixels, 3, axis=2)
+        return cv2.cvtColor(pixels, cv2.COLOR_GRAY2RGB)
     return np.ascontiguousarray(pixels)
 
 

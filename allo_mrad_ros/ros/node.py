@@ -9,8 +9,9 @@ One place per concern:
   images, :class:`.buffers.StampedBuffer` for poses and Sun directions), so inputs never
   wait for processing;
 * :class:`.pose_source.PoseSource` looks the camera pose up (TF or topic);
-* :class:`.worker.ProcessingWorker` owns the OpenGL renderer and an immutable
-  :class:`~allo_mrad_ros.pipeline.Pipeline`, swapped on a parameter change;
+* :class:`.worker.ProcessingWorker` owns the OpenGL renderer (on its render thread) and an
+  immutable :class:`~allo_mrad_ros.pipeline.Pipeline`, swapped on a parameter change; it
+  renders frame n+1 while its detect thread detects and publishes frame n;
 * :class:`.diagnostics.Diagnostics` counts and publishes ``/diagnostics``.
 
 Topic names come from :mod:`allo_mrad_ros.interface`.
@@ -142,11 +143,14 @@ class MradDetectorNode(Node):
             self._publish,
             self._diagnostics,
             self.get_logger(),
+            config.pipelined,
+            lambda: self._outputs.score.get_subscription_count() > 0,
         )
         self._diagnostics.worker_alive = self._worker.is_alive
         self.get_logger().info(
             f"MRAD detector ready: pose from {self._pose_source.kind}, reference scale "
             f"{config.pipeline.render.reference_scale}, grid {config.pipeline.params.grid}, "
+            f"{'pipelined' if config.pipelined else 'serial'} processing, "
             f"listening on {self._image_topic}"
         )
 
@@ -332,7 +336,9 @@ class MradDetectorNode(Node):
 
     # --- outputs ------------------------------------------------------------------------
 
-    def _publish(self, msg: Image, image: np.ndarray, frame: ProcessedFrame) -> None:
+    def _publish(
+        self, msg: Image, image: np.ndarray, frame: ProcessedFrame, score_map: bool = True
+    ) -> None:
         config = self._config
         with self._lock:
             camera = self._intrinsics
@@ -348,6 +354,7 @@ class MradDetectorNode(Node):
             reference_camera,
             config.publish_reference,
             config.publish_overlay,
+            score_map,
         )
 
     def destroy_node(self) -> None:

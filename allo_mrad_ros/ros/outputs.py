@@ -32,9 +32,9 @@ REGION_LINE_WIDTH = 2.0
 
 def connected_boxes(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
     """``(x, y, width, height)`` of each 8-connected region of a mask, in pixels."""
-    count, _, stats, _ = cv2.connectedComponentsWithStats(
-        (mask > 0).astype(np.uint8), connectivity=8
-    )
+    if mask.dtype != np.uint8:  # OpenCV takes any non-zero uint8 as foreground: no copy
+        mask = (mask > 0).astype(np.uint8)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     return [tuple(int(v) for v in stats[i, :4]) for i in range(1, count)]
 
 
@@ -113,11 +113,16 @@ class Outputs:
         reference_camera: CameraIntrinsics | None,
         publish_reference: bool,
         publish_overlay: bool,
+        score_map: bool = True,
     ) -> None:
-        """Build and publish every subscribed output with the input image's ``header``."""
+        """Build and publish every subscribed output with the input image's ``header``.
+
+        ``score_map`` False: the frame's score is not the ranking map (no one subscribed
+        when it was detected), so ``~/score`` is left out for this frame.
+        """
         result = frame.primary
         fill = messages.fill_image
-        if self.score.get_subscription_count():
+        if score_map and self.score.get_subscription_count():
             self.score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
         if self.mask.get_subscription_count():
             self.mask.publish(fill(Image(), header, result.mask, interface.MONO8))

@@ -124,6 +124,14 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
         "sun_strength": NodeParameter(
             1.0, _number("relative Sun intensity until a sun_strength topic arrives", 0.0, 100.0)
         ),
+        "pipelined": NodeParameter(
+            True,
+            _flag(
+                "render the next frame's reference while this frame is detected (two threads, "
+                "two cores at work); false: one thread renders, then detects"
+            ),
+            True,
+        ),
         "publish_reference": NodeParameter(False, _flag("publish the rendered reference")),
         "publish_overlay": NodeParameter(True, _flag("publish the image with the mask outlined")),
         "diagnostics_period_s": NodeParameter(
@@ -241,6 +249,7 @@ class NodeConfig:
     mesh: str
     sun_direction: tuple[float, float, float]
     sun_strength: float
+    pipelined: bool
     publish_reference: bool
     publish_overlay: bool
     diagnostics_period_s: float
@@ -267,6 +276,7 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         mesh=values["mesh"],
         sun_direction=tuple(float(v) for v in values["sun_direction"]),
         sun_strength=float(values["sun_strength"]),
+        pipelined=values["pipelined"],
         publish_reference=values["publish_reference"],
         publish_overlay=values["publish_overlay"],
         diagnostics_period_s=float(values["diagnostics_period_s"]),

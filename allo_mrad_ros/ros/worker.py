@@ -1,10 +1,19 @@
-"""The node's processing thread: owns the OpenGL context and an immutable pipeline.
+"""The node's processing threads: render the reference, detect, publish.
 
-GL contexts are bound to the thread that made them, so one thread builds the
-:class:`~allo_mrad_ros.pipeline.ReferenceProvider` (as soon as ``camera_info`` is known),
-renders and detects. A parameter change never mutates the running pipeline: the worker
-sees a new :class:`~allo_mrad_ros.ros.parameters.NodeConfig` snapshot and swaps in a new
-:class:`~allo_mrad_ros.pipeline.Pipeline` sharing the provider between two frames.
+GL contexts are bound to the thread that made them, so one thread (the render stage) builds
+the :class:`~allo_mrad_ros.pipeline.ReferenceProvider` as soon as ``camera_info`` is known,
+rebuilds it when the camera changes, renders with it and closes it: OpenGL is only ever
+called from that thread. A parameter change never mutates the running pipeline: the render
+stage sees a new :class:`~allo_mrad_ros.ros.parameters.NodeConfig` snapshot and swaps in a
+new :class:`~allo_mrad_ros.pipeline.Pipeline` sharing the provider between two frames.
+
+Pipelined (the default): a second thread detects and publishes frame n while the render
+thread renders frame n+1, so two cores work at once. Between them is a hand-over of one
+frame; the render thread takes the newest image only when the hand-over is empty and the
+frame in detection is about one render time from done, so the frame it renders is as fresh
+as it can be and is ready when the detect thread is. One detect thread takes frames in the
+order they were rendered, so results are published in the order of the images taken.
+Serial (``pipelined: false``): one thread renders, then detects and publishes.
 """
 
 from __future__ import annotations
@@ -23,11 +32,21 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.pipeline import Pipeline, ProcessedFrame, ReferenceProvider
 from allo_mrad_ros.render import RendererError
 from allo_mrad_ros.ros import messages
-from allo_mrad_ros.ros.buffers import LatestSlot
+from allo_mrad_ros.ros.buffers import HandOver, LatestSlot
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.view import View
+
+# Weight of the newest stage time in the running estimates the render thread schedules by.
+_ESTIMATE_WEIGHT = 0.2
+# The render thread starts this much earlier than its estimate says, as a share of the render
+# time plus a constant: starting late stalls the detect thread, starting early only ages the
+# frame by the difference.
+_EARLY_SHARE = 0.25
+_EARLY_MS = 2.0
+# How long a waiting thread sleeps before it looks whether the worker stops.
+_POLL_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -39,6 +58,30 @@ class Snapshot:
     sun_direction: np.ndarray
     sun_strength: float
     bodies: tuple
+
+
+@dataclass(frozen=True)
+class RenderedFrame:
+    """A frame between the stages: the message, its decoded image and its reference."""
+
+    msg: Any
+    received: float
+    image: np.ndarray
+    reference: np.ndarray
+    pipeline: Pipeline
+    render_ms: float
+
+
+class _RunningMean:
+    """An exponentially weighted mean of a stage's time in ms (None before the first)."""
+
+    def __init__(self) -> None:
+        self.value: float | None = None
+
+    def add(self, ms: float) -> None:
+        self.value = ms if self.value is None else self.value + _ESTIMATE_WEIGHT * (
+            ms - self.value
+        )
 
 
 class ProcessingWorker:
@@ -54,11 +97,17 @@ class ProcessingWorker:
         ``(image message, snapshot) -> View or None``: pose and lighting at the image stamp
         (None when no pose is known; the callee counts and logs that).
     publish : callable
-        ``(image message, image, ProcessedFrame)``: publishes the outputs.
+        ``(image message, image, ProcessedFrame, score map made)``: publishes the outputs
+        (``~/score`` only when the map was made for it).
     diagnostics : Diagnostics
         Counters, error reports, stage timings.
     logger : rclpy logger
         For the renderer-ready line.
+    pipelined : bool
+        Render the next frame while this one is detected (two threads); False: one thread.
+    score_wanted : callable
+        Whether anyone reads the score map now (``~/score`` subscribed); if not, the
+        detector skips the ranking map (:meth:`~allo_mrad_ros.pipeline.Pipeline.detect`).
     """
 
     def __init__(
@@ -66,9 +115,11 @@ class ProcessingWorker:
         slot: LatestSlot,
         snapshot: Callable[[], Snapshot],
         view_of: Callable[[Any, Snapshot], View | None],
-        publish: Callable[[Any, np.ndarray, ProcessedFrame], None],
+        publish: Callable[[Any, np.ndarray, ProcessedFrame, bool], None],
         diagnostics: Diagnostics,
         logger: Any,
+        pipelined: bool = True,
+        score_wanted: Callable[[], bool] = lambda: True,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -76,10 +127,101 @@ class ProcessingWorker:
         self._publish = publish
         self._diagnostics = diagnostics
         self._logger = logger
+        self.pipelined = pipelined
+        self._score_wanted = score_wanted
         self._running = True
+        self._stopping = threading.Event()
         self._publishing = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="mrad_processing", daemon=True)
-        self._thread.start()
+        self._handover: HandOver[RenderedFrame] = HandOver()
+        self._render_ms = _RunningMean()
+        self._detect_ms = _RunningMean()
+        loops = (
+            [("mrad_render", self._render_loop), ("mrad_detect", self._detect_loop)]
+            if pipelined
+            else [("mrad_processing", self._render_loop)]
+        )
+        self._threads = [
+            threading.Thread(target=self._run, args=(loop,), name=name, daemon=True)
+            for name, loop in loops
+        ]
+        for thread in self._threads:
+            thread.start()
+
+    # --- threads ------------------------------------------------------------------------
+
+    def _run(self, loop: Callable[[], None]) -> None:
+        try:
+            loop()
+        finally:
+            if self._running:
+                self._logger.fatal(
+                    f"processing thread stopped ({threading.current_thread().name}): "
+                    "no frames are processed"
+                )
+
+    def _render_loop(self) -> None:
+        """Owns the GL context from its first build to its close."""
+        pipeline: Pipeline | None = None
+        built_for: tuple | None = None
+        try:
+            while self._running:
+                if self.pipelined:
+                    if not self._handover.wait_empty(_POLL_S):
+                        continue
+                    self._wait_for_detect_to_near_its_end()
+                item = self._slot.take(timeout=_POLL_S)
+                if not self._running:
+                    break
+                try:
+                    state = self._snapshot()
+                    pipeline, built_for = self._pipeline_for(state, pipeline, built_for)
+                    rendered = None if item is None else self._render(item, state, pipeline)
+                    if rendered is not None and self.pipelined:
+                        self._handover.put(rendered, timeout=_POLL_S)  # empty: waited above
+                    elif rendered is not None:
+                        self._detect(rendered)
+                except Exception as error:  # one bad frame must not end the thread
+                    self._report_failure(item, error)
+        finally:
+            if pipeline is not None:
+                pipeline.provider.close()
+
+    def _detect_loop(self) -> None:
+        while self._running:
+            rendered = self._handover.take(timeout=_POLL_S)
+            if rendered is None or not self._running:
+                continue
+            try:
+                self._detect(rendered)
+            except Exception as error:  # one bad frame must not end the thread
+                self._report_failure((rendered.msg, rendered.received), error)
+
+    def _wait_for_detect_to_near_its_end(self) -> None:
+        """Sleep until the frame in detection is about one render time from published.
+
+        The detect thread started on it when it took it from the hand-over; if it is idle
+        already, the time is past and the render starts at once."""
+        started, detect_ms, render_ms = (
+            self._handover.taken_at,
+            self._detect_ms.value,
+            self._render_ms.value,
+        )
+        if started is None or detect_ms is None or render_ms is None:
+            return
+        lead_ms = detect_ms - (1.0 + _EARLY_SHARE) * render_ms - _EARLY_MS
+        remaining_s = started + lead_ms / 1e3 - time.monotonic()
+        if remaining_s > 0:
+            self._stopping.wait(min(remaining_s, 1.0))
+
+    def _report_failure(self, item: tuple[Any, float] | None, error: Exception) -> None:
+        self._diagnostics.report(
+            MessageError(
+                "internal", f"frame {_stamp_of(item)} ns failed: {type(error).__name__}: {error}"
+            ),
+            "\n" + traceback.format_exc(),
+        )
+
+    # --- stages -------------------------------------------------------------------------
 
     def _provider(self, intrinsics: CameraIntrinsics, config: NodeConfig) -> ReferenceProvider:
         provider = ReferenceProvider(config.mesh or None, intrinsics, config.pipeline.render)
@@ -89,34 +231,6 @@ class ProcessingWorker:
             f"{renderer.output_intrinsics.width}x{renderer.output_intrinsics.height}"
         )
         return provider
-
-    def _run(self) -> None:
-        try:
-            self._loop()
-        finally:
-            if self._running:
-                self._logger.fatal("processing thread stopped: no frames are processed")
-
-    def _loop(self) -> None:
-        pipeline: Pipeline | None = None
-        built_for: tuple | None = None
-        while self._running:
-            item = self._slot.take(timeout=0.2)
-            if not self._running:
-                break
-            try:
-                state = self._snapshot()
-                pipeline, built_for = self._pipeline_for(state, pipeline, built_for)
-                if item is not None:
-                    self._process(item, state, pipeline)
-            except Exception as error:  # one bad frame must not end the thread
-                self._diagnostics.report(
-                    MessageError(
-                        "internal",
-                        f"frame {_stamp_of(item)} ns failed: {type(error).__name__}: {error}",
-                    ),
-                    "\n" + traceback.format_exc(),
-                )
 
     def _pipeline_for(
         self, state: Snapshot, pipeline: Pipeline | None, built_for: tuple | None
@@ -144,7 +258,11 @@ class ProcessingWorker:
             pipeline = pipeline.with_config(state.config.pipeline)
         return pipeline, built_for
 
-    def _process(self, item: tuple[Any, float], state: Snapshot, pipeline: Pipeline | None) -> None:
+    def _render(
+        self, item: tuple[Any, float], state: Snapshot, pipeline: Pipeline | None
+    ) -> RenderedFrame | None:
+        """Decode the image, look its view up and render its reference (None: reported)."""
+        stage_start = time.perf_counter()
         msg, received = item
         report = self._diagnostics.report
         if pipeline is None:
@@ -154,52 +272,88 @@ class ProcessingWorker:
                     f"no usable camera_info on {interface.CAMERA_INFO_TOPIC}; frame skipped",
                 )
             )
-            return
+            return None
         intrinsics = pipeline.provider.camera
         try:
             image = messages.image_to_rgb(msg, (intrinsics.width, intrinsics.height))
             view = self._view_of(msg, state)
             if view is None:
-                return
-            frame = pipeline.process(image, view)
+                return None
+            start = time.perf_counter()
+            reference = pipeline.provider.render(view)
+            render_ms = 1e3 * (time.perf_counter() - start)
         except MessageError as error:
             report(error)
-            return
+            return None
         except RendererError as error:
             report(MessageError("renderer", f"reference rendering failed: {error}"))
-            return
+            return None
         except ValueError as error:
             report(MessageError("processing", f"frame rejected: {error}"))
+            return None
+        # The whole stage (a TF lookup may wait) is what the detect thread waits for.
+        self._render_ms.add(1e3 * (time.perf_counter() - stage_start))
+        return RenderedFrame(msg, received, image, reference, pipeline, render_ms)
+
+    def _detect(self, rendered: RenderedFrame) -> None:
+        """Detect, publish (unless stopping), count and time one rendered frame."""
+        start = time.perf_counter()
+        try:
+            self._detect_and_publish(rendered)
+        finally:
+            self._detect_ms.add(1e3 * (time.perf_counter() - start))
+
+    def _detect_and_publish(self, rendered: RenderedFrame) -> None:
+        try:
+            score_map = self._score_wanted()
+            results, detect_ms = rendered.pipeline.detect(
+                rendered.image, rendered.reference, score_map=score_map
+            )
+        except ValueError as error:
+            self._diagnostics.report(MessageError("processing", f"frame rejected: {error}"))
             return
+        timings = {"render": rendered.render_ms, **detect_ms}
+        timings["total"] = sum(timings.values())
+        frame = ProcessedFrame(rendered.reference, results, timings)
         with self._publishing:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
             if not self._running:
                 return
-            self._publish(msg, image, frame)
+            self._publish(rendered.msg, rendered.image, frame, score_map)
         self._diagnostics.stages.record(
             {
-                "render": frame.timings_ms["render"],
-                "detect": frame.timings_ms["MRAD"],
-                "receive_to_publish": 1e3 * (time.monotonic() - received),
+                "render": rendered.render_ms,
+                "detect": next(iter(detect_ms.values())),
+                "receive_to_publish": 1e3 * (time.monotonic() - rendered.received),
             }
         )
         self._diagnostics.count("frames_processed")
         if frame.primary.anomalous:
             self._diagnostics.count("anomalous_frames")
 
+    # --- control ------------------------------------------------------------------------
+
     def is_alive(self) -> bool:
-        """Whether the processing thread runs."""
-        return self._thread.is_alive()
+        """Whether every processing thread runs."""
+        return all(thread.is_alive() for thread in self._threads)
+
+    def join(self, timeout_s: float) -> None:
+        """Wait up to ``timeout_s`` in all for the threads to end (after :meth:`stop`)."""
+        deadline = time.monotonic() + timeout_s
+        for thread in self._threads:
+            if thread.is_alive() and threading.current_thread() is not thread:
+                thread.join(timeout=max(0.0, deadline - time.monotonic()))
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop: no output is published after this returns; waits up to ``timeout_s`` for the
-        frame in progress (the thread is a daemon, so one stuck in rendering cannot keep the
-        process alive)."""
+        frames in progress (the threads are daemons, so one stuck in rendering cannot keep
+        the process alive)."""
         with self._publishing:
             self._running = False
+        self._stopping.set()
         self._slot.close()
-        if self._thread.is_alive() and threading.current_thread() is not self._thread:
-            self._thread.join(timeout=timeout_s)
+        self._handover.close()
+        self.join(timeout_s)
 
 
 def _stamp_of(item: tuple[Any, float] | None) -> str:

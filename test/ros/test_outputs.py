@@ -109,6 +109,15 @@ def test_every_subscribed_output_is_published_with_the_image_header(outputs):
     }
 
 
+def test_a_frame_detected_without_the_score_map_leaves_the_score_out(outputs):
+    fakes = subscribe(outputs, *NAMES)
+    header = Header(frame_id="cam")
+    image = np.zeros((90, 160, 3), np.uint8)
+    outputs.publish(header, image, frame(), None, True, True, score_map=False)
+    assert fakes["score"].sent == []
+    assert all(len(fakes[name].sent) == 1 for name in ("mask", "overlay", "result"))
+
+
 def test_switched_off_outputs_stay_off_even_when_subscribed(outputs):
     fakes = subscribe(outputs, *NAMES)
     publish(outputs, reference=False, overlay=False)
@@ -134,6 +143,7 @@ def test_connected_boxes_and_their_outline_marker():
     mask[11, 21] = 255  # diagonal neighbour: one 8-connected region
     boxes = connected_boxes(mask)
     assert sorted(boxes) == [(3, 2, 6, 3), (20, 10, 2, 2)]
+    assert connected_boxes(mask > 0) == boxes == connected_boxes(mask.astype(np.float32) / 255)
     marker = region_marker(Header(frame_id="cam"), [(3, 2, 6, 3)])
     segments = [
         ((a.x, a.y), (b.x, b.y))

@@ -34,19 +34,21 @@ class Counting(Quiet):
         self.reports.append(error)
 
 
-def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monkeypatch):
+@pytest.mark.parametrize("pipelined", [True, False])
+def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(
+    monkeypatch, pipelined
+):
     entered, release = threading.Event(), threading.Event()
 
     class SlowPipeline:
-        provider = types.SimpleNamespace(camera=CAMERA)
+        provider = types.SimpleNamespace(
+            camera=CAMERA, render=lambda view: "reference", close=lambda: None
+        )
 
-        def process(self, image, view):
+        def detect(self, image, reference, score_map=True):
             entered.set()
             release.wait(30)
-            return types.SimpleNamespace(
-                primary=types.SimpleNamespace(anomalous=False),
-                timings_ms={"render": 0.0, "MRAD": 0.0},
-            )
+            return {"MRAD": types.SimpleNamespace(anomalous=False)}, {"MRAD": 0.0}
 
     monkeypatch.setattr(
         ProcessingWorker, "_pipeline_for", lambda self, state, p, b: (SlowPipeline(), b)
@@ -56,20 +58,21 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monk
     state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
     worker = ProcessingWorker(
         slot, lambda: state, lambda msg, s: "view", lambda *a: published.append(a),
-        Counting(), Quiet(),
+        Counting(), Quiet(), pipelined,
     )
     msg = fill_image(Image(), None, np.zeros((6, 8, 3), np.uint8), "rgb8")
     slot.put((msg, 0.0))
     assert entered.wait(30)
     worker.stop(timeout_s=0.1)  # the frame is still in process: the join expires
-    assert worker.is_alive()
+    assert any(thread.is_alive() for thread in worker._threads)  # still detecting
     release.set()
-    worker._thread.join(30)
-    assert not worker.is_alive()
+    worker.join(30)
+    assert not any(thread.is_alive() for thread in worker._threads)
     assert published == []
 
 
-def test_the_worker_survives_an_unexpected_exception_and_reports_it(monkeypatch):
+@pytest.mark.parametrize("pipelined", [True, False])
+def test_the_worker_survives_an_unexpected_exception_and_reports_it(monkeypatch, pipelined):
     calls = []
 
     def flaky(self, state, pipeline, built_for):
@@ -82,7 +85,7 @@ def test_the_worker_survives_an_unexpected_exception_and_reports_it(monkeypatch)
     diagnostics = Counting()
     slot = LatestSlot()
     state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
-    worker = ProcessingWorker(slot, lambda: state, None, None, diagnostics, Quiet())
+    worker = ProcessingWorker(slot, lambda: state, None, None, diagnostics, Quiet(), pipelined)
     try:
         slot.put(("not a message", 0.0))
         slot.put(("another", 0.0))
