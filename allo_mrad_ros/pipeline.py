@@ -246,11 +246,12 @@ class Pipeline:
             )
         self._provider = provider
         self._config = config
-        # What the methods run with when no one reads the score map (see detect()).
+        # What the methods run with when no one reads the score map (see detect()). The
+        # map_top image score is taken from the map, so then the map is made anyway.
+        params = config.params
+        map_unread = params.pixel_score == UNREAD_PIXEL_SCORE or params.image_score == "map_top"
         self._params_without_map = (
-            config.params
-            if config.params.pixel_score == UNREAD_PIXEL_SCORE
-            else config.params.replace(pixel_score=UNREAD_PIXEL_SCORE)
+            params if map_unread else params.replace(pixel_score=UNREAD_PIXEL_SCORE)
         )
 
     @property
@@ -274,9 +275,10 @@ class Pipeline:
 
         ``score_map=False`` when no one reads the results' ``score`` (the node with no
         ``~/score`` subscriber): the methods then make the cheapest map,
-        ``pixel_score="blurred"``, instead of the configured one. The mask, area and
+        ``pixel_score="blurred"``, instead of the configured one, unless the image score
+        is read from the map (``image_score="map_top"``, the default). The mask, area and
         decision do not depend on ``pixel_score``, so they are the same; the ``continuous``
-        ranking map (a second cross score under the default parameters) is skipped.
+        ranking map (a second photometric model in the cross score) is skipped.
         """
         params = self._config.params if score_map else self._params_without_map
         results, timings = {}, {}

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from allo_mrad_ros.camera import CameraIntrinsics
-from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.detector import MradParams, profile
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.pipeline import (
     Pipeline,
@@ -144,18 +144,21 @@ def test_with_no_reader_of_the_score_map_the_mask_stays_and_the_ranking_map_is_s
 
     pair = example_pair(360, 640)
     reference = pair.reference[::2, ::2]
-    config = PipelineConfig(RenderSettings(0.5, shadows=False))
+    config = PipelineConfig(
+        RenderSettings(0.5, shadows=False), profile("default", image_score="area")
+    )
     assert config.params.pixel_score == "continuous"  # the default makes a ranking map
     processor = Pipeline(SimpleNamespace(settings=config.render), config)
-    calls = []
-    cross_score = detector_pipeline.cross_score
+    models = []
+    cross_scores = detector_pipeline.cross_scores
     monkeypatch.setattr(
-        detector_pipeline, "cross_score", lambda *a: calls.append(1) or cross_score(*a)
+        detector_pipeline,
+        "cross_scores",
+        lambda *a: models.append(len(a[5])) or cross_scores(*a),
     )
     mapped = processor.detect(pair.query, reference)[0]["MRAD"]
-    with_map = len(calls)
     unmapped = processor.detect(pair.query, reference, score_map=False)[0]["MRAD"]
-    assert with_map == 2 and len(calls) - with_map == 1  # the map's own cross score is skipped
+    assert models == [2, 1]  # the map's own photometric model is skipped
     assert mapped.anomalous and unmapped.anomalous and mapped.area == unmapped.area
     np.testing.assert_array_equal(mapped.mask, unmapped.mask)
     blurred = detector_pipeline.detect(
@@ -163,3 +166,17 @@ def test_with_no_reader_of_the_score_map_the_mask_stays_and_the_ranking_map_is_s
     )
     np.testing.assert_array_equal(unmapped.score, blurred.score)
     assert not np.array_equal(mapped.score, unmapped.score)
+
+
+def test_the_map_top_image_score_keeps_the_map_even_without_a_reader():
+    from types import SimpleNamespace
+
+    from allo_mrad_ros.example_scene import example_pair
+
+    pair = example_pair(180, 320)
+    config = PipelineConfig(RenderSettings(0.5, shadows=False))
+    assert config.params.image_score == "map_top"
+    processor = Pipeline(SimpleNamespace(settings=config.render), config)
+    mapped = processor.detect(pair.query, pair.reference)[0]["MRAD"]
+    unmapped = processor.detect(pair.query, pair.reference, score_map=False)[0]["MRAD"]
+    assert unmapped.image_score == mapped.image_score

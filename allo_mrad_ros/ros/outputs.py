@@ -55,9 +55,10 @@ def region_marker(header: object, boxes: list[tuple[int, int, int, int]]) -> Ima
 
 
 def result_status(
-    node_name: str, anomalous: bool, area: int, pixels: int, boxes: list
+    node_name: str, anomalous: bool, area: int, pixels: int, boxes: list, image_score: float
 ) -> DiagnosticStatus:
-    """The frame's result as a status: WARN when anomalous, with area and boxes as values."""
+    """The frame's result as a status: WARN when anomalous; area, image score and boxes as
+    values."""
     status = DiagnosticStatus(
         name=f"{node_name}: result",
         hardware_id=interface.HARDWARE_ID,
@@ -68,6 +69,7 @@ def result_status(
         "anomalous": str(bool(anomalous)).lower(),
         "area_px": str(int(area)),
         "area_fraction": f"{area / max(pixels, 1):.6f}",
+        "image_score": f"{image_score:.3f}",
         "regions": str(len(boxes)),
         "boxes_xywh": ";".join(f"{x},{y},{w},{h}" for x, y, w, h in boxes),
     }
@@ -138,6 +140,7 @@ class Outputs:
                     result.area,
                     result.mask.size,
                     boxes,
+                    result.image_score,
                 )
                 self.result.publish(DiagnosticArray(header=header, status=[status]))
         if publish_reference:

@@ -104,6 +104,7 @@ def test_every_subscribed_output_is_published_with_the_image_header(outputs):
         "anomalous": "true",
         "area_px": "202",
         "area_fraction": f"{202 / (90 * 160):.6f}",
+        "image_score": "40.000",
         "regions": "2",
         "boxes_xywh": "30,10,20,10;100,60,1,2",
     }
