@@ -86,8 +86,8 @@ bench-node-outputs: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 
 # Speed against error: defaults chosen on data/bench_val, reported on data/bench's test split
-# (both generated first if missing: 510 + 330 frames, 49 + 38 min at load 15 on 2 cores with
-# the issue-11 generator; not re-measured idle).
+# (both generated first if missing: 510 + 330 frames, 37 + 22 min with 2 jobs at load 8-12
+# on 2 cores with the issue-11 generator; not measured idle).
 bench: $(STAMP) data/bench/frames.csv data/bench_val/frames.csv
 	$(PY) -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench --validation data/bench_val --out reports
 
@@ -98,7 +98,7 @@ data/bench_val/frames.csv:
 	$(MAKE) synth-bench-val
 
 synth-bench: $(STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench --seed 0 --out data/bench --overwrite
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench --seed 0 --out data/bench --overwrite --jobs 2
 
 # The selection split of `make bench`: another seed, so it shares no frame plan with the test.
 synth-bench-val: $(STAMP)
