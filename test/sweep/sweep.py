@@ -36,8 +36,9 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
 from sweep_verdicts import CLEAN, Outcome, counts, table_text, write_reports  # noqa: E402
 
 
-def build_fixtures(work: Path, baseline: bool) -> dict:
-    """The tiny sequence, its bag, a tiny ALLO split and (optionally) the intact metrics."""
+def build_fixtures(work: Path, baseline: bool, long: bool) -> dict:
+    """The tiny sequence, its bag, a tiny ALLO split, (optionally) a longer sequence and the
+    intact bag's metrics."""
     import cv2
     import numpy as np
     from rosbag_fixtures import write_tiny_sequence
@@ -62,6 +63,7 @@ def build_fixtures(work: Path, baseline: bool) -> dict:
         "allo": allo,
         "mesh": share_path("meshes", "station.glb"),
         "baseline": {},
+        "bigseq": write_tiny_sequence(work / "bigseq", train=60) if long else None,
     }
     if baseline:
         report = work / "baseline"
@@ -88,7 +90,11 @@ def run_cli(work: Path, quick: bool, only: str | None, jobs: int) -> list[Outcom
     cases = selected(cli_cases(), quick, only)
     if not cases:
         return []
-    fixtures = build_fixtures(work / "fixtures", any(c.check is same_metrics for c in cases))
+    fixtures = build_fixtures(
+        work / "fixtures",
+        baseline=any(c.check is same_metrics for c in cases),
+        long=any("{bigseq}" in " ".join(c.argv) for c in cases),
+    )
     mountable = can_mount()
     with ThreadPoolExecutor(jobs) as pool:
         return list(pool.map(lambda c: run_case(c, fixtures, work / "cases", mountable), cases))

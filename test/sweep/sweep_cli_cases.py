@@ -1,7 +1,8 @@
 """The command-line cases of the sweep: ``allo-bag`` and ``allo-synth`` with bad input.
 
 Fixtures (built once by :mod:`sweep`): ``{seq}`` a tiny rendered sequence, ``{bag}`` its bag
-(MCAP folder), ``{mcap}`` that bag's storage file, ``{allo}`` a tiny ALLO split, ``{mesh}`` the
+(MCAP folder), ``{mcap}`` that bag's storage file, ``{allo}`` a tiny ALLO split, ``{bigseq}`` a longer sequence (a write that a signal
+can interrupt), ``{mesh}`` the
 package's station model, ``{baseline}`` the intact bag's MRAD metrics.
 """
 
@@ -138,7 +139,12 @@ def garbage_mesh(ws: Path, fx: dict) -> None:
 
 
 def copy_allo(ws: Path, fx: dict) -> Path:
-    return Path(shutil.copytree(fx["allo"], ws / "allo"))
+    """A copy of the ALLO split as ``{ws}/allo/ALLO/test`` (the folder names the split)."""
+    return Path(shutil.copytree(fx["allo"], ws / "allo" / "ALLO" / "test"))
+
+
+def renamed_allo(ws: Path, fx: dict) -> None:
+    copy_allo(ws, fx).rename(ws / "allo" / "ALLO" / "camera_dump")
 
 
 def truncated_allo_png(ws: Path, fx: dict) -> None:
@@ -191,8 +197,8 @@ def cli_cases() -> list[CliCase]:
         CliCase(b, "output under a file", (*WRITE, "{ws}/file/out"), "cannot create", prepare=a_file, quick=True),
         CliCase(b, "read-only folder", (*WRITE, "{locked}/out"), "Read-only", mount="ro", quick=True),
         CliCase(b, "full disk", (*WRITE, "{disk}/out"), "No space left", mount="full", disk_kb=256, quick=True),
-        CliCase(b, "SIGTERM mid-write", (*WRITE, "{ws}/out"), "interrupted", signal=signal.SIGTERM, quick=True),
-        CliCase(b, "SIGINT mid-write", (*WRITE, "{ws}/out"), "interrupted", signal=signal.SIGINT),
+        CliCase(b, "SIGTERM mid-write", ("write", "{bigseq}", "{ws}/out"), "interrupted", signal=signal.SIGTERM, quick=True),
+        CliCase(b, "SIGINT mid-write", ("write", "{bigseq}", "{ws}/out"), "interrupted", signal=signal.SIGINT),
         CliCase(b, "stale partial of a dead process", (*WRITE, "{ws}/out"), expect_error=False, prepare=stale_partial, outputs=("out",), check=no_stale_left),
         CliCase(b, "bad --storage", (*WRITE, "{ws}/out", "--storage", "zip"), "storage"),
         CliCase(b, "unknown topic role", (*WRITE, "{ws}/out", "--topic", "lens=/x"), "lens"),
@@ -258,7 +264,7 @@ def cli_cases() -> list[CliCase]:
         CliCase(b, "SIGTERM mid-evaluate", (*EVAL, "{bag}", *out), "interrupted", signal=signal.SIGTERM, signal_after_s=8.0),
         CliCase("allo-bag ablate", "report under a file", ("ablate", "{bag}", "--out", "{ws}/file/r", "--quiet", "--limit", "2"), "cannot create", prepare=a_file),
         CliCase("allo-bag ablate", "4000 bytes corrupted", ("ablate", "{ws}/bag", "--out", "{ws}/r", "--quiet"), r"topic /\S+ .*stamp", prepare=corrupted_bag),
-        CliCase("allo-bag", "no command", (), "command"),
+        CliCase("allo-bag", "no command", (), "(?i)command"),
         CliCase("allo-bag", "unknown command", ("record",), "record"),
     ]
     o = ("--out", "{ws}/seq")
@@ -275,7 +281,8 @@ def cli_cases() -> list[CliCase]:
         CliCase(s, "frames 0", ("generate", "--preset", "smoke", "--frames", "0", *o), "frames"),
         CliCase(s, "frames -1", ("generate", "--preset", "smoke", "--frames", "-1", *o), "frames"),
         CliCase(s, "unknown object type", (*SMOKE, *o, "--types", "anvil"), "anvil"),
-        CliCase(s, "output exists", (*SMOKE, "--out", "{ws}/out"), "--overwrite", prepare=existing_out),
+        CliCase(s, "output holds other files", (*SMOKE, "--out", "{ws}/out"), "not a sequence", prepare=existing_out),
+        CliCase(s, "output holds a sequence", (*SMOKE, "--out", "{ws}/seq"), "--overwrite", prepare=copy_sequence),
         CliCase(s, "SIGINT mid-generate", (*SMOKE, *o), "interrupted", signal=signal.SIGINT),
         CliCase(s, "SIGTERM mid-generate", (*SMOKE, *o), "interrupted", signal=signal.SIGTERM, quick=True),
     ]
@@ -283,17 +290,19 @@ def cli_cases() -> list[CliCase]:
     cases += [
         CliCase(i, "read-only folder", (*IMPORT, "--out", "{locked}/seq"), "Read-only", mount="ro"),
         CliCase(i, "output under a file", (*IMPORT, "--out", "{ws}/file/seq"), "cannot create", prepare=a_file),
-        CliCase(i, "truncated PNG with --validate", ("import-allo", "{ws}/allo", "--out", "{ws}/seq", "--validate", "--quiet"), r"\.png", prepare=truncated_allo_png, quick=True),
-        CliCase(i, "mask of the wrong size", ("import-allo", "{ws}/allo", "--out", "{ws}/seq", "--validate", "--quiet"), "mask", prepare=small_allo_mask),
+        CliCase(i, "truncated PNG with --validate", ("import-allo", "{ws}/allo/ALLO/test", "--out", "{ws}/seq", "--validate", "--quiet"), r"\.png", prepare=truncated_allo_png, quick=True),
+        CliCase(i, "mask of the wrong size", ("import-allo", "{ws}/allo/ALLO/test", "--out", "{ws}/seq", "--validate", "--quiet"), "mask", prepare=small_allo_mask),
         CliCase(i, "missing split folder", ("import-allo", "{ws}/nope", "--out", "{ws}/seq"), "nope"),
         CliCase(i, "split folder is a file", ("import-allo", "{ws}/file", "--out", "{ws}/seq"), "file", prepare=a_file),
         CliCase(i, "empty split folder", ("import-allo", "{ws}/empty", "--out", "{ws}/seq"), "empty", prepare=empty_folder),
-        CliCase(i, "unparsable image name", ("import-allo", "{ws}/allo", "--out", "{ws}/seq", "--quiet"), "what_is_this", prepare=badly_named_allo),
+        CliCase(i, "unparsable image name", ("import-allo", "{ws}/allo/ALLO/test", "--out", "{ws}/seq", "--quiet"), "what_is_this", prepare=badly_named_allo),
         CliCase(i, "rate 0", (*IMPORT, "--out", "{ws}/seq", "--rate-hz", "0"), "rate"),
         CliCase(i, "rate nan", (*IMPORT, "--out", "{ws}/seq", "--rate-hz", "nan"), "rate"),
-        CliCase(i, "output exists", (*IMPORT, "--out", "{ws}/out"), "--overwrite", prepare=existing_out),
+        CliCase(i, "output holds other files", (*IMPORT, "--out", "{ws}/out"), "not a sequence", prepare=existing_out),
+        CliCase(i, "output holds a sequence", (*IMPORT, "--out", "{ws}/seq"), "--overwrite", prepare=copy_sequence),
+        CliCase(i, "split not named by its folder", ("import-allo", "{ws}/allo/ALLO/camera_dump", "--out", "{ws}/seq"), "--split", prepare=renamed_allo),
         CliCase(i, "full disk with --copy", (*IMPORT, "--out", "{disk}/seq", "--copy"), "No space left", mount="full", disk_kb=48),
         CliCase(i, "SIGTERM mid-copy", (*IMPORT, "--out", "{ws}/seq", "--copy"), "interrupted", signal=signal.SIGTERM),
-        CliCase("allo-synth", "no command", (), "command"),
+        CliCase("allo-synth", "no command", (), "(?i)command"),
     ]
     return cases

@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -86,7 +87,8 @@ def run_case(case: CliCase, fixtures: dict, base: Path, mountable: bool) -> Outc
     tool = case.group.split()[0]
     if case.mount and not mountable:
         return Outcome(case.group, case.name, "clean", "skipped: no private mount namespace")
-    ws = base / case.name.replace(" ", "_").replace("/", "_")
+    # A neutral folder name: an error line must name the problem, not echo the case's name.
+    ws = base / f"case{zlib.crc32(f'{case.group}: {case.name}'.encode()):08x}"
     shutil.rmtree(ws, ignore_errors=True)
     ws.mkdir(parents=True)
     (ws / "locked").mkdir()

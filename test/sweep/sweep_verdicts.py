@@ -57,6 +57,8 @@ def error_lines(stderr: str) -> list[str]:
         in_usage = False
         if "\r" in line or re.search(r"\d+%\|", line):
             continue  # tqdm
+        if re.match(r"^[\w-]+( [\w-]+)?: skipping topic ", line):
+            continue  # allo-bag play's warning about a message type not installed here
         lines.append(line)
     return lines
 
