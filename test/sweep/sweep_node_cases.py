@@ -10,11 +10,11 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float32
+from sweep_node import IMAGE, POSE, Live, ParamCase, RunCase, StartCase
 from visualization_msgs.msg import Marker, MarkerArray
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.geometry import matrix_to_quaternion
-from sweep_node import IMAGE, POSE, Live, ParamCase, RunCase, StartCase
 
 
 def start_cases(work: Path) -> list[StartCase]:

@@ -12,7 +12,6 @@ from pathlib import Path
 import pytest
 from sweep_verdicts import CLEAN, UNCLEAR, classify_exit, error_lines
 
-
 SWEEP = Path(__file__).resolve().parent / "sweep.py"
 
 
