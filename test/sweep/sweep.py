@@ -63,7 +63,7 @@ def build_fixtures(work: Path, baseline: bool, long: bool) -> dict:
         "allo": allo,
         "mesh": share_path("meshes", "station.glb"),
         "baseline": {},
-        "bigseq": write_tiny_sequence(work / "bigseq", train=60) if long else None,
+        "bigseq": _long_sequence(work / "bigseq") if long else None,
     }
     if baseline:
         report = work / "baseline"
@@ -74,6 +74,30 @@ def build_fixtures(work: Path, baseline: bool, long: bool) -> dict:
         )
         fixtures["baseline"] = json.loads((report / "metrics.json").read_text())
     return fixtures
+
+
+def _long_sequence(root: Path, frames: int = 40) -> Path:
+    """Noise frames at 640x360: a bag write of a few seconds, for a signal to land in."""
+    import numpy as np
+
+    from allo_mrad_ros.camera import ALLO_INTRINSICS
+    from allo_mrad_ros.sequence import SequenceMeta, SequenceWriter
+
+    camera = ALLO_INTRINSICS.scaled(1.0 / 3.0)
+    rng = np.random.default_rng(0)
+    meta = SequenceMeta(name="long", camera=camera, rate_hz=10.0)
+    with SequenceWriter(root, meta) as writer:
+        for index in range(frames):
+            writer.add_frame(
+                split="test" if index % 2 else "train",
+                camera=0,
+                image=rng.integers(0, 256, (camera.height, camera.width, 3), dtype=np.uint8),
+                mask=np.ones((camera.height, camera.width), np.uint8),
+                position=[-30.0, -12.0, 6.0],
+                quaternion=[0.0, 0.0, 0.0, 1.0],
+                sun_direction=[0.6, 0.0, 0.8],
+            )
+    return root
 
 
 def selected(cases: list, quick: bool, only: str | None) -> list:
