@@ -223,20 +223,20 @@ def run_cases() -> list[RunCase]:
         RunCase("pose NaN quaternion", pose(quaternion=[nan, 0.0, 0.0, 1.0]), "errors_pose|pose_lookup_failures", "quaternion", frame_is_bad=False),
         RunCase("pose quaternion of norm 2", pose(quaternion=[0.0, 0.0, 0.0, 2.0]), accepted=True),
         RunCase("pose 1e300 m away", pose(position=[1e300, 0.0, 0.0]), "errors_.*|pose_lookup_failures", "pose|position", either=True),
-        RunCase("pose in frame 'map'", pose(frame="map"), "errors_pose|pose_lookup_failures", "map", frame_is_bad=False),
+        RunCase("pose in frame 'map'", pose(frame="map"), "errors_pose.*|pose_lookup_failures", "map", frame_is_bad=False),
         RunCase("pose 1 s off the image", pose(offset_s=1.0), "pose_lookup_failures", "no camera pose"),
         RunCase("sun NaN", sun([nan, 0.0, 1.0]), "errors_sun", "sun direction", frame_is_bad=False),
         RunCase("sun zero vector", sun([0.0, 0.0, 0.0]), "errors_sun", "sun direction", quick=True, frame_is_bad=False),
         RunCase("sun inf", sun([inf, 0.0, 0.0]), "errors_sun", "sun direction", frame_is_bad=False),
         RunCase("sun 1e300", sun([1e300, -1e300, 1e300]), accepted=True),
-        RunCase("sun in frame 'map'", sun([0.0, 0.0, 1.0], frame="map"), "errors_sun", "map", frame_is_bad=False),
+        RunCase("sun in frame 'map'", sun([0.0, 0.0, 1.0], frame="map"), "errors_sun.*", "map", frame_is_bad=False),
         RunCase("sun strength NaN", sun_strength(nan), "errors_sun", "strength", frame_is_bad=False),
         RunCase("sun strength -1", sun_strength(-1.0), "errors_sun", "strength", frame_is_bad=False),
         RunCase("sun strength inf", sun_strength(inf), "errors_sun", "strength", frame_is_bad=False),
         RunCase("body NaN centre", body(position=(nan, 0.0, 0.0)), "errors_bodies", "earth", frame_is_bad=False),
         RunCase("body negative diameter", body(diameter=-5.0), "errors_bodies", "earth", frame_is_bad=False),
         RunCase("body zero diameter", body(diameter=0.0), "errors_bodies", "earth", frame_is_bad=False),
-        RunCase("body in frame 'map'", body_in_map, "errors_bodies", "map", frame_is_bad=False),
+        RunCase("body in frame 'map'", body_in_map, "errors_bodies.*", "map", frame_is_bad=False),
     ]
 
 
