@@ -93,13 +93,13 @@ def _records(data: bytes | mmap.mmap, start: int, end: int) -> Iterator[_Record]
 
 
 def _chunk_parts(body: bytes) -> tuple[int, int, int, str, bytes]:
-    start, end, _size, crc, name_length = struct.unpack_from("<QQQII", body, 0)
+    start, end, size, crc, name_length = struct.unpack_from("<QQQII", body, 0)
     compression = body[32 : 32 + name_length].decode()
     (length,) = struct.unpack_from("<Q", body, 32 + name_length)
     records = body[40 + name_length : 40 + name_length + length]
     if compression not in DECOMPRESSORS:
         raise IntegrityError(f"chunk compression {compression!r} is not supported")
-    return start, end, crc, compression, DECOMPRESSORS[compression](records, _size)
+    return start, end, crc, compression, DECOMPRESSORS[compression](records, size)
 
 
 def _data_records(data: bytes | mmap.mmap) -> Iterator[_Record]:
@@ -114,7 +114,7 @@ def _data_records(data: bytes | mmap.mmap) -> Iterator[_Record]:
 def add_chunk_crcs(path: Path) -> None:
     """Write the CRC-32 of every chunk's uncompressed records into the closed MCAP file."""
     with _mapped(path, write=True) as data:
-        for record in list(_data_records(data)):
+        for record in _data_records(data):  # one record in memory at a time
             if record.opcode == _CHUNK:
                 _, _, _, _, records = _chunk_parts(record.body)
                 struct.pack_into("<I", data, record.offset + _CRC_OFFSET, zlib.crc32(records))
