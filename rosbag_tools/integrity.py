@@ -22,7 +22,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from rosbags.rosbag2.storage_mcap import DECOMPRESSORS
+try:  # rosbags' own chunk decompressors ('', lz4, zstd); older releases: uncompressed only
+    from rosbags.rosbag2.storage_mcap import DECOMPRESSORS
+except ImportError:  # pragma: no cover - depends on the rosbags release
+    DECOMPRESSORS = {"": lambda data, size: data}
 
 KEY_MESSAGE_CRC32 = "allo.message_crc32"
 """custom_data key: JSON ``{topic: concatenated 8-hex-digit CRC-32 of each message's CDR
