@@ -58,6 +58,7 @@ ROS_EDGE = (
     "allo_mrad_ros.ros",
     "allo_mrad_ros.demo",
     "allo_mrad_ros.benchmarks.node",
+    "allo_mrad_ros.benchmarks.flood",
     "rosbag_tools.play",
 )
 

@@ -15,6 +15,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -173,6 +174,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=2, help="command-line cases at once")
     parser.add_argument("--out", type=Path, default=REPO / "reports" / "sweep")
     args = parser.parse_args(argv)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        # Started in the background by a shell: SIGINT is ignored and the commands under test
+        # would inherit that, so a SIGINT case would test nothing. Give them the default.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     start = time.monotonic()
     outcomes = sweep(args.quick, args.only, args.jobs)
     print(table_text(outcomes))
