@@ -197,7 +197,7 @@ def cli_cases() -> list[CliCase]:
         CliCase(b, "output under a file", (*WRITE, "{ws}/file/out"), "cannot create", prepare=a_file, quick=True),
         CliCase(b, "read-only folder", (*WRITE, "{locked}/out"), "Read-only", mount="ro", quick=True),
         CliCase(b, "full disk", (*WRITE, "{disk}/out"), "No space left", mount="full", disk_kb=256, quick=True),
-        CliCase(b, "SIGTERM mid-write", ("write", "{bigseq}", "{ws}/out"), "interrupted", signal=signal.SIGTERM, quick=True),
+        CliCase(b, "SIGTERM mid-write", ("write", "{bigseq}", "{ws}/out"), "interrupted", signal=signal.SIGTERM),
         CliCase(b, "SIGINT mid-write", ("write", "{bigseq}", "{ws}/out"), "interrupted", signal=signal.SIGINT),
         CliCase(b, "stale partial of a dead process", (*WRITE, "{ws}/out"), expect_error=False, prepare=stale_partial, outputs=("out",), check=no_stale_left),
         CliCase(b, "bad --storage", (*WRITE, "{ws}/out", "--storage", "zip"), "storage"),

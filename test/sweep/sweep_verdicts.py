@@ -82,7 +82,7 @@ def classify_exit(
     if returncode is None:
         return CRASH, "hung: killed after the time limit"
     if returncode < 0:
-        return CRASH, f"killed by signal {-returncode}"
+        return CRASH, f"killed by signal {-returncode}; stderr ends: {_last_line(stderr)[-160:]}"
     if left_behind:
         return PARTIAL, ", ".join(left_behind[:4]) + (" ..." if len(left_behind) > 4 else "")
     lines = error_lines(stderr)
