@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz test-distro lint bench bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -41,6 +41,18 @@ test: lint
 # `make test` runs the same properties with a few examples each.
 fuzz: $(STAMP)
 	ALLO_FUZZ=1 $(PY) -m pytest -q -p no:cacheprovider --timeout=300 test/fuzz
+
+# The bad-input sweep of issue 13: ~180 kinds of bad input against the node (over DDS on
+# loopback), allo-bag and allo-synth (real read-only mounts, tmpfs full disks, signals);
+# prints each case's verdict and the count per verdict, writes reports/sweep/sweep.{json,md},
+# exits 1 if any case is not clean. `make test` runs its quick cases (test/sweep).
+sweep: $(STAMP)
+	$(ISOLATED) $(PY) test/sweep/sweep.py --out reports/sweep
+
+# The node under a 1080p flood at 30 Hz for 10 minutes: alive, RSS growth after the first
+# minute, /diagnostics levels while flooding and seconds to STALE after the last image.
+flood: $(STAMP)
+	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.flood --minutes 10 --rate 30 --out reports/flood.json
 
 # The distro route's Python side, without a ROS install: Python 3.10 and the NumPy 1.21 / SciPy
 # 1.8 / OpenCV 4.5 that Ubuntu 22.04 (Humble) ships, plus requirements-distro*.txt, then every

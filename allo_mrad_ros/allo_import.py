@@ -168,8 +168,8 @@ def import_allo(
         split = split_dir.resolve().name
         if split not in ALLO_SPLITS:
             raise AlloImportError(
-                f"{split_dir}: cannot tell the split from the folder name; pass split='train' "
-                "or split='test'"
+                f"{split_dir}: cannot tell the split from the folder name; give it "
+                "(--split train or --split test; split= in Python)"
             )
     poses = allo_base_poses(split)
     items = _scan(split_dir, poses, split)

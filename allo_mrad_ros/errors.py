@@ -26,3 +26,13 @@ class InvalidInput(AlloError, ValueError):
 
 class BackendError(AlloError, RuntimeError):
     """A resource the work needs failed (OpenGL, worker processes, storage)."""
+
+
+def one_line(error: BaseException) -> str:
+    """``str(error)`` on one line: YAML and OpenCV errors span several lines (a context
+    snippet, a caret), which must not break the one-line error of a command."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None)
+    if problem and mark is not None:  # a yaml.MarkedYAMLError
+        return f"{problem} (line {mark.line + 1}, column {mark.column + 1})"
+    return " ".join(str(error).split())

@@ -55,6 +55,27 @@ def remove_stale(out: Path) -> list[Path]:
     return removed
 
 
+def refuse_overlap(out: str | PathLike[str], *inputs: str | PathLike[str] | None) -> None:
+    """Refuse an output folder that is, holds or lies inside one of the inputs: putting it in
+    place would delete the data it is made from.
+
+    Raises
+    ------
+    StagingError
+        Naming the output and the input.
+    """
+    target = Path(out).resolve()
+    for source in inputs:
+        if source is None:
+            continue
+        source = Path(source).resolve()
+        if target == source or source.is_relative_to(target) or target.is_relative_to(source):
+            raise StagingError(
+                f"{out}: the output would replace or sit inside the input {source}; "
+                "choose another output folder"
+            )
+
+
 def prepare_staging(out: Path) -> Path:
     """Create (empty) the staging folder of ``out`` and its parents.
 

@@ -24,9 +24,10 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_
 from rosbags.typesys import get_typestore as _get_typestore
 from rosbags.typesys.store import Typestore
 
-from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.errors import InvalidInput, one_line
 from allo_mrad_ros.ros.messages import MessageError, image_to_array
-from rosbag_tools.bag_meta import changed_files
+from rosbag_tools.bag_meta import KEY_FILES_SHA256, changed_files
+from rosbag_tools.integrity import chunk_problem, find_damage, recorded_crcs
 from rosbag_tools.topics import DEFAULT_TOPICS, TopicError, TopicNames
 
 METADATA_FILE = "metadata.yaml"
@@ -62,7 +63,7 @@ def read_metadata(path: str | PathLike[str]) -> dict[str, Any]:
     try:
         document = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError) as error:
-        raise BagReadError(f"{meta_path}: cannot read bag metadata: {error}") from None
+        raise BagReadError(f"{meta_path}: cannot read bag metadata: {one_line(error)}") from None
     info = document.get("rosbag2_bagfile_information") if isinstance(document, dict) else None
     if not isinstance(info, dict):
         raise BagReadError(f"{meta_path}: no rosbag2_bagfile_information mapping")
@@ -192,18 +193,26 @@ def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
         raise BagReadError(f"{path}: bag not found")
     if path.is_file() and path.suffix == ".bag":
         raise BagReadError(f"{path}: ROS 1 bags are not supported, only rosbag2")
+    digests_recorded = False
     if (path / "metadata.yaml").is_file():
-        changed = changed_files(path, custom_data(path))
+        custom = custom_data(path)
+        digests_recorded = KEY_FILES_SHA256 in custom
+        changed = changed_files(path, custom)
         if changed:
-            raise BagReadError(
-                f"{path}: {', '.join(changed)} differs from the SHA-256 recorded when the bag "
-                "was written: the bag is corrupted or was modified"
-            )
+            raise BagReadError(f"{path}: {_damage(path, changed, custom)}")
     try:
         reader = Reader(path)
         reader.open()
     except (ReaderError, FileNotFoundError, OSError, KeyError, ValueError) as error:
-        raise BagReadError(f"{path}: cannot open bag: {error}") from None
+        raise BagReadError(f"{path}: cannot open bag: {one_line(error)}") from None
+    if not digests_recorded:
+        # No SHA-256 to compare (a lone .mcap, another tool's bag): check the chunk CRCs.
+        storage = [path] if path.is_file() else sorted(path.glob("*.mcap"))
+        problems = ((f, chunk_problem(f)) for f in storage if f.suffix == ".mcap")
+        damaged = next(((f, p) for f, p in problems if p), None)
+        if damaged:
+            reader.close()
+            raise BagReadError(f"{damaged[0]}: {damaged[1]}")
     try:
         try:
             typestore = _typestore(reader.connections, path)
@@ -212,6 +221,21 @@ def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
         yield BagReader(reader, typestore)
     finally:
         reader.close()
+
+
+def _damage(path: Path, changed: list[str], custom: dict[str, str]) -> str:
+    """What changed in a bag whose storage files differ from their recorded SHA-256: the
+    first damaged message (topic, index, stamp) where the per-message CRCs tell, else the
+    first damaged chunk, else the files."""
+    found = find_damage(path, changed, recorded_crcs(custom) or {})
+    for name in changed:
+        if found is None and (path / name).suffix == ".mcap" and (path / name).is_file():
+            problem = chunk_problem(path / name)
+            found = f"{name}: {problem}" if problem else None
+    return found or (
+        f"{', '.join(changed)} differs from the SHA-256 recorded when the bag was written: "
+        "the bag is corrupted or was modified"
+    )
 
 
 def image_array(message: Any, topic: str) -> np.ndarray:

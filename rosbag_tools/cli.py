@@ -19,7 +19,12 @@ from allo_mrad_ros.detector import PROFILES
 from allo_mrad_ros.errors import AlloError, InvalidInput
 from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
-from allo_mrad_ros.staging import sigterm_as_interrupt, staged_folder
+from allo_mrad_ros.staging import (
+    refuse_overlap,
+    sigterm_as_interrupt,
+    staged_folder,
+    staging_path,
+)
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
 
@@ -223,6 +228,7 @@ def _evaluate(args: argparse.Namespace) -> str:
         overlays=args.overlays,
         progress=not args.quiet,
     )
+    refuse_overlap(args.out, args.input, args.mesh)
     result = evaluate(_source(args), config)
     with staged_folder(args.out) as staging:
         write_evaluation_report(result, staging)
@@ -237,6 +243,7 @@ def _ablate(args: argparse.Namespace) -> str:
     from allo_mrad_ros.evaluation.ablate import ablate
     from allo_mrad_ros.evaluation.report import ablation_markdown, write_ablation_report
 
+    refuse_overlap(args.out, args.input, args.mesh)
     result = ablate(
         _source(args),
         config=pipeline_config(args),
@@ -278,7 +285,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (CliError, TopicError) as error:
         parser.error(str(error))
     except AlloError as error:
-        print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
+        message = str(error)
+        out = getattr(args, "out", None)
+        if out is not None:  # name the folder asked for, not the hidden one it was built in
+            message = message.replace(str(staging_path(out)), str(out))
+        print(f"{PROG} {args.command}: error: {message}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"{PROG} {args.command}: interrupted", file=sys.stderr)

@@ -165,6 +165,7 @@ def play_bag(
         import rclpy
         from rclpy import qos as rclpy_qos
         from rclpy.serialization import deserialize_message
+        from rclpy.signals import SignalHandlerOptions
     except ImportError as error:
         raise PlayError(
             f"rclpy is not available ({error}); install ROS 2 or the PyPI wheels "
@@ -174,7 +175,9 @@ def play_bag(
     stop = stop or threading.Event()
     summary = PlaySummary()
     context = rclpy.Context()
-    rclpy.init(context=context)
+    # Python's own SIGINT (and the command's SIGTERM) handling stops the loop; rclpy's
+    # handlers would only shut the context down and leave the loop publishing.
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = rclpy.create_node(node_name, context=context)
         try:

@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
-from allo_mrad_ros.staging import StagingError, prepare_staging, put_in_place
+from allo_mrad_ros.staging import StagingError, prepare_staging, put_in_place, refuse_overlap
 from rosbag_tools.bag_meta import (
     BAG_FORMAT,
     KEY_FORMAT,
@@ -44,6 +44,7 @@ from rosbag_tools.bag_meta import (
     encode_splits,
     file_sha256,
 )
+from rosbag_tools.integrity import KEY_MESSAGE_CRC32, MessageDigests, add_chunk_crcs
 from rosbag_tools.message_factory import MessageFactory
 from rosbag_tools.topics import (
     CAMERA_INFO,
@@ -254,6 +255,10 @@ def write_bag(
     if out.exists() and not overwrite:
         raise BagWriteError(f"{out}: output exists already; pass --overwrite to replace it")
     try:
+        refuse_overlap(out, sequence.root if isinstance(sequence, Sequence) else sequence)
+    except StagingError as error:
+        raise BagWriteError(str(error)) from None
+    try:
         if not isinstance(sequence, Sequence):
             sequence = read_sequence(sequence, check_images=True)
         frames = _select(sequence, splits)
@@ -279,6 +284,8 @@ def write_bag(
             progress=progress,
             final=out,
         )
+        for storage_file in (staging / out.name).glob("*.mcap"):
+            add_chunk_crcs(storage_file)
         add_file_digests(staging / out.name)
         put_in_place(staging / out.name, out)
     except (SequenceError, TopicError, StagingError) as error:
@@ -316,6 +323,7 @@ def _write(
     writer = Writer(path, version=DISTROS[distro][1], storage_plugin=STORAGES[storage])
     for key, value in _custom_data(sequence, frames, topics, final).items():
         writer.set_custom_data(key, value)
+    digests = MessageDigests()
     with writer:
         typestore = factory.typestore
         plan = [
@@ -343,10 +351,14 @@ def _write(
             message = factory.tf_message(
                 first, static_parent, sequence.meta.station_frame, (0, 0, 0), (0, 0, 0, 1)
             )
-            writer.write(static, first, factory.serialize(message, TF_MESSAGE))
+            data = factory.serialize(message, TF_MESSAGE)
+            writer.write(static, first, data)
+            digests.add(topics.tf_static, data)
             counts[topics.tf_static] = 1
         encoder = _FrameEncoder(sequence, topics, factory)
         for frame in tqdm(frames, desc="write", unit="frame", disable=not progress):
             for topic, _, data in encoder.encode(frame):
                 writer.write(connections[topic], frame.stamp_ns, data)
+                digests.add(topic, data)
                 counts[topic] = counts.get(topic, 0) + 1
+        writer.set_custom_data(KEY_MESSAGE_CRC32, digests.custom_data())

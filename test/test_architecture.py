@@ -59,6 +59,7 @@ ROS_EDGE = (
     "allo_mrad_ros.demo",
     "allo_mrad_ros.benchmarks.node",
     "allo_mrad_ros.benchmarks.node_profile",
+    "allo_mrad_ros.benchmarks.flood",
     "rosbag_tools.play",
 )
 

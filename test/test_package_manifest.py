@@ -18,7 +18,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 KEYS_FILE = ROOT / "test" / "data" / "rosdep_keys.txt"
 RUNTIME_TREES = ("allo_mrad_ros", "rosbag_tools", "launch")
-FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools", "mrad_oracle", "rosbag_fixtures", "conftest"}
+# The packages, plus the tests' own helper modules (test/**/*.py that are not tests).
+FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools"} | {
+    path.stem for path in (ROOT / "test").rglob("*.py") if not path.stem.startswith("test_")
+}
 
 # Import name -> the package.xml key that provides it on a distro, or the requirement name in
 # requirements-distro*.txt (the pip part of the distro route) for modules rosdep has no key for.

@@ -60,10 +60,12 @@ from allo_mrad_ros.ros.parameters import (
     NodeConfig,
     NodeParameter,
     ParameterError,
+    check_params_files,
     command_line_parameters,
     detector_parameters,
     node_config_from,
     node_parameters,
+    unknown_parameters,
     validate,
 )
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
@@ -194,6 +196,10 @@ class MradDetectorNode(Node):
                 problems.append(str(error))
         if problems:
             raise ParameterError("invalid parameter value: " + "; ".join(dict.fromkeys(problems)))
+        # A misspelt parameter would otherwise be ignored without a word (rclpy's rule).
+        given = {*self._parameter_overrides, *self._command_line}
+        for warning in unknown_parameters(given, self._declared):
+            self.get_logger().warning(warning)
         return values
 
     def _on_set_parameters(self, parameters: list) -> SetParametersResult:
@@ -367,10 +373,16 @@ class MradDetectorNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the node until shutdown (``ros2 run allo_mrad_ros mrad_detector``)."""
-    rclpy.init(args=argv if argv is not None else sys.argv)
+    arguments = argv if argv is not None else sys.argv
+    try:
+        check_params_files(arguments)
+    except ParameterError as error:
+        print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETER
+    rclpy.init(args=arguments)
     node = None
     try:
-        node = MradDetectorNode(command_line_parameters(argv if argv is not None else sys.argv))
+        node = MradDetectorNode(command_line_parameters(arguments))
         rclpy.spin(node)
     except ParameterError as error:
         print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)

@@ -9,8 +9,10 @@ validate with one rule set.
 from __future__ import annotations
 
 import array
-from collections.abc import Sequence
+import difflib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,7 +20,7 @@ import yaml
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
-from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.errors import InvalidInput, one_line
 from allo_mrad_ros.geometry import unit_vector
 from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, coerce_value
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
@@ -221,6 +223,49 @@ def command_line_parameters(argv: Sequence[str]) -> dict[str, Any]:
     return found
 
 
+def unknown_parameters(given: Iterable[str], declared: Iterable[str]) -> list[str]:
+    """One warning per name in ``given`` that is not a parameter of the node, with the
+    closest declared name as a hint (``use_sim_time`` and QoS overrides are rclpy's own)."""
+    declared = list(declared)
+    warnings = []
+    for name in sorted(set(given) - set(declared)):
+        if name == "use_sim_time" or name.startswith("qos_overrides."):
+            continue
+        close = difflib.get_close_matches(name, declared, n=1)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        warnings.append(f"unknown parameter {name} ignored{hint}")
+    return warnings
+
+
+def check_params_files(argv: Sequence[str]) -> None:
+    """Check the ``--params-file`` files of ``--ros-args`` before rcl parses them.
+
+    rcl reports a missing or malformed file with a log line of its own and an exception
+    carrying C source positions; this says it in one line.
+
+    Raises
+    ------
+    ParameterError
+        Naming the file and the problem.
+    """
+    arguments = list(argv)
+    for index, argument in enumerate(arguments[:-1]):
+        if argument != "--params-file":
+            continue
+        path = Path(arguments[index + 1])
+        try:
+            document = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except OSError as error:
+            raise ParameterError(f"params file {path}: {error.strerror}") from None
+        except yaml.YAMLError as error:
+            raise ParameterError(f"params file {path}: invalid YAML: {one_line(error)}") from None
+        if not isinstance(document, dict):
+            raise ParameterError(
+                f"params file {path}: must map node names to ros__parameters, got "
+                f"{type(document).__name__}"
+            )
+
+
 def detector_params_from(values: dict[str, Any]) -> MradParams:
     """Build validated :class:`MradParams` from ``mrad.*`` parameter values."""
     fields = {
@@ -260,6 +305,9 @@ class NodeConfig:
 
 def node_config_from(values: dict[str, Any]) -> NodeConfig:
     """A :class:`NodeConfig` from validated parameter values (raises ValueError)."""
+    if values["mesh"] and not Path(values["mesh"]).is_file():
+        # Checked here, at start: else the node would run and report it per camera_info.
+        raise ParameterError(f"mesh must be an existing model file, got {values['mesh']!r}")
     render = RenderSettings(
         reference_scale=values["reference_scale"],
         shadows=values["shadows"],

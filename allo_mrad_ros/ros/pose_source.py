@@ -143,7 +143,8 @@ class PoseSource:
         """The pose at ``header``'s stamp, or None.
 
         TF: waits up to ``tf_timeout_s`` for the transform. Topic: the pose stamped within
-        ``tolerance_s``, waiting up to as long for it to arrive.
+        ``tolerance_s``, waiting up to ``tf_timeout_s`` (at least ``tolerance_s``) for it to
+        arrive: on a loaded machine the pose callback can run well after the image's.
         """
         if self.kind == "tf":
             return self._transform(
@@ -152,7 +153,7 @@ class PoseSource:
         stamp_ns = messages.stamp_to_ns(header.stamp)
         # Topics arrive in no guaranteed order: give the pose of this stamp a moment,
         # as tf2's lookup with a timeout does.
-        deadline = time.monotonic() + tolerance_s
+        deadline = time.monotonic() + max(tolerance_s, tf_timeout_s)
         pose = self._poses.nearest(stamp_ns, int(tolerance_s * 1e9))
         while pose is None and time.monotonic() < deadline:
             time.sleep(0.002)

@@ -10,6 +10,7 @@ import yaml
 
 from .. import interface
 from ..camera import CameraIntrinsics
+from ..errors import one_line
 from .model import FORMAT_V1, SequenceError, SequenceMeta, read_text
 from .png import write_atomic
 
@@ -61,7 +62,7 @@ def read_meta(path: Path) -> SequenceMeta:
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
-        raise SequenceError(f"invalid YAML: {error}", file=path, line=line) from None
+        raise SequenceError(f"invalid YAML: {one_line(error)}", file=path, line=line) from None
     if not isinstance(data, dict):
         raise SequenceError("must be a YAML mapping", file=path, line=1)
     lines = _key_lines(node)

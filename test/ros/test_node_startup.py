@@ -53,6 +53,50 @@ def test_command_line_value_is_checked_even_where_a_params_file_sets_it(tmp_path
     assert "mrad.grid must be a number, got 'abc'" in done.stderr
 
 
+def test_a_missing_mesh_file_refuses_to_start_in_one_line():
+    done = run_node("-p", "pose_source:=topic", "-p", "mesh:=/nonexistent/station.glb")
+    assert done.returncode == EXIT_INVALID_PARAMETER, done.stderr
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "mesh must be an existing model file" in lines[0], done.stderr
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [(None, "No such file or directory"), ("/**:\n  ros__parameters: [x\n", "invalid YAML")],
+)
+def test_a_missing_or_malformed_params_file_is_one_line(tmp_path, content, expected):
+    params = tmp_path / "params.yaml"
+    if content is not None:
+        params.write_text(content)
+    done = run_node("--params-file", str(params))
+    assert done.returncode == EXIT_INVALID_PARAMETER, done.stderr
+    assert "Traceback" not in done.stderr and "[rcl]" not in done.stderr
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"params file {params}: {expected}" in lines[0], done.stderr
+
+
+def test_an_unknown_parameter_name_is_warned_about_with_the_closest_name(capfd):
+    from allo_mrad_ros.ros.parameters import unknown_parameters
+
+    declared = ["mrad.grid", "reference_scale", "pose_source"]
+    given = ["mrad.gird", "use_sim_time", "qos_overrides./x.subscription.depth", "mrad.grid"]
+    assert unknown_parameters(given, declared) == [
+        "unknown parameter mrad.gird ignored; did you mean mrad.grid?"
+    ]
+    rclpy.init()
+    try:
+        node = MradDetectorNode(
+            parameter_overrides=[
+                Parameter("pose_source", value="topic"),
+                Parameter("mrad.gird", value=4),
+            ]
+        )
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+    assert "unknown parameter mrad.gird ignored; did you mean mrad.grid?" in capfd.readouterr().err
+
+
 def test_command_line_parameters_are_read_as_yaml_from_ros_args_only():
     argv = ["node", "-p", "x:=1", "--ros-args", "-p", "a:=2", "--param", "b:=[1, 2.5]", "--"]
     assert command_line_parameters(argv) == {"a": 2, "b": [1, 2.5]}

@@ -126,3 +126,20 @@ def test_tf_lookup_waits_tf_timeout_s_not_pose_tolerance_s(node, monkeypatch):
     pose = poses.lookup(header, 0.05, 0.75)
     assert pose is not None and pose[0, 3] == 10.0
     assert tf.calls[-1] == ("station", "arm_camera_optical", 0.75)
+
+
+def test_a_topic_pose_arriving_after_the_image_is_waited_for_up_to_tf_timeout_s(node):
+    # On a loaded machine the pose callback may run well after the image's (issue 13 flood).
+    import threading
+
+    poses = source(node, "topic", [])
+    late = threading.Timer(0.2, poses._on_pose, [pose_msg("station", 1.0)])
+    late.start()
+    try:
+        pose = poses.lookup(pose_msg("", 0).header, 0.01, 5.0)
+    finally:
+        late.join()
+    assert pose is not None and pose[0, 3] == 1.0
+    elsewhere = Header()
+    elsewhere.stamp.sec = 100
+    assert poses.lookup(elsewhere, 0.01, 0.0) is None  # no pose near this stamp

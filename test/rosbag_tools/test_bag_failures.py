@@ -160,12 +160,84 @@ def corrupt_middle(bag: Path, copy: Path) -> Path:
     return copy
 
 
-@pytest.mark.parametrize("command", ["info", "evaluate"])
-def test_a_corrupted_bag_is_refused_not_evaluated(bag, tmp_path, command):
+def damaged_message(bag: Path) -> tuple[str, int]:
+    """Topic and stamp of the message holding the middle byte of the bag's storage file."""
+    from rosbag_tools.integrity import _stored_messages
+
+    (storage,) = bag.glob("*.mcap")
+    middle = storage.stat().st_size // 2
+    data = storage.read_bytes()
+    for topic, stamp, payload in _stored_messages(storage):
+        start = data.find(payload)
+        if start <= middle < start + len(payload):
+            return topic, stamp
+    raise AssertionError("no message holds the middle byte")
+
+
+@pytest.mark.parametrize("command", ["info", "play", "evaluate"])
+def test_a_corrupted_bag_is_refused_naming_the_topic_and_stamp(bag, tmp_path, command):
     broken = corrupt_middle(bag, tmp_path / "broken")
-    extra = ["--out", str(tmp_path / "r"), "--quiet"] if command == "evaluate" else []
-    done = allo_bag(command, str(broken), *extra)
-    one_clean_line(done, "differs from the SHA-256 recorded when the bag was written")
+    topic, stamp = damaged_message(bag)
+    extra = {"evaluate": ["--out", str(tmp_path / "r"), "--quiet"], "play": ["--delay", "0"]}
+    done = allo_bag(command, str(broken), *extra.get(command, []))
+    one_clean_line(done, f"topic {topic}, message ")
+    assert f"at stamp {stamp} ns" in done.stderr
+    assert "CRC-32 recorded when the bag was written" in done.stderr
+
+
+def test_a_lone_corrupted_mcap_fails_its_chunk_crc(bag, tmp_path):
+    # Copied without metadata.yaml: no SHA-256, but allo-bag write filled the MCAP chunk CRCs.
+    import shutil
+
+    (storage,) = bag.glob("*.mcap")
+    lone = tmp_path / "lone.mcap"
+    shutil.copy(storage, lone)
+    assert allo_bag("info", str(lone)).returncode == 0
+    data = bytearray(lone.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 4000] = np.random.default_rng(0).bytes(4000)
+    lone.write_bytes(bytes(data))
+    done = allo_bag("evaluate", str(lone), "--out", str(tmp_path / "r"), "--quiet")
+    one_clean_line(done, "fails its CRC-32 check: the bag is corrupted")
+    assert "/arm_camera/image_raw" in done.stderr and " ns" in done.stderr
+    assert not (tmp_path / "r").exists()
+
+
+def test_chunk_crcs_are_what_other_mcap_readers_check(bag):
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    (storage,) = bag.glob("*.mcap")
+    reader = McapReader(storage)
+    reader.open()
+    try:
+        crcs = []
+        with storage.open("rb") as stream:
+            for chunk in reader.chunks:
+                stream.seek(chunk.chunk_start_offset + 9 + 24)
+                crcs.append(int.from_bytes(stream.read(4), "little"))
+        assert crcs and all(crcs)
+        assert sum(1 for _ in reader.messages(reader.connections)) > 0  # rosbags checks them
+    finally:
+        reader.close()
+
+
+def test_a_bag_over_its_own_sequence_is_refused_and_the_sequence_kept(sequence, tmp_path):
+    import shutil
+
+    copy = Path(shutil.copytree(sequence, tmp_path / "seq"))
+    done = allo_bag("write", str(copy), str(copy), "--overwrite")
+    one_clean_line(done, "would replace or sit inside the input")
+    assert (copy / "frames.csv").is_file() and not list(copy.glob("*.mcap"))
+    done = allo_bag("evaluate", str(copy), "--out", str(copy / "report"), "--quiet")
+    one_clean_line(done, "would replace or sit inside the input")
+
+
+def test_garbage_bag_metadata_is_one_line(bag, tmp_path):
+    import shutil
+
+    copy = Path(shutil.copytree(bag, tmp_path / "bag"))
+    (copy / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
+    one_clean_line(allo_bag("info", str(copy)), "metadata.yaml: cannot read bag metadata")
 
 
 def test_a_mask_with_values_outside_the_labels_names_topic_and_stamp(

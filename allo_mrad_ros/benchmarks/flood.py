@@ -1,0 +1,146 @@
+"""Flood of the running ``mrad_detector`` node: full-HD frames at 30 Hz for minutes (issue 13).
+
+The node runs as its own process with its default parameters; a camera feed in this process
+publishes rendered 1920x1080 frames, poses and the Sun at ``--rate`` Hz for ``--minutes``,
+then stops. Reports whether the node stayed alive, its resident memory after the first minute
+and at the end (growth target <= 5 %), and how honest ``/diagnostics`` was: the level of every
+status received while frames flowed (OK expected), and how long after the last image the
+status said STALE (target <= 3 s). The machine's load average is printed with the figures:
+on a shared machine the node processes fewer frames, not different ones.
+
+Usage: ``python -m allo_mrad_ros.benchmarks.flood --minutes 10 --out reports/flood.json``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from allo_mrad_ros.benchmarks import finish, machine_facts
+from allo_mrad_ros.benchmarks.node import SUN, _frames, _node_session
+from allo_mrad_ros.ros.messages import stamp_to_ns
+
+LEVELS = {
+    DiagnosticStatus.OK: "OK",
+    DiagnosticStatus.WARN: "WARN",
+    DiagnosticStatus.ERROR: "ERROR",
+    DiagnosticStatus.STALE: "STALE",
+}
+# Statuses in the first seconds describe the start (no frame processed yet), not the flood.
+WARM_UP_S = 10.0
+
+
+def flood(minutes: float, rate_hz: float, log_path: Path) -> dict:
+    """Drive the node for ``minutes`` at ``rate_hz``, then stop and watch it go STALE."""
+    pose, images = _frames()
+    duration = 60.0 * minutes
+    with _node_session(log_path, {}) as (feed, node):
+        warm = time.monotonic()
+        while not feed.arrival["mask"] and time.monotonic() - warm < 120.0:
+            feed.publish_frame(time.time_ns(), images[0], pose, SUN)
+            feed.spin(0.5)
+        feed.arrival["mask"].clear()
+        feed.diagnostics.clear()
+        published = 0
+        rss: list[tuple[float, float]] = []
+        load_start = os.getloadavg()
+        wall_start = time.time()
+        start = time.monotonic()
+        next_frame = start
+        next_sample = start
+        while time.monotonic() - start < duration:
+            now = time.monotonic()
+            if now >= next_frame:
+                feed.publish_frame(time.time_ns(), images[published % 2], pose, SUN)
+                published += 1
+                next_frame += 1.0 / rate_hz
+                if next_frame < now - 1.0:  # a stall of this process: do not burst after it
+                    next_frame = now
+            if now >= next_sample:
+                rss.append((now - start, node.memory_info().rss / 2**20))
+                next_sample += 5.0
+            rclpy.spin_once(feed.node, timeout_sec=0.002)
+        last_image = time.monotonic()
+        load_end = os.getloadavg()
+        settled = wall_start + WARM_UP_S
+        during = [
+            (msg.status[0].level, msg.status[0].message)
+            for msg in feed.diagnostics
+            if len(msg.status) and stamp_to_ns(msg.header.stamp) / 1e9 >= settled
+        ]
+        statuses_at_stop = len(feed.diagnostics)
+        stale_after = None
+        while time.monotonic() - last_image < 15.0:
+            feed.spin(0.05)
+            fresh = feed.diagnostics[statuses_at_stop:]
+            if any(m.status[0].level == DiagnosticStatus.STALE for m in fresh):
+                stale_after = time.monotonic() - last_image
+                break
+        alive = node.is_running()
+        rss_end = node.memory_info().rss / 2**20
+    times = sorted(feed.arrival["mask"].values())
+    levels = Counter(LEVELS.get(level, str(level)) for level, _ in during)
+    not_ok = Counter(message for level, message in during if level != DiagnosticStatus.OK)
+    after_first_minute = next((mb for t, mb in rss if t >= 60.0), rss[-1][1] if rss else None)
+    return {
+        "image": f"{images[0].shape[1]}x{images[0].shape[0]}",
+        "input_rate_hz": rate_hz,
+        "minutes": minutes,
+        "frames_published": published,
+        "frames_processed": len(times),
+        "output_rate_hz": (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0,
+        "node_alive_at_end": alive,
+        "rss_mb_after_first_minute": after_first_minute,
+        "rss_mb_end": rss_end,
+        "rss_growth_percent": 100.0 * (rss_end / after_first_minute - 1)
+        if after_first_minute
+        else None,
+        "rss_mb_samples": rss,
+        "diagnostics_levels_while_flooding": dict(levels),
+        "diagnostics_not_ok_messages": dict(not_ok.most_common(5)),
+        "stale_seconds_after_last_image": stale_after,
+        "load_average_start": load_start,
+        "load_average_end": load_end,
+        **machine_facts(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--minutes", type=float, default=10.0, help="flood duration")
+    parser.add_argument("--rate", type=float, default=30.0, help="input frame rate, Hz")
+    parser.add_argument("--out", type=Path, default=Path("reports/flood.json"))
+    args = parser.parse_args(argv)
+    log = Path(tempfile.mkdtemp(prefix="flood_")) / "node.log"
+    report = flood(args.minutes, args.rate, log)
+    growth = report["rss_growth_percent"]
+    stale = report["stale_seconds_after_last_image"]
+    print(
+        f"mrad_detector at {report['image']}, input {args.rate:g} Hz for {args.minutes:g} min, "
+        f"default parameters; load average {report['load_average_start'][0]:.1f} at start, "
+        f"{report['load_average_end'][0]:.1f} at end ({report['cpu_count']} CPUs)\n"
+        f"frames published {report['frames_published']}, processed "
+        f"{report['frames_processed']} ({report['output_rate_hz']:.2f} frames/s)\n"
+        f"node alive at the end: {report['node_alive_at_end']}\n"
+        f"resident memory: {report['rss_mb_after_first_minute']:.0f} MB after the first "
+        f"minute, {report['rss_mb_end']:.0f} MB at the end ({growth:+.1f} %)\n"
+        f"/diagnostics while flooding (after {WARM_UP_S:g} s): "
+        f"{report['diagnostics_levels_while_flooding']}; not OK: "
+        f"{report['diagnostics_not_ok_messages'] or 'none'}\n"
+        f"STALE {'never' if stale is None else f'{stale:.1f} s'} after the last image\n"
+        f"node log: {log}"
+    )
+    return finish(args.out, report)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
