@@ -19,7 +19,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from sklearn.metrics import roc_auc_score
 from tqdm import tqdm
 
 from allo_mrad_ros.benchmarks import finish
@@ -28,6 +27,7 @@ from allo_mrad_ros.benchmarks.tradeoff import Sweep, _split
 from allo_mrad_ros.benchmarks.tradeoff_settings import render_settings
 from allo_mrad_ros.detector import DetectionResult, MradParams, detect, profile
 from allo_mrad_ros.detector.pipeline import image_score
+from allo_mrad_ros.metrics import roc_auc
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
 
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     labels = np.array([frame.is_anomalous for frame in frames])
     table = {
         candidate: {
-            name: float(roc_auc_score(labels, [row[candidate] for row in rows]))
+            name: roc_auc(np.array([row[candidate] for row in rows], dtype=float), labels)
             for name, rows in scores.items()
         }
         for candidate in scores["none"][0]
