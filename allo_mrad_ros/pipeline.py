@@ -249,9 +249,11 @@ class Pipeline:
         # What the methods run with when no one reads the score map (see detect()). The
         # map_top image score is taken from the map, so then the map is made anyway.
         params = config.params
-        map_unread = params.pixel_score == UNREAD_PIXEL_SCORE or params.image_score == "map_top"
+        map_needed = params.image_score == "map_top"
         self._params_without_map = (
-            params if map_unread else params.replace(pixel_score=UNREAD_PIXEL_SCORE)
+            params
+            if map_needed or params.pixel_score == UNREAD_PIXEL_SCORE
+            else params.replace(pixel_score=UNREAD_PIXEL_SCORE)
         )
 
     @property

@@ -61,19 +61,9 @@ def cross_score(
 ) -> np.ndarray:
     """Return the cross RXD score of every query pixel against its reference cell.
 
-    Parameters
-    ----------
-    query, reference : numpy.ndarray
-        Validated H x W x 3 images with the same aspect ratio (any resolutions).
-    grid : int
-        Cells per side.
-    abs_floor, rel_floor : float
-        Covariance regularisation (see :func:`regularised_precision`).
-    photometric : {"none", "cell_affine"}
-        ``cell_affine`` first maps each reference cell's statistics through the gain and
-        offset fitted by :func:`~allo_mrad_ros.detector.photometric.fit_cell_affine`.
-    max_gain : float
-        Gain limit of the ``cell_affine`` fit.
+    The one-model form of :func:`cross_scores` (same parameters, ``photometric`` one of
+    its models): ``cell_affine`` first maps each reference cell's statistics through the
+    gain and offset fitted by :func:`~allo_mrad_ros.detector.photometric.fit_cell_affine`.
 
     Returns
     -------

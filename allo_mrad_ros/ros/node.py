@@ -9,9 +9,8 @@ One place per concern:
   images, :class:`.buffers.StampedBuffer` for poses and Sun directions), so inputs never
   wait for processing;
 * :class:`.pose_source.PoseSource` looks the camera pose up (TF or topic);
-* :class:`.worker.ProcessingWorker` owns the OpenGL renderer (on its render thread) and an
-  immutable :class:`~allo_mrad_ros.pipeline.Pipeline`, swapped on a parameter change; it
-  renders frame n+1 while its detect thread detects and publishes frame n;
+* :class:`.worker.ProcessingWorker` renders (its render thread owns OpenGL) frame n+1 while
+  its detect thread detects and publishes frame n with an immutable, swappable ``Pipeline``;
 * :class:`.diagnostics.Diagnostics` counts and publishes ``/diagnostics``.
 
 Topic names come from :mod:`allo_mrad_ros.interface`.
