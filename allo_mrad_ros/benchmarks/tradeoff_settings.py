@@ -96,6 +96,7 @@ def sweep_settings(base: MradParams) -> list[Setting]:
         Setting("cell_affine, score_sigma 0", eighth, affine.replace(score_sigma=0.0)),
         Setting("cell_affine, score_sigma 2", eighth, affine.replace(score_sigma=2.0)),
         Setting("cell_affine, query 1", eighth, affine.replace(process_scale=1.0)),
+        Setting("cell_affine, query 1/2", eighth, affine.replace(process_scale=0.5)),
         Setting("cell_affine, query 1/4", eighth, affine.replace(process_scale=0.25)),
         Setting("cell_affine, ref 1/4", render_settings(0.25), affine),
         Setting("cell_affine, ref 1/8 no shadows", eighth_flat, affine),

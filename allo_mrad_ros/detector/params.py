@@ -117,7 +117,7 @@ class MradParams:
     rel_floor: float = 1e-3
     connectivity: int = 8
     area_threshold: float = 0.001
-    process_scale: float = 0.5
+    process_scale: float = 0.25
     pixel_score: PixelScore = "continuous"
     score_sigma: float = 1.0
     growth: Growth = "hysteresis"

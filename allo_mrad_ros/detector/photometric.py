@@ -15,12 +15,13 @@ local) and fits its offset under that gain.
 
 from __future__ import annotations
 
-import cv2
+from functools import lru_cache
+
 import numpy as np
 from scipy.ndimage import median_filter
 
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
-from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.images import area_downscale, to_float32
 
 QUANTILES = np.linspace(0.1, 0.9, 9)
 SATURATED = 250.0
@@ -64,27 +65,37 @@ def cell_quantiles(image: np.ndarray, grid: int) -> np.ndarray:
 
 
 def _quantiles_uint8(image: np.ndarray, grid: int) -> np.ndarray:
-    height, width = image.shape[:2]
+    # One histogram per (cell, channel) from a single bincount, then each quantile's order
+    # statistics by one sorted search over all histograms' cumulative counts.
+    histograms = grid * grid * 3
+    counts = np.bincount(
+        (_histogram_base(image.shape[0], image.shape[1], grid) + image).ravel(),
+        minlength=histograms * 256,
+    )
+    cdf = np.cumsum(counts.reshape(histograms, 256), axis=1)
+    total = cdf[:, -1:]
+    position = QUANTILES[None, :] * (total - 1)
+    low = np.floor(position)
+    high = np.minimum(low + 1, total - 1)
+    # The value of order statistic r is the number of levels whose cdf is <= r: each
+    # histogram's cdf is lifted above the previous one's so one search serves them all.
+    lift = np.arange(histograms)[:, None] * (int(total.max()) + 1)
+    lifted = (cdf + lift).ravel()
+    level_base = np.arange(histograms)[:, None] * 256
+    below = np.searchsorted(lifted, (low + lift).astype(np.int64), side="right") - level_base
+    above = np.searchsorted(lifted, (high + lift).astype(np.int64), side="right") - level_base
+    return (below + (position - low) * (above - below)).reshape(grid * grid, 3, QUANTILES.size)
+
+
+@lru_cache(maxsize=8)
+def _histogram_base(height: int, width: int, grid: int) -> np.ndarray:
+    # Bin offset of each pixel's (cell, channel) histogram; the pixel value is added to it.
     rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
     cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
-    labels = (rows[:, None] * grid + cols[None, :]).astype(np.int64) * 256
-    cells = grid * grid
-    out = np.empty((cells, 3, QUANTILES.size))
-    for channel in range(3):
-        counts = np.bincount((labels + image[:, :, channel]).ravel(), minlength=cells * 256)
-        cdf = np.cumsum(counts.reshape(cells, 256), axis=1)
-        position = QUANTILES[None, :] * (cdf[:, -1:] - 1)
-        low = np.floor(position)
-        high = np.minimum(low + 1, cdf[:, -1:] - 1)
-        # The value of order statistic r is the number of levels whose cdf is <= r: one
-        # sorted search over all cells, each cell's cdf lifted above the previous one's.
-        lift = np.arange(cells)[:, None] * (int(cdf[:, -1].max()) + 1)
-        lifted = (cdf + lift).ravel()
-        level_base = np.arange(cells)[:, None] * 256
-        below = np.searchsorted(lifted, low + lift, side="right") - level_base
-        above = np.searchsorted(lifted, high + lift, side="right") - level_base
-        out[:, channel] = below + (position - low) * (above - below)
-    return out
+    cells = rows[:, None] * grid + cols[None, :]
+    base = (cells[:, :, None] * 768 + 256 * np.arange(3)).astype(np.intp)
+    base.flags.writeable = False
+    return base
 
 
 def fit_cell_affine(
@@ -188,7 +199,7 @@ def _same_size(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np
     hq, wq = query.shape[:2]
     hr, wr = reference.shape[:2]
     if hq * wq > hr * wr:
-        return cv2.resize(query, (wr, hr), interpolation=cv2.INTER_AREA), reference
+        return area_downscale(query, (wr, hr)), reference
     if hr * wr > hq * wq:
-        return query, cv2.resize(reference, (wq, hq), interpolation=cv2.INTER_AREA)
+        return query, area_downscale(reference, (wq, hq))
     return query, reference

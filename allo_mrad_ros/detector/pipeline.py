@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.images import check_aspect, check_image
+from allo_mrad_ros.detector.images import area_downscale, check_aspect, check_image
 from allo_mrad_ros.detector.params import MradParams
 from allo_mrad_ros.detector.postprocess import (
     blur_scores,
@@ -269,8 +269,7 @@ def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:
     if scale == 1.0:
         return query
     height, width = query.shape[:2]
-    size = (max(1, round(width * scale)), max(1, round(height * scale)))
-    return cv2.resize(query, size, interpolation=cv2.INTER_AREA)
+    return area_downscale(query, (max(1, round(width * scale)), max(1, round(height * scale))))
 
 
 def _restore_resolution(

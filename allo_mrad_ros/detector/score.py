@@ -4,7 +4,7 @@ Per cell, ``(x-mu0)^T P0 (x-mu0) - (x-mu1)^T P1 (x-mu1)`` is one quadratic form 
 It is evaluated around the query mean in the eigenbasis of ``A = P0 - P1``:
 ``sum_i l_i y_i^2 + m . y + k`` with ``y = V^T (x - mu1)``. The coefficients are computed
 in float64 (so equal statistics cancel exactly to ``A = 0``), the per-pixel evaluation is
-two OpenCV colour transforms in float32.
+a few OpenCV channel transforms in float32.
 
 :func:`cross_scores` scores one query under several photometric models at once: the cell
 statistics and the photometric fit are computed once and every model's per-pixel work is
@@ -203,19 +203,27 @@ def quadratic_coefficients(
 
 
 def _evaluate(image: np.ndarray, grid: int, models: Sequence[CellModels]) -> list[np.ndarray]:
+    # Per cell and model the score is sum_i y_i (l_i y_i + m_i) + k: two 3 x 4 colour
+    # transforms of the pixel (y and l * y + m), their product, and a 1 x 4 transform that
+    # sums the channels and adds k straight into the score map. OpenCV vectorises only
+    # 3- and 1-channel outputs, so each step keeps to those.
     height, width = image.shape[:2]
     prepared = []
     for model in models:
         transform, eigenvalues, linear, constant = quadratic_coefficients(
             model.ref_mean, model.ref_precision, model.query_mean, model.query_precision
         )
+        weighted = eigenvalues[:, :, None] * transform
+        weighted[:, :, 3] += linear
+        channel_sum = np.ones((len(constant), 1, 4))
+        channel_sum[:, 0, 3] = constant
         # A cell whose two models are identical scores its constant: no per-pixel work.
         trivial = ~(eigenvalues.any(axis=-1) | linear.any(axis=-1))
         prepared.append(
             (
                 transform.astype(np.float32),
-                eigenvalues[:, None, :].astype(np.float32),
-                np.concatenate([linear, constant[:, None]], axis=-1)[:, None, :].astype(np.float32),
+                weighted.astype(np.float32),
+                channel_sum.astype(np.float32),
                 constant,
                 trivial,
             )
@@ -227,15 +235,16 @@ def _evaluate(image: np.ndarray, grid: int, models: Sequence[CellModels]) -> lis
         for index in indices:
             cell = slices[index]
             pixels = image[cell]
-            for score, (transform, eigenvalues, affine, constant, trivial) in zip(
+            for score, (transform, weighted, channel_sum, constant, trivial) in zip(
                 scores, prepared, strict=True
             ):
                 if trivial[index]:
                     score[cell] = constant[index]
                     continue
-                y = cv2.transform(pixels, transform[index])
-                quadratic = cv2.transform(cv2.multiply(y, y), eigenvalues[index])
-                np.add(quadratic, cv2.transform(y, affine[index]), out=score[cell])
+                products = cv2.multiply(
+                    cv2.transform(pixels, transform[index]), cv2.transform(pixels, weighted[index])
+                )
+                cv2.transform(products, channel_sum[index], dst=score[cell])
 
     for_each_block(evaluate_cells, len(slices))
     for score in scores:

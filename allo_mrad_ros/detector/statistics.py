@@ -12,15 +12,17 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.grid import cell_slices
+from allo_mrad_ros.detector.grid import cell_edges, cell_slices
 from allo_mrad_ros.detector.images import to_float32
 from allo_mrad_ros.detector.threads import for_each_block
 
 # Channel products (c, next c): (0,1), (1,2), (2,0) cover the off-diagonal of a 3x3
-# covariance; cv2.mixChannels builds the rotated image without NumPy's fancy-index copies.
+# covariance; a channel permutation as a colour transform avoids NumPy's fancy-index copy.
 _CROSS_A = [0, 1, 2]
 _CROSS_B = [1, 2, 0]
-_ROTATE_CHANNELS = [1, 0, 2, 1, 0, 2]
+_NEXT_CHANNEL = np.eye(3, dtype=np.float32)[_CROSS_B]
+# Column sums of up to this many rows of 8-bit squares stay below 2**24.
+_EXACT_FLOAT32_ROWS = (1 << 24) // (255 * 255)
 
 
 @dataclass(frozen=True)
@@ -58,33 +60,48 @@ def cell_statistics(image: np.ndarray, grid: int) -> CellStatistics:
     """
     slices = cell_slices(image.shape[0], image.shape[1], grid)
     if image.dtype == np.uint8:
-        return _statistics_uint8(image, slices)
+        return _statistics_uint8(image, grid)
     return _statistics_float(to_float32(image), slices)
 
 
-def _statistics_uint8(image: np.ndarray, slices: list[tuple[slice, slice]]) -> CellStatistics:
-    # Products of 8-bit values fit in uint16 and their sums are exact in float64, so the
-    # covariance is exact up to the final division.
-    n_cells = len(slices)
-    sums = np.empty((n_cells, 3))
-    second = np.zeros((n_cells, 3, 3))
-    count = np.empty(n_cells, dtype=np.int64)
+def _statistics_uint8(image: np.ndarray, grid: int) -> CellStatistics:
+    # Products of 8-bit values are integers below 2**16, exact in float32, and so are their
+    # sums while a band holds fewer than 2**24 / 255**2 rows (else they are summed in
+    # float64): the covariance is exact up to the final division. Sums run one row of
+    # cells at a time (a column sum over the band, then sums over each cell's columns), a
+    # few OpenCV calls per band instead of per cell.
+    height, width = image.shape[:2]
+    row_edges = cell_edges(height, grid)
+    col_starts = cell_edges(width, grid)[:-1]
+    sums = np.empty((grid, grid, 3))
+    squares = np.empty((grid, grid, 3))
+    cross = np.empty((grid, grid, 3))
+
+    def accumulate(bands: range) -> None:
+        for band in bands:
+            pixels = image[row_edges[band] : row_edges[band + 1]].astype(np.float32)
+            exact = cv2.CV_32F if pixels.shape[0] < _EXACT_FLOAT32_ROWS else cv2.CV_64F
+            for out, values in (
+                (sums, pixels),
+                (squares, cv2.multiply(pixels, pixels)),
+                (cross, cv2.multiply(pixels, cv2.transform(pixels, _NEXT_CHANNEL))),
+            ):
+                columns = cv2.reduce(values, 0, cv2.REDUCE_SUM, dtype=exact)
+                out[band] = np.add.reduceat(
+                    columns.reshape(width, 3).astype(np.float64), col_starts, axis=0
+                )
+
+    for_each_block(accumulate, grid, min_per_block=1)
+    n_cells = grid * grid
+    rows = np.diff(row_edges)
+    cols = np.diff(cell_edges(width, grid))
+    count = (rows[:, None] * cols[None, :]).reshape(n_cells).astype(np.int64)
+    sums = sums.reshape(n_cells, 3)
+    second = np.empty((n_cells, 3, 3))
     diagonal = np.arange(3)
-
-    def accumulate(indices: range) -> None:
-        for index in indices:
-            cell = slices[index]
-            wide = image[cell].astype(np.uint16)
-            rotated = np.empty_like(wide)
-            cv2.mixChannels([wide], [rotated], _ROTATE_CHANNELS)
-            sums[index] = cv2.sumElems(wide)[:3]
-            second[index, diagonal, diagonal] = cv2.sumElems(wide * wide)[:3]
-            cross_sums = cv2.sumElems(wide * rotated)[:3]
-            second[index, _CROSS_A, _CROSS_B] = cross_sums
-            second[index, _CROSS_B, _CROSS_A] = cross_sums
-            count[index] = wide.shape[0] * wide.shape[1]
-
-    for_each_block(accumulate, n_cells)
+    second[:, diagonal, diagonal] = squares.reshape(n_cells, 3)
+    second[:, _CROSS_A, _CROSS_B] = cross.reshape(n_cells, 3)
+    second[:, _CROSS_B, _CROSS_A] = cross.reshape(n_cells, 3)
     n = count.astype(np.float64)[:, None]
     outer = sums[:, :, None] * sums[:, None, :]
     cov = (second - outer / n[:, :, None]) / np.maximum(n - 1, 1)[:, :, None]

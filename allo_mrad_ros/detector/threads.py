@@ -22,19 +22,21 @@ _pool_size = 0
 _pool_lock = threading.Lock()
 
 
-def worker_count(cells: int) -> int:
-    """Number of blocks a loop over ``cells`` cells is split into (at least 1)."""
-    return max(1, min(cv2.getNumThreads(), cells // _MIN_CELLS_PER_BLOCK))
+def worker_count(cells: int, min_per_block: int = _MIN_CELLS_PER_BLOCK) -> int:
+    """Number of blocks a loop over ``cells`` items is split into (at least 1)."""
+    return max(1, min(cv2.getNumThreads(), cells // min_per_block))
 
 
-def for_each_block(work: Callable[[range], None], cells: int) -> None:
+def for_each_block(
+    work: Callable[[range], None], cells: int, min_per_block: int = _MIN_CELLS_PER_BLOCK
+) -> None:
     """Call ``work`` on contiguous ranges of ``range(cells)`` that together cover it once.
 
     The ranges run concurrently when OpenCV is allowed more than one thread; ``work`` must
     write only what belongs to its own cells. An exception raised in any block is raised
     here after every block has finished.
     """
-    blocks = worker_count(cells)
+    blocks = worker_count(cells, min_per_block)
     if blocks == 1:
         work(range(cells))
         return

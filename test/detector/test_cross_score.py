@@ -72,12 +72,16 @@ def test_other_dtypes_match_oracle(dtype):
 
 
 def test_unregularised_singular_cells_stay_finite():
-    query = np.zeros((8, 8, 3), dtype=np.uint8)
+    # Flat cells have singular covariances; without a floor the precision is clamped, not
+    # infinite. The patch's pixels are ~1e16 away from the flat reference; the cell where
+    # query and reference are the same flat colour scores exactly 0.
+    query = np.full((8, 8, 3), 100, dtype=np.uint8)
     query[2:4, 2:4] = 200
     reference = np.full((8, 8, 3), 100, dtype=np.uint8)
     score = cross_score(query, reference, 2, 0.0, 0.0)
     assert np.isfinite(score).all()
-    assert score[2, 2] > score[7, 7]
+    assert score[2, 2] > 1e15
+    assert score[7, 7] == 0.0
 
 
 def test_identical_images_score_exactly_zero():

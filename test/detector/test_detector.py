@@ -116,7 +116,11 @@ def test_image_smaller_than_grid_is_rejected():
         match=r"grid=8 is too fine for the 12x8 query processed at "
         r"process_scale=0.5 \(6x4\)",
     ):
-        detect(np.zeros((8, 12, 3), np.uint8), np.zeros((8, 12, 3), np.uint8))
+        detect(
+            np.zeros((8, 12, 3), np.uint8),
+            np.zeros((8, 12, 3), np.uint8),
+            MradParams(process_scale=0.5),
+        )
 
 
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32, np.float64])

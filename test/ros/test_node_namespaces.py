@@ -54,7 +54,10 @@ def graph(tmp_path_factory):
     processes = {
         "cam1": start_node(
             logs / "cam1.log",
+            # A 320x180 camera: reference and query processed at half size, not the
+            # defaults' 1/8 and 1/4, which suit 1080p.
             "reference_scale:=0.5",
+            "mrad.process_scale:=0.5",
             "publish_reference:=true",
             "diagnostics_period_s:=0.5",
             namespace="cam1",
@@ -62,6 +65,7 @@ def graph(tmp_path_factory):
         "cam2": start_node(
             logs / "cam2.log",
             "reference_scale:=0.5",
+            "mrad.process_scale:=0.5",
             "image_transport:=compressed",
             "diagnostics_period_s:=0.5",
             namespace="cam2",
