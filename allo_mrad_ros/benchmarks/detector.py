@@ -60,17 +60,29 @@ def run(
         detect(pair.query, reference, params)
         detect(pair.query, reference, profile("previous"))
     totals: list[float] = []
+    cpu: list[float] = []
     previous: list[float] = []
+    one_thread: list[float] = []
     stages: dict[str, list[float]] = {}
     result = None
+    threads = cv2.getNumThreads()
     for _ in range(frames):
-        # Interleaved with the previous default, so both see the same machine load.
+        # Interleaved with the previous default and with a one-thread run, so all three see
+        # the same machine load.
         start = time.perf_counter()
         detect(pair.query, reference, profile("previous"))
         previous.append(1e3 * (time.perf_counter() - start))
-        start = time.perf_counter()
+        cv2.setNumThreads(1)
+        try:
+            start = time.perf_counter()
+            detect(pair.query, reference, params)
+            one_thread.append(1e3 * (time.perf_counter() - start))
+        finally:
+            cv2.setNumThreads(threads)
+        start, start_cpu = time.perf_counter(), time.process_time()
         result = detect(pair.query, reference, params)
         totals.append(1e3 * (time.perf_counter() - start))
+        cpu.append(1e3 * (time.process_time() - start_cpu))
         for name, ms in result.timings_ms.items():
             if name != "total":
                 stages.setdefault(name, []).append(ms)
@@ -84,6 +96,9 @@ def run(
         "stages_ms": {name: _summary(values) for name, values in stages.items()},
         "detect_ms_median": float(np.median(totals)),
         "detect_ms_p95": float(np.percentile(totals, 95)),
+        "detect_cpu_ms_median": float(np.median(cpu)),
+        "opencv_threads": threads,
+        "one_thread_ms_median": float(np.median(one_thread)),
         "previous_default_ms_median": float(np.median(previous)),
         "ratio_to_previous_default": float(np.median(totals) / np.median(previous)),
         "load_average_1min": _load_average(),
@@ -149,6 +164,11 @@ def format_report(report: dict) -> str:
         lines.append(f"{name:<18}{figures['median']:>12.2f}{figures['p95']:>10.2f}")
     lines.append(
         f"{'detect() total':<18}{report['detect_ms_median']:>12.2f}{report['detect_ms_p95']:>10.2f}"
+    )
+    lines.append(
+        f"CPU time per detect(): {report['detect_cpu_ms_median']:.2f} ms median (all "
+        f"threads; {report['opencv_threads']} OpenCV threads); with one thread, "
+        f"interleaved: {report['one_thread_ms_median']:.2f} ms median"
     )
     lines.append(
         f"previous default (before issue 11: no photometric model, tolerance growth, sparse "

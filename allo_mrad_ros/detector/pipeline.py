@@ -14,7 +14,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.images import area_downscale, check_aspect, check_image
+from allo_mrad_ros.detector.images import (
+    area_downscale,
+    check_aspect,
+    check_image,
+    nearest_upscale,
+)
 from allo_mrad_ros.detector.params import MradParams
 from allo_mrad_ros.detector.postprocess import (
     blur_scores,
@@ -279,7 +284,7 @@ def _restore_resolution(
         return score, mask
     size = (shape[1], shape[0])
     score = cv2.resize(score, size, interpolation=cv2.INTER_LINEAR)
-    mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
+    mask = nearest_upscale(mask, shape)
     return (_masked(score, mask) if pixel_score == "regions" else score), mask
 
 
