@@ -9,7 +9,16 @@ from types import ModuleType
 import numpy as np
 import trimesh
 
+from allo_mrad_ros.render.uniforms import install_uniform_cache
+
 _SCENE_CLASSES: dict[int, type] = {}
+
+
+def install_patches(pr: ModuleType, offscreen: object) -> None:
+    """Install every patch below (and :mod:`.uniforms`) on one ``OffscreenRenderer``."""
+    install_program_cache(pr, offscreen)
+    install_uniform_cache(pr, offscreen)
+    install_shadow_map_cache(pr, offscreen)
 
 
 def bounded_scene_class(pr: ModuleType) -> type:

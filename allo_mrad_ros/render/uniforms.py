@@ -1,0 +1,156 @@
+"""Cut pyrender's per-draw uniform overhead without changing what reaches OpenGL's state.
+
+pyrender's forward pass sets every camera, light and material uniform again for each
+primitive, and each ``set_uniform`` first asks OpenGL for the uniform's location by name: at
+the default reference size that Python and PyOpenGL work costs more CPU than the rasteriser.
+A uniform's value is state of its program object and persists across draws and frames until
+the program is linked again, so a call that would store the value already stored changes
+nothing; skipping it, and remembering locations per linked program, leaves the GL state at
+every draw exactly as pyrender would have left it.
+
+Installed per renderer (its program cache and its pyrender ``Renderer`` instance), never on
+pyrender's classes, so a renderer built inside :func:`plain_pyrender` keeps pyrender's own
+behaviour: the benchmark and the image-equality tests compare the two in one process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+_ENABLED = True
+
+
+@contextlib.contextmanager
+def plain_pyrender() -> Iterator[None]:
+    """Build renderers inside this block without these patches (for comparisons)."""
+    global _ENABLED
+    previous, _ENABLED = _ENABLED, False
+    try:
+        yield
+    finally:
+        _ENABLED = previous
+
+
+def patches_enabled() -> bool:
+    """Whether a renderer built now gets these patches."""
+    return _ENABLED
+
+
+def _vector_function(gl: ModuleType, size: int, kind: str) -> Callable[..., Any]:
+    return getattr(gl, f"glUniform{size}{kind}v")
+
+
+class UniformSetter:
+    """A program's ``set_uniform`` with cached locations that skips unchanged values.
+
+    Mirrors pyrender's ``ShaderProgram.set_uniform`` for the value types pyrender's renderer
+    passes (1-D arrays, 4x4 matrices, Python floats and ints); anything else goes to
+    pyrender's own method. Like pyrender, uniforms the program does not have are ignored.
+    """
+
+    def __init__(self, program: Any, gl: ModuleType) -> None:
+        self._program = program
+        self._gl = gl
+        self._plain = program.set_uniform
+        self._program_id: int | None = None
+        self._locations: dict[str, int] = {}
+        self._values: dict[str, object] = {}
+        self.calls = 0  # glUniform calls made (tests count them)
+        self.skipped = 0  # calls skipped because the stored value was the same
+
+    def forget(self) -> None:
+        """Drop cached locations and values (the program is about to be linked anew)."""
+        self._program_id = None
+        self._locations = {}
+        self._values = {}
+
+    def _location(self, name: str) -> int:
+        program_id = self._program._program_id
+        if program_id != self._program_id:
+            self.forget()
+            self._program_id = program_id
+        location = self._locations.get(name)
+        if location is None:
+            location = int(self._gl.glGetUniformLocation(program_id, name))
+            self._locations[name] = location
+        return location
+
+    def __call__(self, name: str, value: object, unsigned: bool = False) -> None:
+        if self._program._program_id is None:
+            self._plain(name, value, unsigned)
+            return
+        if isinstance(value, np.ndarray) and value.ndim == 1 and value.dtype.kind == "f":
+            data = np.ascontiguousarray(value, dtype=np.float32)
+            key: object = data.tobytes()
+            call = (_vector_function(self._gl, data.shape[0], "f"), (1, data))
+        elif isinstance(value, np.ndarray) and value.shape == (4, 4):
+            data = np.ascontiguousarray(value, dtype=np.float32)
+            key = data.tobytes()
+            call = (self._gl.glUniformMatrix4fv, (1, self._gl.GL_TRUE, data))
+        elif type(value) is float or isinstance(value, np.float64):
+            key = ("f", float(value))
+            call = (self._gl.glUniform1f, (float(value),))
+        elif type(value) is int and not unsigned:
+            key = ("i", value)
+            call = (self._gl.glUniform1i, (value,))
+        else:
+            self._values.pop(name, None)
+            self._plain(name, value, unsigned)
+            return
+        location = self._location(name)
+        if location == -1:
+            return
+        if self._values.get(name) == key:
+            self.skipped += 1
+            return
+        function, args = call
+        function(location, *args)
+        self._values[name] = key
+        self.calls += 1
+
+
+def install_uniform_cache(pr: ModuleType, offscreen: object) -> None:
+    """Give every program this renderer compiles a :class:`UniformSetter`.
+
+    Also caches ``_compute_max_n_lights`` per flags: it queries the context's texture-unit
+    count (two ``glGetIntegerv`` calls per primitive), a constant of the context.
+    """
+    renderer = getattr(offscreen, "_renderer", None)
+    if not _ENABLED or renderer is None or not hasattr(renderer, "_program_cache"):
+        return
+    import OpenGL.GL as gl
+
+    cache = renderer._program_cache
+    get_program = cache.get_program
+
+    def get_patched_program(*args: object, **kwargs: object) -> object:
+        program = get_program(*args, **kwargs)
+        if not isinstance(program.__dict__.get("set_uniform"), UniformSetter):
+            setter = UniformSetter(program, gl)
+            add_to_context = program._add_to_context
+
+            def add_and_forget() -> None:
+                setter.forget()
+                add_to_context()
+
+            program.set_uniform = setter
+            program._add_to_context = add_and_forget
+        return program
+
+    cache.get_program = get_patched_program
+
+    compute = renderer._compute_max_n_lights
+    limits: dict[int, list[int]] = {}
+
+    def max_n_lights(flags: int) -> list[int]:
+        key = int(flags)
+        if key not in limits:
+            limits[key] = compute(flags)
+        return list(limits[key])
+
+    renderer._compute_max_n_lights = max_n_lights
