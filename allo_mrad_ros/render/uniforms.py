@@ -8,37 +8,17 @@ the program is linked again, so a call that would store the value already stored
 nothing; skipping it, and remembering locations per linked program, leaves the GL state at
 every draw exactly as pyrender would have left it.
 
-Installed per renderer (its program cache and its pyrender ``Renderer`` instance), never on
-pyrender's classes, so a renderer built inside :func:`plain_pyrender` keeps pyrender's own
-behaviour: the benchmark and the image-equality tests compare the two in one process.
+Installed per renderer (on its program cache), never on pyrender's classes, so a renderer
+built inside :func:`~.gl_patches.plain_pyrender` keeps pyrender's own behaviour.
 """
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from types import ModuleType
 from typing import Any
 
 import numpy as np
-
-_ENABLED = True
-
-
-@contextlib.contextmanager
-def plain_pyrender() -> Iterator[None]:
-    """Build renderers inside this block without these patches (for comparisons)."""
-    global _ENABLED
-    previous, _ENABLED = _ENABLED, False
-    try:
-        yield
-    finally:
-        _ENABLED = previous
-
-
-def patches_enabled() -> bool:
-    """Whether a renderer built now gets these patches."""
-    return _ENABLED
 
 
 def _vector_function(gl: ModuleType, size: int, kind: str) -> Callable[..., Any]:
@@ -114,14 +94,10 @@ class UniformSetter:
         self.calls += 1
 
 
-def install_uniform_cache(pr: ModuleType, offscreen: object) -> None:
-    """Give every program this renderer compiles a :class:`UniformSetter`.
-
-    Also caches ``_compute_max_n_lights`` per flags: it queries the context's texture-unit
-    count (two ``glGetIntegerv`` calls per primitive), a constant of the context.
-    """
+def install_uniform_cache(offscreen: object) -> None:
+    """Give every program this ``OffscreenRenderer`` compiles a :class:`UniformSetter`."""
     renderer = getattr(offscreen, "_renderer", None)
-    if not _ENABLED or renderer is None or not hasattr(renderer, "_program_cache"):
+    if renderer is None or not hasattr(renderer, "_program_cache"):
         return
     import OpenGL.GL as gl
 
@@ -143,14 +119,3 @@ def install_uniform_cache(pr: ModuleType, offscreen: object) -> None:
         return program
 
     cache.get_program = get_patched_program
-
-    compute = renderer._compute_max_n_lights
-    limits: dict[int, list[int]] = {}
-
-    def max_n_lights(flags: int) -> list[int]:
-        key = int(flags)
-        if key not in limits:
-            limits[key] = compute(flags)
-        return list(limits[key])
-
-    renderer._compute_max_n_lights = max_n_lights
