@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 
 from allo_mrad_ros.render.shader_patches import install_light_limits, install_shadow_filter
-from allo_mrad_ros.render.uniforms import install_uniform_cache
+from allo_mrad_ros.render.uniforms import install_lighting_once_per_pass, install_uniform_cache
 
 _SCENE_CLASSES: dict[int, type] = {}
 _CPU_PATCHES = True
@@ -38,6 +38,7 @@ def install_patches(pr: ModuleType, offscreen: object) -> None:
     install_program_cache(pr, offscreen)
     if _CPU_PATCHES:
         install_uniform_cache(offscreen)
+        install_lighting_once_per_pass(offscreen)
         install_shadow_filter(offscreen)
         install_light_limits(offscreen)
     install_shadow_map_cache(pr, offscreen)

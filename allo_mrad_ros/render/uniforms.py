@@ -119,3 +119,47 @@ def install_uniform_cache(offscreen: object) -> None:
         return program
 
     cache.get_program = get_patched_program
+
+
+def install_lighting_once_per_pass(offscreen: object) -> None:
+    """Bind a pass's lights once per program instead of once per primitive.
+
+    pyrender's ``_bind_lighting`` sets the same light uniforms and binds the same shadow
+    maps to the first texture units for every primitive of a pass: what it binds depends on
+    the scene, the flags and the program, not on the primitive, unless a light type has more
+    lights than the shader takes (then pyrender keeps the nearest to each primitive, and
+    this patch steps aside). Primitives after the first that use the same program keep the
+    shadow maps on those units (material textures go to the units after them, as before).
+    """
+    renderer = getattr(offscreen, "_renderer", None)
+    if renderer is None or not hasattr(renderer, "_bind_lighting"):
+        return
+    bind_lighting = renderer._bind_lighting
+    forward_pass = renderer._forward_pass
+    bound: dict[tuple[int, int], tuple[int, int]] = {}  # (program, flags) -> texture units
+
+    def forward_pass_binding_once(scene: Any, flags: int, seg_node_map: object = None) -> object:
+        bound.clear()
+        try:
+            return forward_pass(scene, flags, seg_node_map=seg_node_map)
+        finally:
+            bound.clear()
+
+    def bind_lighting_once(scene: Any, program: object, node: object, flags: int) -> None:
+        key = (id(program), int(flags))
+        units_before = renderer._texture_alloc_idx
+        if key in bound and bound[key][0] == units_before:
+            renderer._texture_alloc_idx = bound[key][1]
+            return
+        bind_lighting(scene, program, node, flags)
+        limits = renderer._compute_max_n_lights(flags)
+        counts = (
+            len(scene.directional_light_nodes),
+            len(scene.spot_light_nodes),
+            len(scene.point_light_nodes),
+        )
+        if all(n <= limit for n, limit in zip(counts, limits, strict=True)):
+            bound[key] = (units_before, renderer._texture_alloc_idx)
+
+    renderer._forward_pass = forward_pass_binding_once
+    renderer._bind_lighting = bind_lighting_once

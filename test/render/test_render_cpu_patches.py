@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
 from allo_mrad_ros.benchmarks.render import BODIES, SUN_CENTRE, viewpoints
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
@@ -62,15 +63,25 @@ def test_patched_station_renders_equal_pyrenders_over_poses_a_sun_change_and_a_r
     assert not np.array_equal(expected[0].rgb, expected[6].rgb)
 
 
-def test_light_arrays_sized_to_a_scene_with_several_lights_of_a_type_draw_the_same():
+@pytest.mark.parametrize("point_lights", [3, 5])
+def test_patched_pyrender_draws_the_same_with_several_lights_per_type_and_textures(point_lights):
+    # Five point lights exceed pyrender's limit of four: it then binds, per primitive, the
+    # four nearest, and the lighting is bound per primitive again. The textured primitives
+    # take texture units after the shadow maps'.
     pr = import_pyrender(choose_backend())
     k = CameraIntrinsics(width=96, height=72, fx=90.0, fy=90.0, cx=47.5, cy=35.5)
     plate = trimesh.creation.box(extents=[4.0, 4.0, 0.1])
-    blocker = trimesh.creation.box(extents=[0.8, 0.8, 0.8])
-    blocker.apply_translation([0.3, 0.0, 1.0])
+    checker = np.kron((np.indices((8, 8)).sum(axis=0) % 2) * 200 + 40, np.ones((4, 4)))
+    texture = Image.fromarray(np.repeat(checker[..., None], 3, axis=2).astype(np.uint8))
     scene = pr.Scene(ambient_light=(0.02, 0.02, 0.02))
-    for part in (plate, blocker):
-        scene.add(pr.Mesh.from_trimesh(part, smooth=False))
+    scene.add(pr.Mesh.from_trimesh(plate, smooth=False))
+    for x in (-1.2, 0.3, 1.4):  # placed by node poses: pyrender's nearest lights differ
+        blocker = trimesh.creation.box(extents=[0.8, 0.8, 0.8])
+        uv = blocker.vertices[:, :2] - blocker.vertices[:, :2].min(axis=0)
+        blocker.visual = trimesh.visual.TextureVisuals(uv=uv / uv.max(), image=texture)
+        pose = np.eye(4)
+        pose[:3, 3] = [x, 0.4 * x, 1.0]
+        scene.add(pr.Mesh.from_trimesh(blocker, smooth=False), pose=pose)
     eye = optical_to_opengl_pose(look_at([2.0, -4.0, 5.0], [0.0, 0.0, 0.0]))
     scene.add(pr.IntrinsicsCamera(k.fx, k.fy, k.cx, k.cy), pose=eye)
     for direction in ([0.0, 0.0, 1.0], [1.0, 0.2, 0.6]):
@@ -80,7 +91,8 @@ def test_light_arrays_sized_to_a_scene_with_several_lights_of_a_type_draw_the_sa
         pose = np.eye(4)
         pose[:3, :3] = np.c_[x / np.linalg.norm(x), np.cross(z, x / np.linalg.norm(x)), z]
         scene.add(light, pose=pose)
-    for position in ([1.5, 1.0, 2.0], [-1.5, -1.0, 1.0], [0.0, 2.0, 0.5]):
+    positions = ([1.5, 1.0, 2.0], [-1.5, -1.0, 1.0], [0.0, 2.0, 0.5], [2.0, -2.0, 1.5], [-2, 1, 2])
+    for position in positions[:point_lights]:
         pose = np.eye(4)
         pose[:3, 3] = position
         scene.add(pr.PointLight(intensity=6.0), pose=pose)
@@ -99,7 +111,7 @@ def test_light_arrays_sized_to_a_scene_with_several_lights_of_a_type_draw_the_sa
             limits = offscreen._renderer._compute_max_n_lights(flags)
         finally:
             offscreen.delete()
-        assert (limits == [2, 1, 3]) == patched
+        assert (limits == [2, 1, min(point_lights, 4)]) == patched
     np.testing.assert_array_equal(images[True], images[False])
     assert images[True].std() > 10
 
