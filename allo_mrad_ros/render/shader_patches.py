@@ -13,7 +13,9 @@ things in pyrender's ``mesh.frag`` make it dearer than the scene needs:
   texels. The replacement reads each of the 16 once and forms the same nine bilinear mixes
   in the same order. With a power-of-two map every texel coordinate is exact in float, so it
   picks the same texels; the fractional weights are those of the centre tap, which for the
-  others can differ from pyrender's only in float rounding (the tests compare images).
+  others can differ from pyrender's only in float rounding. Measured against pyrender on the
+  committed station (12 poses): 2 pixels off by one grey level in 432 frames at 240x135
+  (36 Sun directions) and 2 in 24 frames at 1920x1080; the light limits change no pixel.
 
 Both are installed per renderer; a shader text other than pyrender 1.0.1's is left as it is.
 """

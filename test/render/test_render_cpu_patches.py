@@ -1,9 +1,10 @@
 """The renderer's CPU patches (uniforms.py, shader_patches.py) draw what pyrender draws.
 
 Each patched path is compared image for image with an unpatched renderer built inside
-``plain_pyrender()`` in the same process, and the pieces are unit-tested on their own: the
-uniform setter against a recording fake of OpenGL, the shadow filter against a float64
-NumPy transcription of pyrender's filter.
+``plain_pyrender()`` in the same process: exactly, except for the shared-read shadow filter,
+whose float rounding may move a rare pixel by one grey level. The pieces are also tested on
+their own: the uniform setter against a recording fake of OpenGL, the shadow filter against a
+float64 NumPy transcription of pyrender's filter.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from PIL import Image
 from allo_mrad_ros.benchmarks.render import BODIES, SUN_CENTRE, viewpoints
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at, optical_to_opengl_pose
-from allo_mrad_ros.render import DEFAULT_SCALE, ReferenceRenderer, choose_backend
+from allo_mrad_ros.render import DEFAULT_SCALE, ReferenceRenderer, choose_backend, shader_patches
 from allo_mrad_ros.render.backend import import_pyrender
 from allo_mrad_ros.render.gl_patches import install_patches, plain_pyrender
 from allo_mrad_ros.render.shader_patches import _PCF_PYRENDER, shared_read_pcf
@@ -36,38 +37,69 @@ def _render_all(renderer: ReferenceRenderer, frames: list) -> list:
     ]
 
 
-def test_patched_station_renders_equal_pyrenders_over_poses_a_sun_change_and_a_rebuild():
+# The shared-read shadow filter's weights can differ from pyrender's in float rounding: over
+# 432 frames at 240x135 (12 poses, 36 Sun directions) 2 pixels differed, by 1 grey level.
+SHADOW_FILTER_MAX_DIFF = 1
+SHADOW_FILTER_MAX_PIXEL_FRACTION = 1e-4
+
+
+def _station_frames() -> list:
     poses = viewpoints()
     turned_sun = euler_zyx_to_matrix(0.0, 0.0, np.radians(20.0)) @ np.asarray(SUN_CENTRE)
     # Six poses under one Sun (the shadow map and uniforms are reused), then six under
     # another (both must follow), with Earth, Moon and Sun entering and leaving the view.
-    frames = [(poses[i], SUN_CENTRE) for i in range(6)]
-    frames += [(poses[i], turned_sun) for i in range(6, 12)]
+    first = [(poses[i], SUN_CENTRE) for i in range(6)]
+    return first + [(poses[i], turned_sun) for i in range(6, 12)]
+
+
+@pytest.fixture(scope="module")
+def plain_station_renders() -> list:
     with plain_pyrender():
         plain = ReferenceRenderer(None, ALLO_INTRINSICS, scale=DEFAULT_SCALE, shadows=True)
     with plain:
-        expected = _render_all(plain, frames)
+        expected = _render_all(plain, _station_frames())
         assert not any(isinstance(p.set_uniform, UniformSetter) for p in _programs(plain))
+    assert len({r.bodies_in_view for r in expected}) > 2
+    assert not np.array_equal(expected[0].rgb, expected[6].rgb)
+    return expected
+
+
+@pytest.mark.parametrize("shadow_filter", [False, True])
+def test_patched_station_renders_equal_pyrenders_over_poses_a_sun_change_and_a_rebuild(
+    plain_station_renders, shadow_filter, monkeypatch
+):
+    if not shadow_filter:  # every other patch must give pyrender's pixels exactly
+        monkeypatch.setattr(shader_patches, "shared_read_pcf", lambda text: text)
+    frames = _station_frames()
     for _rebuild in range(2):  # a second renderer starts from nothing cached
         with ReferenceRenderer(None, ALLO_INTRINSICS, scale=DEFAULT_SCALE) as patched:
             results = _render_all(patched, frames)
             setters = [p.set_uniform for p in _programs(patched)]
         assert setters and all(isinstance(s, UniformSetter) for s in setters)
         assert sum(s.skipped for s in setters) > sum(s.calls for s in setters)
-        for got, want in zip(results, expected, strict=True):
-            np.testing.assert_array_equal(got.rgb, want.rgb)
+        differing = 0
+        for got, want in zip(results, plain_station_renders, strict=True):
             np.testing.assert_array_equal(got.depth, want.depth)
             np.testing.assert_array_equal(got.labels, want.labels)
             assert got.bodies_in_view == want.bodies_in_view
-    assert len({r.bodies_in_view for r in expected}) > 2
-    assert not np.array_equal(expected[0].rgb, expected[6].rgb)
+            diff = np.abs(got.rgb.astype(np.int16) - want.rgb.astype(np.int16))
+            if not shadow_filter:
+                np.testing.assert_array_equal(got.rgb, want.rgb)
+            assert diff.max() <= SHADOW_FILTER_MAX_DIFF
+            differing += int(np.count_nonzero(diff.max(axis=-1)))
+        pixels = sum(r.rgb.shape[0] * r.rgb.shape[1] for r in results)
+        assert differing <= SHADOW_FILTER_MAX_PIXEL_FRACTION * pixels
 
 
 @pytest.mark.parametrize("point_lights", [3, 5])
-def test_patched_pyrender_draws_the_same_with_several_lights_per_type_and_textures(point_lights):
+def test_patched_pyrender_draws_the_same_with_several_lights_per_type_and_textures(
+    point_lights, monkeypatch
+):
     # Five point lights exceed pyrender's limit of four: it then binds, per primitive, the
     # four nearest, and the lighting is bound per primitive again. The textured primitives
-    # take texture units after the shadow maps'.
+    # take texture units after the shadow maps'. Exact equality: the shadow filter, whose
+    # rounding may differ, is left out here (the station test covers it).
+    monkeypatch.setattr(shader_patches, "shared_read_pcf", lambda text: text)
     pr = import_pyrender(choose_backend())
     k = CameraIntrinsics(width=96, height=72, fx=90.0, fy=90.0, cx=47.5, cy=35.5)
     plate = trimesh.creation.box(extents=[4.0, 4.0, 0.1])
