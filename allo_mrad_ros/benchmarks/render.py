@@ -122,7 +122,8 @@ def time_patched_against_plain(
 
     Each frame is rendered by both renderers (which goes first alternates), timing wall
     clock and the process's CPU time (OpenGL's rasteriser threads included); the images of
-    each pair must be equal. The Sun turns by 10 degrees halfway through.
+    each pair are compared (the shadow filter of ``render/shader_patches.py`` may move a rare
+    pixel by one grey level). The Sun turns by 10 degrees halfway through.
     """
     poses = viewpoints()
     turned_sun = euler_zyx_to_matrix(0.0, 0.0, np.radians(10.0)) @ SUN_CENTRE
@@ -132,7 +133,7 @@ def time_patched_against_plain(
     renderers = {"plain": plain, "patched": patched}
     wall: dict[str, list[float]] = {name: [] for name in renderers}
     cpu: dict[str, list[float]] = {name: [] for name in renderers}
-    unequal = 0
+    unequal = unequal_pixels = max_diff = 0
     with plain, patched:
         for i in range(-warmup, frames):
             sun = SUN_CENTRE if i < frames // 2 else turned_sun
@@ -144,8 +145,11 @@ def time_patched_against_plain(
                 if i >= 0:
                     wall[name].append(time.perf_counter() - t0)
                     cpu[name].append(time.process_time() - c0)
-            if i >= 0 and not np.array_equal(images["plain"].rgb, images["patched"].rgb):
-                unequal += 1
+            if i >= 0:
+                diff = np.abs(images["plain"].rgb.astype(np.int16) - images["patched"].rgb)
+                unequal += bool(diff.any())
+                unequal_pixels += int(np.count_nonzero(diff.max(axis=-1)))
+                max_diff = max(max_diff, int(diff.max()))
     result = {
         name: {
             **_summary(wall[name]),
@@ -160,6 +164,8 @@ def time_patched_against_plain(
         "size": [k.width, k.height],
         "frames": frames,
         "frames_with_unequal_images": int(unequal),
+        "unequal_pixels": unequal_pixels,
+        "max_abs_difference": max_diff,
         "wall_ratio_median": result["patched"]["ms_median"] / result["plain"]["ms_median"],
         "cpu_ratio": result["patched"]["cpu_s_per_render"] / result["plain"]["cpu_s_per_render"],
     }
@@ -241,7 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"  patched/plain: median {paired['wall_ratio_median']:.2f}, "
         f"CPU {paired['cpu_ratio']:.2f}; "
-        f"frames with unequal images: {paired['frames_with_unequal_images']}"
+        f"frames with unequal images: {paired['frames_with_unequal_images']} "
+        f"({paired['unequal_pixels']} pixels, at most {paired['max_abs_difference']} grey levels)"
     )
     verdict = "meets" if report["ref_meets_target"] else "MISSES"
     shadows = "shadows" if report["default_shadows"] else "no shadows"
