@@ -1,6 +1,8 @@
 """Patches to pyrender's offscreen renderer: bounded scenes, shader cache, shadow-map reuse.
 
-Installed on one renderer's GL context at construction; nothing here changes pixels."""
+Installed on one renderer's GL context at construction; nothing here changes pixels. The CPU
+patches it also installs (:func:`install_patches`) change none either, except the shadow
+filter of :mod:`.shader_patches`, whose float rounding may move a rare pixel by a grey level."""
 
 from __future__ import annotations
 
