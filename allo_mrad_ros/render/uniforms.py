@@ -30,7 +30,8 @@ class UniformSetter:
 
     Mirrors pyrender's ``ShaderProgram.set_uniform`` for the value types pyrender's renderer
     passes (1-D arrays, 4x4 matrices, Python floats and ints); anything else goes to
-    pyrender's own method. Like pyrender, uniforms the program does not have are ignored.
+    pyrender's own method. Like pyrender, uniforms the program does not have, and values
+    OpenGL refuses, are ignored.
     """
 
     def __init__(self, program: Any, gl: ModuleType) -> None:
@@ -89,7 +90,13 @@ class UniformSetter:
             self.skipped += 1
             return
         function, args = call
-        function(location, *args)
+        try:
+            function(location, *args)
+        except self._gl.GLError:
+            # pyrender ignores a uniform OpenGL refuses (say an int sent to a float); so do we,
+            # and remember no value, so the next call tries again.
+            self._values.pop(name, None)
+            return
         self._values[name] = key
         self.calls += 1
 

@@ -152,8 +152,17 @@ def _fake_gl(calls: list) -> SimpleNamespace:
     def record(name):
         return lambda *args: calls.append((name, *args))
 
+    class GLError(Exception):
+        pass
+
+    def refuse(*args):
+        calls.append(("refused", *args))
+        raise GLError
+
     return SimpleNamespace(
         GL_TRUE=1,
+        GLError=GLError,
+        glUniform2fv=refuse,
         glGetUniformLocation=lambda program, name: (
             calls.append(("locate", program, name)) or (-1 if name == "absent" else len(name))
         ),
@@ -190,6 +199,9 @@ def test_uniform_setter_sends_each_changed_value_once_per_linked_program():
     setter("flag", True)  # a type pyrender handles itself goes to pyrender
     setter("count", 3, unsigned=True)
     assert plain_calls == [("flag", True, False), ("count", 3, True)]
+    setter("refused", np.array([1.0, 2.0]))  # OpenGL refuses: ignored, as pyrender does,
+    setter("refused", np.array([1.0, 2.0]))  # and tried again the next time
+    assert [c[0] for c in calls[-2:]] == ["refused", "refused"]
     calls.clear()
     program._program_id = 9  # linked again: locations and values are forgotten
     setter("M", pose + 1.0)
