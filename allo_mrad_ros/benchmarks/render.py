@@ -4,7 +4,11 @@ Times colour renders at the default reference scale (0.125: 240x135) and at 1920
 with directional shadows on and off (at the reference scale also with a Sun that moves every
 frame, so the shadow map cannot be reused), plus the generator's mode (colour, depth and labels),
 over a fixed set of viewpoints with the Sun, Earth and Moon in the scene. Prints median and
-p95 per configuration and writes them to a JSON report.
+p95 per configuration and writes them to a JSON report. The default reference is also timed
+against pyrender's own drawing (a renderer built in ``plain_pyrender()``, without the CPU
+patches of ``render/uniforms.py`` and ``render/shader_patches.py``): the two renderers take
+turns frame by frame in one process, so machine load weighs on both alike, and every pair of
+images is compared.
 
 Usage: ``python -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json``
 """
@@ -22,6 +26,7 @@ from allo_mrad_ros.benchmarks import finish, machine_facts
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
+from allo_mrad_ros.render.gl_patches import plain_pyrender
 from allo_mrad_ros.resources import share_path
 
 # Reference render at the default scale must stay at or under this median (issue 3).
@@ -110,10 +115,67 @@ def time_config(
     return {**info, **_summary(samples)}
 
 
+def time_patched_against_plain(
+    scale: float, frames: int, warmup: int, backend: str | None
+) -> dict:
+    """Time the default reference with and without the CPU patches, alternating per frame.
+
+    Each frame is rendered by both renderers (which goes first alternates), timing wall
+    clock and the process's CPU time (OpenGL's rasteriser threads included); the images of
+    each pair are compared (the shadow filter of ``render/shader_patches.py`` may move a rare
+    pixel by one grey level). The Sun turns by 10 degrees halfway through.
+    """
+    poses = viewpoints()
+    turned_sun = euler_zyx_to_matrix(0.0, 0.0, np.radians(10.0)) @ SUN_CENTRE
+    with plain_pyrender():
+        plain = ReferenceRenderer(None, ALLO_INTRINSICS, scale=scale, backend=backend)
+    patched = ReferenceRenderer(None, ALLO_INTRINSICS, scale=scale, backend=backend)
+    renderers = {"plain": plain, "patched": patched}
+    wall: dict[str, list[float]] = {name: [] for name in renderers}
+    cpu: dict[str, list[float]] = {name: [] for name in renderers}
+    unequal = unequal_pixels = max_diff = 0
+    with plain, patched:
+        for i in range(-warmup, frames):
+            sun = SUN_CENTRE if i < frames // 2 else turned_sun
+            images = {}
+            order = ("plain", "patched") if i % 2 == 0 else ("patched", "plain")
+            for name in order:
+                t0, c0 = time.perf_counter(), time.process_time()
+                images[name] = renderers[name].render(poses[i % len(poses)], sun, bodies=BODIES)
+                if i >= 0:
+                    wall[name].append(time.perf_counter() - t0)
+                    cpu[name].append(time.process_time() - c0)
+            if i >= 0:
+                diff = np.abs(images["plain"].rgb.astype(np.int16) - images["patched"].rgb)
+                unequal += bool(diff.any())
+                unequal_pixels += int(np.count_nonzero(diff.max(axis=-1)))
+                max_diff = max(max_diff, int(diff.max()))
+    result = {
+        name: {
+            **_summary(wall[name]),
+            "cpu_s_per_render": float(np.mean(cpu[name])),
+            "cpu_s_median": float(np.median(cpu[name])),
+        }
+        for name in renderers
+    }
+    k = patched.output_intrinsics
+    return {
+        **result,
+        "size": [k.width, k.height],
+        "frames": frames,
+        "frames_with_unequal_images": int(unequal),
+        "unequal_pixels": unequal_pixels,
+        "max_abs_difference": max_diff,
+        "wall_ratio_median": result["patched"]["ms_median"] / result["plain"]["ms_median"],
+        "cpu_ratio": result["patched"]["cpu_s_per_render"] / result["plain"]["cpu_s_per_render"],
+    }
+
+
 def run(
     frames: int, full_frames: int, warmup: int, reference_scale: float, backend: str | None
 ) -> dict:
     """Time every configuration and return the report."""
+    paired = time_patched_against_plain(reference_scale, frames, warmup, backend)
     configs = {
         "ref_shadows": time_config(reference_scale, True, frames, warmup, backend),
         "ref_shadows_moving_sun": time_config(
@@ -142,6 +204,7 @@ def run(
         "full_ms_p95": full["ms_p95"],
         "target_ref_ms_median": TARGET_REF_MS,
         "ref_meets_target": ref["ms_median"] <= TARGET_REF_MS,
+        "ref_patched_vs_plain_pyrender": paired,
         "configs": configs,
         "model": "meshes/station.glb",
         "model_bytes": model.stat().st_size,
@@ -172,6 +235,21 @@ def main(argv: list[str] | None = None) -> int:
     for name, c in report["configs"].items():
         size = f"{c['size'][0]}x{c['size'][1]}"
         print(f"{name:<28}{size:>11}{c['ms_median']:>11.1f}{c['ms_p95']:>9.1f}{c['init_ms']:>9.0f}")
+    paired = report["ref_patched_vs_plain_pyrender"]
+    print(f"default reference, frames alternating between renderers ({paired['frames']} each):")
+    for name in ("plain", "patched"):
+        p = paired[name]
+        print(
+            f"  {name + ' pyrender' if name == 'plain' else 'patched':<16} median "
+            f"{p['ms_median']:6.1f} ms  p95 {p['ms_p95']:6.1f} ms  "
+            f"CPU {p['cpu_s_per_render']:.4f} s per render"
+        )
+    print(
+        f"  patched/plain: median {paired['wall_ratio_median']:.2f}, "
+        f"CPU {paired['cpu_ratio']:.2f}; "
+        f"frames with unequal images: {paired['frames_with_unequal_images']} "
+        f"({paired['unequal_pixels']} pixels, at most {paired['max_abs_difference']} grey levels)"
+    )
     verdict = "meets" if report["ref_meets_target"] else "MISSES"
     shadows = "shadows" if report["default_shadows"] else "no shadows"
     print(

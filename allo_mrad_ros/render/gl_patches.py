@@ -1,15 +1,49 @@
 """Patches to pyrender's offscreen renderer: bounded scenes, shader cache, shadow-map reuse.
 
-Installed on one renderer's GL context at construction; nothing here changes pixels."""
+Installed on one renderer's GL context at construction; nothing here changes pixels. The CPU
+patches it also installs (:func:`install_patches`) change none either, except the shadow
+filter of :mod:`.shader_patches`, whose float rounding may move a rare pixel by a grey level."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from types import ModuleType
 
 import numpy as np
 import trimesh
 
+from allo_mrad_ros.render.shader_patches import install_light_limits, install_shadow_filter
+from allo_mrad_ros.render.uniforms import install_lighting_once_per_pass, install_uniform_cache
+
 _SCENE_CLASSES: dict[int, type] = {}
+_CPU_PATCHES = True
+
+
+@contextlib.contextmanager
+def plain_pyrender() -> Iterator[None]:
+    """Build renderers in this block without :mod:`.uniforms` and :mod:`.shader_patches`.
+
+    They then draw as pyrender does (with the program and shadow-map caches below, which
+    change nothing drawn): the benchmark and the image-equality tests compare the two paths.
+    """
+    global _CPU_PATCHES
+    previous, _CPU_PATCHES = _CPU_PATCHES, False
+    try:
+        yield
+    finally:
+        _CPU_PATCHES = previous
+
+
+def install_patches(pr: ModuleType, offscreen: object) -> None:
+    """Install the patches of this module, :mod:`.uniforms` and :mod:`.shader_patches`."""
+    install_program_cache(pr, offscreen)
+    if _CPU_PATCHES:
+        install_uniform_cache(offscreen)
+        install_lighting_once_per_pass(offscreen)
+        install_shadow_filter(offscreen)
+        install_light_limits(offscreen)
+    install_shadow_map_cache(pr, offscreen)
 
 
 def bounded_scene_class(pr: ModuleType) -> type:

@@ -33,11 +33,7 @@ from allo_mrad_ros.render.bodies import (
     pull_within,
     sphere_in_view,
 )
-from allo_mrad_ros.render.gl_patches import (
-    bounded_scene_class,
-    install_program_cache,
-    install_shadow_map_cache,
-)
+from allo_mrad_ros.render.gl_patches import bounded_scene_class, install_patches
 from allo_mrad_ros.render.meshes import body_mesh, mesh_from_groups
 from allo_mrad_ros.render.model import MeshGroup, ModelSource, load_model
 from allo_mrad_ros.render.values import (
@@ -197,8 +193,7 @@ class ReferenceRenderer:
                 f"{INSTALL_HINT}"
             ) from error
         share_egl_display(self._gl)
-        install_program_cache(pr, self._gl)
-        install_shadow_map_cache(pr, self._gl)
+        install_patches(pr, self._gl)
 
     # ------------------------------------------------------------------ scene content
     def _mesh_from_groups(self, groups: Sequence[MeshGroup]) -> object:
