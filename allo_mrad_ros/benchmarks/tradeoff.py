@@ -114,6 +114,7 @@ class Sweep:
                 score = result.mask.astype(np.float32) if s.binary else result.score
                 outcome.metrics.update(score, result.image_score, truth)
                 outcome.counts.append(frame_counts(score, truth))
+                outcome.flags.append((result.anomalous, frame.is_anomalous))
         return outcomes
 
     def close(self) -> None:

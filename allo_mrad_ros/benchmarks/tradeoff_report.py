@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks.tradeoff_settings import MAP_KNOBS, Outcome
+from allo_mrad_ros.benchmarks.tradeoff_settings import MASK_PHOTOMETRIC, Outcome, map_key
 from allo_mrad_ros.metrics import bootstrap_ap_difference
 
 
@@ -85,16 +85,29 @@ def choose_default(rows: Sequence[dict], ap_margin: float) -> dict:
 
 
 def choose_mask(rows: Sequence[dict], chosen: dict) -> dict:
-    """Among the candidate rows sharing ``chosen``'s map (same reference and map knobs, so
-    the same P.AP), the one with the best I.AUROC (``chosen`` on a tie)."""
+    """The mask for ``chosen``'s map.
 
-    def map_key(r: dict) -> tuple:
-        knobs = (r["params"][k] for k in MAP_KNOBS)
-        return (r["reference_scale"], r["shadows"], r["cull_bodies"], *knobs)
+    Among the candidate rows with the same map (:func:`map_key`, so the same P.AP) and the
+    photometric model the robustness tests require (:data:`MASK_PHOTOMETRIC`), the one whose
+    anomalous flag has the best balanced accuracy (reports without it: the best I.AUROC);
+    ``chosen`` on a tie, else the first such row. ``chosen`` itself when none qualifies.
+    """
+    eligible = [
+        r
+        for r in _candidates(rows)
+        if map_key(r) == map_key(chosen) and r["params"]["photometric"] == MASK_PHOTOMETRIC
+    ]
+    if not eligible:
+        return chosen
 
-    same_map = [r for r in _candidates(rows) if map_key(r) == map_key(chosen)]
-    best = max(r["i_auroc"] for r in same_map)
-    return chosen if chosen["i_auroc"] >= best else max(same_map, key=lambda r: r["i_auroc"])
+    def merit(r: dict) -> float:
+        value = r.get("flag_balanced_accuracy", r["i_auroc"])
+        return -math.inf if value is None or math.isnan(value) else value
+
+    best = max(merit(r) for r in eligible)
+    if chosen in eligible and merit(chosen) >= best:
+        return chosen
+    return next(r for r in eligible if merit(r) >= best)
 
 
 def format_table(rows: Sequence[dict], default: str | None = None) -> str:

@@ -48,9 +48,10 @@ class Setting:
 
 
 # Parameters that change the pixel score map (and so P.AP); the others shape only the mask.
+# The photometric model behind the map is ``map_photometric`` for the continuous map and
+# ``photometric`` (the mask's) for the others: see :func:`map_key`.
 MAP_KNOBS = (
     "grid",
-    "photometric",
     "max_gain",
     "score_sigma",
     "process_scale",
@@ -60,6 +61,19 @@ MAP_KNOBS = (
     "rel_floor",
     "pixel_score",
 )
+
+# The mask's photometric model is not a bench choice: the photometric tests require it (a
+# normal frame stays normal under a camera's exposure, tone curve, white balance, ...).
+MASK_PHOTOMETRIC = "cell_affine"
+
+
+def map_key(row: dict) -> tuple:
+    """What decides a report row's pixel map: reference rendering and map knobs."""
+    params = row["params"]
+    model = params["map_photometric" if params["pixel_score"] == "continuous" else "photometric"]
+    knobs = (params[k] for k in MAP_KNOBS)
+    return (row["reference_scale"], row["shadows"], row["cull_bodies"], model, *knobs)
+
 
 # The shipped defaults before issue 11 (README "Speed against error", first rerun).
 PREVIOUS_DEFAULT = profile("previous")
@@ -162,6 +176,16 @@ class Outcome:
     detect_ms: list[float] = field(default_factory=list)
     metrics: MetricsAccumulator = field(default_factory=MetricsAccumulator)
     counts: list[np.ndarray] = field(default_factory=list)
+    # (the frame's anomalous flag, whether its ground truth holds an anomaly) per frame
+    flags: list[tuple[bool, bool]] = field(default_factory=list)
+
+    def flag_balanced_accuracy(self) -> float:
+        """Mean of the flag's recall on anomalous and on normal frames (nan if one is absent)."""
+        flags = np.array(self.flags, dtype=bool).reshape(-1, 2)
+        anomalous, normal = flags[flags[:, 1], 0], flags[~flags[:, 1], 0]
+        if anomalous.size == 0 or normal.size == 0:
+            return float("nan")
+        return 0.5 * (float(anomalous.mean()) + float(1.0 - normal.mean()))
 
     def row(self) -> dict:
         """The report row."""
@@ -181,5 +205,6 @@ class Outcome:
             "latency_ms_p95": float(np.percentile(self.latency_ms, 95)),
             "render_ms_median": float(np.median(self.render_ms)),
             "detect_ms_median": float(np.median(self.detect_ms)),
+            "flag_balanced_accuracy": self.flag_balanced_accuracy(),
             **m,
         }

@@ -13,7 +13,7 @@ from allo_mrad_ros.benchmarks.tradeoff_report import (
     most_accurate_with_speedup,
     pareto_front,
 )
-from allo_mrad_ros.benchmarks.tradeoff_settings import Setting, perturbed, sweep_settings
+from allo_mrad_ros.benchmarks.tradeoff_settings import Outcome, Setting, perturbed, sweep_settings
 from allo_mrad_ros.detector import profile
 from allo_mrad_ros.geometry import look_at
 
@@ -109,3 +109,27 @@ def test_mask_choice_keeps_the_map_and_takes_the_best_image_auroc():
     ]
     assert choose_mask(rows, chosen)["setting"] == "better mask"
     assert choose_mask(rows[::2], chosen)["setting"] == "map"
+
+
+def test_mask_choice_ranks_by_the_flag_and_keeps_the_robust_photometric_model():
+    # The map's fastest row may score without the photometric model (one pass), but the
+    # mask keeps it: the same map, so the choice moves to the model's rows.
+    fast = full_row("map, no model", 0.7, 0.9, photometric="none")
+    rows = [
+        fast,
+        {**full_row("model", 0.7, 0.9), "flag_balanced_accuracy": 0.80},
+        {**full_row("model, seed 50", 0.7, 0.9, seed_score=50.0), "flag_balanced_accuracy": 0.85},
+        {**full_row("other map", 0.6, 0.9, grid=4), "flag_balanced_accuracy": 0.99},
+    ]
+    fast["flag_balanced_accuracy"] = 0.95
+    assert choose_mask(rows, fast)["setting"] == "model, seed 50"
+    assert choose_mask(rows[:2], fast)["setting"] == "model"
+    assert choose_mask([fast], fast)["setting"] == "map, no model"
+
+
+def test_flag_balanced_accuracy_of_an_outcome():
+    outcome = Outcome(Setting("x"))
+    outcome.flags = [(True, True), (False, True), (False, False), (False, False)]
+    assert outcome.flag_balanced_accuracy() == pytest.approx(0.75)
+    outcome.flags = [(True, True)]
+    assert np.isnan(outcome.flag_balanced_accuracy())
