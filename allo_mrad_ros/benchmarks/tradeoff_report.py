@@ -84,13 +84,15 @@ def choose_default(rows: Sequence[dict], ap_margin: float) -> dict:
     return min(eligible, key=lambda r: r["latency_ms_median"])
 
 
-def choose_mask(rows: Sequence[dict], chosen: dict) -> dict:
+def choose_mask(rows: Sequence[dict], chosen: dict, margin: float = 0.01) -> dict:
     """The mask for ``chosen``'s map.
 
-    Among the candidate rows with the same map (:func:`map_key`, so the same P.AP) and the
-    photometric model the robustness tests require (:data:`MASK_PHOTOMETRIC`), the one whose
-    anomalous flag has the best balanced accuracy (reports without it: the best I.AUROC);
-    ``chosen`` on a tie, else the first such row. ``chosen`` itself when none qualifies.
+    The eligible rows have ``chosen``'s map (:func:`map_key`, so the same P.AP) and the
+    photometric model the robustness tests require (:data:`MASK_PHOTOMETRIC`); ``chosen``
+    itself when none does. The incumbent is ``chosen`` if eligible, else the first eligible
+    row (the sweep lists the base's mask first); another row replaces it only when its
+    anomalous flag's balanced accuracy (reports without it: I.AUROC) is more than ``margin``
+    higher, so a difference of a few frames does not move the default.
     """
     eligible = [
         r
@@ -104,10 +106,9 @@ def choose_mask(rows: Sequence[dict], chosen: dict) -> dict:
         value = r.get("flag_balanced_accuracy", r["i_auroc"])
         return -math.inf if value is None or math.isnan(value) else value
 
-    best = max(merit(r) for r in eligible)
-    if chosen in eligible and merit(chosen) >= best:
-        return chosen
-    return next(r for r in eligible if merit(r) >= best)
+    incumbent = chosen if chosen in eligible else eligible[0]
+    best = max(eligible, key=merit)
+    return best if merit(best) > merit(incumbent) + margin else incumbent
 
 
 def format_table(rows: Sequence[dict], default: str | None = None) -> str:

@@ -123,6 +123,8 @@ def test_mask_choice_ranks_by_the_flag_and_keeps_the_robust_photometric_model():
     ]
     fast["flag_balanced_accuracy"] = 0.95
     assert choose_mask(rows, fast)["setting"] == "model, seed 50"
+    # A gain within the margin keeps the incumbent (the first eligible row).
+    assert choose_mask(rows, fast, margin=0.06)["setting"] == "model"
     assert choose_mask(rows[:2], fast)["setting"] == "model"
     assert choose_mask([fast], fast)["setting"] == "map, no model"
 
