@@ -21,10 +21,10 @@ from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.sequence import SequenceMeta, SequenceWriter
 
 # Where the signal is sent: seconds after the handler is installed (the first line of the
-# entry point; the command-line module is still importing the detector then), or seconds
-# after the hidden partial bag appears (the bag is being written).
-POINTS = [("handler", 0.0), ("handler", 0.3), ("handler", 1.0), ("partial", 0.0),
-          ("partial", 0.05), ("partial", 0.3)]  # fmt: skip
+# entry point), after NumPy is loaded (the command-line module is importing the detector),
+# or after the hidden partial bag appears (the bag is being written).
+POINTS = [("handler", 0.0), ("handler", 0.3), ("handler", 1.0), ("numpy", 0.0), ("numpy", 0.2),
+          ("partial", 0.0), ("partial", 0.05), ("partial", 0.3)]  # fmt: skip
 TIME_LIMIT_S = 120.0
 
 
@@ -73,6 +73,10 @@ def _catches_sigterm(pid: int) -> bool:
     return False
 
 
+def _loaded_numpy(pid: int) -> bool:
+    return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
+
+
 def _wait_for(process: subprocess.Popen, ready, what: str) -> None:
     start = time.monotonic()
     while not ready():
@@ -97,6 +101,8 @@ def test_sigterm_at_any_point_exits_130_and_leaves_nothing(sequence, tmp_path, a
     try:
         if after == "handler":
             _wait_for(process, lambda: _catches_sigterm(process.pid), "its SIGTERM handler")
+        elif after == "numpy":
+            _wait_for(process, lambda: _loaded_numpy(process.pid), "NumPy loaded")
         else:
             _wait_for(
                 process,
