@@ -36,7 +36,7 @@ setup(
             "mrad_demo = allo_mrad_ros.demo:main",
             "mrad_detector = allo_mrad_ros.ros.node:main",
             "allo-synth = allo_mrad_ros.synth.cli:main",
-            "allo-bag = rosbag_tools.cli:main",
+            "allo-bag = rosbag_tools.entry:main",
         ],
     },
 )

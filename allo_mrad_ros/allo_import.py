@@ -56,7 +56,7 @@ from .sequence import (
     validate_sequence,
 )
 from .sequence import Sequence as AlloSequence
-from .staging import sigterm_as_interrupt, staged_folder, staging_path
+from .staging import signals_as_interrupt, staged_folder, staging_path
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
 """ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
@@ -324,7 +324,7 @@ def main_import(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="allo-synth")
     add_import_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["import-allo", *(sys.argv[1:] if argv is None else argv)])
-    with sigterm_as_interrupt():
+    with signals_as_interrupt():
         return args.func(args)
 
 

@@ -2,8 +2,9 @@
 
 A command that writes a folder (a bag, a report, a sequence) builds it in
 ``.<name>.partial-<pid>`` next to the target and renames it into place only once it is
-complete; a failure, SIGINT or SIGTERM removes the partial folder, and partial folders left by
-processes that no longer exist (a SIGKILL, a power cut) are removed by the next run.
+complete; a failure, SIGINT or SIGTERM (:func:`signals_as_interrupt`) removes the partial
+folder, and partial folders left by processes that no longer exist (a SIGKILL, a power cut)
+are removed by the next run.
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ import os
 import re
 import shutil
 import signal
+import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
@@ -135,22 +137,62 @@ def staged_folder(out: str | PathLike[str]) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-@contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Within the block SIGTERM raises KeyboardInterrupt, so it cleans up as Ctrl-C does.
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived: raised in the main thread wherever it is.
 
-    Only in the main thread (where Python delivers signals); the previous handler comes back
-    after the block.
+    A subclass, so every ``except KeyboardInterrupt`` and ``finally`` cleans up as for
+    Ctrl-C. Not ``KeyboardInterrupt`` itself: CPython remembers a ``KeyboardInterrupt`` that
+    leaves code run by ``exec`` of a string (rosbags compiles its serialisers that way, and
+    dataclasses their methods) even when a caller catches it, and then ends the process by
+    SIGINT (status -2) instead of the exit status the command returns. CPython checks the
+    exact type, so a subclass is not remembered.
+    """
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    raise Interrupted(f"signal {signum}")
+
+
+@contextmanager
+def signals_as_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM, and SIGINT where it has Python's default handler, raise
+    :class:`Interrupted`, so both clean up as Ctrl-C does.
+
+    An ignored SIGINT (a command started in the background) stays ignored. Only in the main
+    thread (where Python delivers signals); the previous handlers come back after the block.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-
-    def interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    chosen = [signal.SIGTERM]
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        chosen.append(signal.SIGINT)
+    previous = {signum: signal.signal(signum, _raise_interrupted) for signum in chosen}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def run_interruptible(prog: str, load: Callable[[], Callable[[], int]]) -> int:
+    """Load a command with ``load()`` and run what it returns; the exit status.
+
+    From this call on SIGINT and SIGTERM are :class:`Interrupted`: 130 and one line on stderr
+    if one arrives where the command does not handle it itself. While ``load`` imports the
+    command's modules they are held and arrive once it returns: an interrupt raised inside a
+    library's import can be swallowed by its ``except:``, and the command would then run to
+    the end. An entry point calls this before its heavy imports; only the interpreter's own
+    start and end (before and after this call) keep the signals' default actions.
+    """
+    try:
+        with signals_as_interrupt():
+            held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+            try:
+                command = load()
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a held signal raises here
+            return command()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130

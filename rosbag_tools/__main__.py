@@ -2,6 +2,6 @@
 
 import sys
 
-from rosbag_tools.cli import main
+from rosbag_tools.entry import main
 
 sys.exit(main())

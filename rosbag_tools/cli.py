@@ -21,7 +21,7 @@ from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.staging import (
     refuse_overlap,
-    sigterm_as_interrupt,
+    signals_as_interrupt,
     staged_folder,
     staging_path,
 )
@@ -280,7 +280,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format=f"{PROG} {args.command}: %(message)s")
     logging.getLogger("allo_bag").setLevel(logging.INFO)
     try:
-        with sigterm_as_interrupt():
+        with signals_as_interrupt():
             print(_COMMANDS[args.command](args))
     except (CliError, TopicError) as error:
         parser.error(str(error))

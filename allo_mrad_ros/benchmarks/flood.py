@@ -36,6 +36,39 @@ LEVELS = {
 }
 # Statuses in the first seconds describe the start (no frame processed yet), not the flood.
 WARM_UP_S = 10.0
+# Resident memory is sampled this often. It is a sawtooth (the frames in flight, tens of MB,
+# come and go), so one sample says little; growth is judged on the peak of each minute.
+RSS_SAMPLE_S = 1.0
+
+
+def peak_growth(samples: list[tuple[float, float]], duration_s: float) -> dict:
+    """Resident memory of the second minute against the last minute, by peak and median.
+
+    Parameters
+    ----------
+    samples : list of (float, float)
+        Seconds since the flood started and resident MB.
+    duration_s : float
+        Length of the flood; the last minute is ``[duration_s - 60, duration_s]``.
+
+    Returns
+    -------
+    dict
+        ``second_minute`` and ``last_minute`` as ``{"peak", "median"}`` in MB, and
+        ``growth_percent`` of the peak (None when either minute has no sample).
+    """
+    windows = {"second_minute": (60.0, 120.0), "last_minute": (duration_s - 60.0, duration_s)}
+    figures: dict = {}
+    for name, (start, end) in windows.items():
+        values = sorted(mb for t, mb in samples if start <= t <= end)
+        figures[name] = (
+            {"peak": values[-1], "median": values[len(values) // 2]} if values else None
+        )
+    first, last = figures["second_minute"], figures["last_minute"]
+    figures["growth_percent"] = (
+        100.0 * (last["peak"] / first["peak"] - 1) if first and last else None
+    )
+    return figures
 
 
 def flood(minutes: float, rate_hz: float, log_path: Path) -> dict:
@@ -66,7 +99,7 @@ def flood(minutes: float, rate_hz: float, log_path: Path) -> dict:
                     next_frame = now
             if now >= next_sample:
                 rss.append((now - start, node.memory_info().rss / 2**20))
-                next_sample += 5.0
+                next_sample += RSS_SAMPLE_S
             rclpy.spin_once(feed.node, timeout_sec=0.002)
         last_image = time.monotonic()
         load_end = os.getloadavg()
@@ -104,6 +137,7 @@ def flood(minutes: float, rate_hz: float, log_path: Path) -> dict:
         if after_first_minute
         else None,
         "rss_mb_samples": rss,
+        "rss_peak_by_minute": peak_growth(rss, duration),
         "diagnostics_levels_while_flooding": dict(levels),
         "diagnostics_not_ok_messages": dict(not_ok.most_common(5)),
         "stale_seconds_after_last_image": stale_after,
@@ -111,6 +145,17 @@ def flood(minutes: float, rate_hz: float, log_path: Path) -> dict:
         "load_average_end": load_end,
         **machine_facts(),
     }
+
+
+def _peak_line(figures: dict) -> str:
+    first, last = figures["second_minute"], figures["last_minute"]
+    if first is None or last is None:
+        return "resident memory by minute: the flood is shorter than two minutes"
+    return (
+        f"resident memory by minute (samples every {RSS_SAMPLE_S:g} s): second minute peak "
+        f"{first['peak']:.0f} MB (median {first['median']:.0f}), last minute peak "
+        f"{last['peak']:.0f} MB (median {last['median']:.0f}): {figures['growth_percent']:+.1f} %"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,7 +177,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{report['frames_processed']} ({report['output_rate_hz']:.2f} frames/s)\n"
         f"node alive at the end: {report['node_alive_at_end']}\n"
         f"resident memory: {report['rss_mb_after_first_minute']:.0f} MB after the first "
-        f"minute, {report['rss_mb_end']:.0f} MB at the end ({growth:+.1f} %)\n"
+        f"minute, {report['rss_mb_end']:.0f} MB at the end ({growth:+.1f} %; single samples)\n"
+        f"{_peak_line(report['rss_peak_by_minute'])}\n"
         f"/diagnostics while flooding (after {WARM_UP_S:g} s): "
         f"{report['diagnostics_levels_while_flooding']}; not OK: "
         f"{report['diagnostics_not_ok_messages'] or 'none'}\n"

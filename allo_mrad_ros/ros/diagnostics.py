@@ -97,7 +97,8 @@ class Diagnostics:
         kind = _kind(error)
         with self._lock:
             first = kind not in self._logged_kinds and len(self._logged_kinds) < _MAX_LOGGED_KINDS
-            self._logged_kinds.add(kind)
+            if first:  # past the cap nothing more is logged, so nothing more is remembered
+                self._logged_kinds.add(kind)
         if first:
             self._node.get_logger().error(
                 f"{error} (further '{error.cause}' errors of this kind are counted in "

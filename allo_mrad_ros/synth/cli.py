@@ -21,7 +21,7 @@ from pathlib import Path
 
 from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
 from allo_mrad_ros.errors import AlloError
-from allo_mrad_ros.staging import sigterm_as_interrupt, staged_folder, staging_path
+from allo_mrad_ros.staging import signals_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 
@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``allo-synth``; returns the exit status."""
     args = build_parser().parse_args(argv)
-    with sigterm_as_interrupt():
+    with signals_as_interrupt():
         return args.func(args)
 
 

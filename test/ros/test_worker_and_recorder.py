@@ -12,7 +12,8 @@ from sensor_msgs.msg import Image
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.ros import worker as worker_module
 from allo_mrad_ros.ros.buffers import LatestSlot
-from allo_mrad_ros.ros.messages import fill_image
+from allo_mrad_ros.ros.diagnostics import _MAX_LOGGED_KINDS, Diagnostics
+from allo_mrad_ros.ros.messages import MessageError, fill_image
 from allo_mrad_ros.ros.parameters import node_parameters, validate
 from allo_mrad_ros.ros.recorder import OutputRecorder
 from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
@@ -135,6 +136,39 @@ def test_recorder_forgets_the_oldest_unmatched_outputs_and_inputs():
     assert recorder.unmatched == 950
     mask(image_at(999))  # a recent stamp still pairs, with its latency
     assert len(frames) == 1 and frames[0].stamp_ns == 999 and frames[0].latency_ms is not None
+
+
+class LoggingNode:
+    """What Diagnostics needs of a node: a publisher, a timer and a logger that keeps lines."""
+
+    def __init__(self):
+        self.errors = []
+
+    def create_publisher(self, kind, topic, depth):
+        return None
+
+    def create_timer(self, period_s, callback):
+        return None
+
+    def get_logger(self):
+        return types.SimpleNamespace(error=self.errors.append)
+
+    def get_fully_qualified_name(self):
+        return "/mrad_detector"
+
+
+def test_diagnostics_remembers_a_bounded_number_of_logged_error_kinds():
+    """Messages that differ in more than numbers (object addresses, frame names) are new
+    kinds: the log stops at the cap, and so must the set of kinds seen."""
+    node = LoggingNode()
+    diagnostics = Diagnostics(node, 1.0, lambda: 0, "topic")
+    for index in range(3 * _MAX_LOGGED_KINDS):
+        name = "".join(chr(ord("a") + int(digit)) for digit in str(index))  # no digits left
+        diagnostics.report(MessageError("internal", f"frame failed in camera {name}"))
+    assert len(node.errors) == _MAX_LOGGED_KINDS
+    assert len(diagnostics._logged_kinds) == _MAX_LOGGED_KINDS
+    counted = {kv.key: kv.value for kv in diagnostics.status().values}
+    assert counted["errors_internal"] == str(3 * _MAX_LOGGED_KINDS)
 
 
 @pytest.mark.parametrize(

@@ -20,7 +20,7 @@ from allo_mrad_ros.sequence import Sequence
 from allo_mrad_ros.staging import (
     StagingError,
     remove_stale,
-    sigterm_as_interrupt,
+    signals_as_interrupt,
     staged_folder,
 )
 from rosbag_tools import writer as writer_module
@@ -97,7 +97,7 @@ def test_sigterm_during_write_leaves_nothing_and_stale_partials_are_cleaned(
 
     monkeypatch.setattr(writer_module._FrameEncoder, "encode", terminated_midway)
     previous = signal.getsignal(signal.SIGTERM)
-    with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
+    with pytest.raises(KeyboardInterrupt), signals_as_interrupt():
         write_bag(sequence, tmp_path / "bag")
     assert signal.getsignal(signal.SIGTERM) is previous
     assert len(calls) == 2

@@ -1,0 +1,157 @@
+"""`allo-bag write` stopped by SIGTERM at any point after its start: exit status 130, one
+line, no bag and no hidden ``.bag.partial-*`` left (issue 13 item 11).
+
+The command runs as ``python -m rosbag_tools``, as the sweep runs it: that is the path on
+which CPython ends a process by SIGINT (status -2) once a ``KeyboardInterrupt`` has left code
+run by ``exec`` of a string, even a caught one.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from allo_mrad_ros.camera import ALLO_INTRINSICS
+from allo_mrad_ros.sequence import SequenceMeta, SequenceWriter
+
+# Where the signal is sent: seconds after the handler is installed (the first line of the
+# entry point), after NumPy is loaded (the command-line module is importing the detector),
+# or after the hidden partial bag appears (the bag is being written).
+POINTS = [("handler", 0.0), ("handler", 0.3), ("handler", 1.0), ("numpy", 0.0), ("numpy", 0.2),
+          ("partial", 0.0), ("partial", 0.05), ("partial", 0.3)]  # fmt: skip
+TIME_LIMIT_S = 120.0
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> Path:
+    """Noise frames at 640x360: a write of a few seconds, for a signal to land in."""
+    root = tmp_path_factory.mktemp("seq") / "seq"
+    camera = ALLO_INTRINSICS.scaled(1.0 / 3.0)
+    rng = np.random.default_rng(0)
+    with SequenceWriter(root, SequenceMeta(name="long", camera=camera, rate_hz=10.0)) as writer:
+        for _ in range(24):
+            writer.add_frame(
+                split="test",
+                camera=0,
+                image=rng.integers(0, 256, (camera.height, camera.width, 3), dtype=np.uint8),
+                mask=np.ones((camera.height, camera.width), np.uint8),
+                position=[-30.0, -12.0, 6.0],
+                quaternion=[0.0, 0.0, 0.0, 1.0],
+                sun_direction=[0.6, 0.0, 0.8],
+            )
+    return root
+
+
+def _default_signals() -> None:
+    # What a terminal gives a command: SIGINT neither ignored nor blocked, so a process that
+    # ends itself by SIGINT shows as -2 (a shell in the background would hide it as 130).
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_SETMASK, [])
+
+
+def _start(argv: list[str], cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", *argv],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_signals,
+    )
+
+
+def _catches_sigterm(pid: int) -> bool:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
+    return False
+
+
+def _loaded_numpy(pid: int) -> bool:
+    return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
+
+
+def _wait_for(process: subprocess.Popen, ready, what: str) -> None:
+    start = time.monotonic()
+    while not ready():
+        if process.poll() is not None:
+            pytest.fail(f"allo-bag ended ({process.returncode}) before {what}")
+        if time.monotonic() - start > TIME_LIMIT_S:
+            process.kill()
+            pytest.fail(f"no {what} within {TIME_LIMIT_S} s")
+        time.sleep(0.001)
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+@pytest.mark.parametrize(("after", "delay_s"), POINTS)
+def test_sigterm_at_any_point_exits_130_and_leaves_nothing(sequence, tmp_path, after, delay_s):
+    out = tmp_path / "out"
+    out.mkdir()
+    process = _start(["rosbag_tools", "write", str(sequence), str(out / "bag")], tmp_path)
+    try:
+        if after == "handler":
+            _wait_for(process, lambda: _catches_sigterm(process.pid), "its SIGTERM handler")
+        elif after == "numpy":
+            _wait_for(process, lambda: _loaded_numpy(process.pid), "NumPy loaded")
+        else:
+            _wait_for(
+                process,
+                lambda: any(".partial-" in p.name for p in out.iterdir()),
+                "the partial bag",
+            )
+        time.sleep(delay_s)
+        assert process.poll() is None, "the write ended before the signal: make it longer"
+        process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=TIME_LIMIT_S)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1].endswith("interrupted"), stderr
+    assert "Traceback" not in stderr
+    assert _leftovers(out) == []
+
+
+INTERRUPT_IN_EXEC = """
+import sys
+
+import rosbags.serde.cdr as cdr
+import rosbags.serde.utils as utils
+
+compile_lines = utils.compile_lines
+
+
+def interrupted_while_compiling(lines):
+    # The signal lands while rosbags compiles a serialiser, so the interrupt is raised
+    # inside the code that exec() runs.
+    return compile_lines(["import os, signal", "os.kill(os.getpid(), signal.SIGTERM)", *lines])
+
+
+utils.compile_lines = cdr.compile_lines = interrupted_while_compiling
+from rosbag_tools.entry import main
+
+sys.exit(main())
+"""
+
+
+def test_sigterm_raised_inside_exec_code_still_exits_130(sequence, tmp_path):
+    """The window of the intermittent -2, made certain: the interrupt leaves rosbags'
+    exec-compiled serialiser code while the bag is written."""
+    (tmp_path / "interrupt_in_exec.py").write_text(INTERRUPT_IN_EXEC)
+    out = tmp_path / "out"
+    out.mkdir()
+    process = _start(["interrupt_in_exec", "write", str(sequence), str(out / "bag")], tmp_path)
+    _, stderr = process.communicate(timeout=TIME_LIMIT_S)
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == "allo-bag write: interrupted", stderr
+    assert _leftovers(out) == []
