@@ -246,7 +246,7 @@ def _evaluate(image: np.ndarray, grid: int, models: Sequence[CellModels]) -> lis
                 )
                 cv2.transform(products, channel_sum[index], dst=score[cell])
 
-    for_each_block(evaluate_cells, len(slices))
+    for_each_block(evaluate_cells, len(slices), pixels=height * width)
     for score in scores:
         if not cv2.checkRange(score):
             # Only reachable with unregularised, near-singular statistics: saturate, never NaN.

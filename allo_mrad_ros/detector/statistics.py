@@ -91,7 +91,7 @@ def _statistics_uint8(image: np.ndarray, grid: int) -> CellStatistics:
                     columns.reshape(width, 3).astype(np.float64), col_starts, axis=0
                 )
 
-    for_each_block(accumulate, grid, min_per_block=1)
+    for_each_block(accumulate, grid, min_per_block=1, pixels=height * width)
     n_cells = grid * grid
     rows = np.diff(row_edges)
     cols = np.diff(cell_edges(width, grid))

@@ -152,8 +152,13 @@ def test_shuffling_reference_pixels_inside_a_cell_keeps_the_score(seed, grid):
 
 
 @pytest.mark.parametrize("threads", [1, 2, 3])
-def test_cells_split_over_threads_give_the_single_thread_result(threads):
+def test_cells_split_over_threads_give_the_single_thread_result(threads, monkeypatch):
     import cv2
+
+    from allo_mrad_ros.detector import threads as cell_threads
+
+    # Small images run in one block by default; split them anyway.
+    monkeypatch.setattr(cell_threads, "MIN_PIXELS_PER_BLOCK", 1)
 
     from allo_mrad_ros.detector.score import cross_scores
 

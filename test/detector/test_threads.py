@@ -32,3 +32,13 @@ def test_an_error_in_a_worker_block_is_raised_to_the_caller(opencv_threads):
 
     with pytest.raises(ValueError, match="bad cell 63"):
         for_each_block(work, 64)
+
+
+def test_small_images_stay_in_one_block(opencv_threads):
+    from allo_mrad_ros.detector.threads import MIN_PIXELS_PER_BLOCK
+
+    opencv_threads(4)
+    assert worker_count(64, pixels=480 * 270) == 1
+    assert worker_count(64, pixels=4 * MIN_PIXELS_PER_BLOCK) == 4
+    assert worker_count(64, pixels=2 * MIN_PIXELS_PER_BLOCK) == 2
+    assert worker_count(64) == 4
