@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import re
 
+from allo_mrad_ros.render.uniforms import patch_each_program
+
 _PCF_PYRENDER = re.compile(
     r"float PCF\(sampler2D depths, vec2 size, vec2 uv, float compare\)\{\n"
     r"    float result = 0\.0;\n"
@@ -67,25 +69,19 @@ def shared_read_pcf(source: str) -> str:
 
 def install_shadow_filter(offscreen: object) -> None:
     """Load every ``mesh.frag`` this renderer compiles with :func:`shared_read_pcf`."""
-    renderer = getattr(offscreen, "_renderer", None)
-    if renderer is None or not hasattr(renderer, "_program_cache"):
-        return
-    cache = renderer._program_cache
-    get_program = cache.get_program
 
-    def get_patched_program(*args: object, **kwargs: object) -> object:
-        program = get_program(*args, **kwargs)
-        if "_load" not in program.__dict__:
-            load = program._load
+    def patch_loader(program: object) -> None:
+        if "_load" in program.__dict__:
+            return
+        load = program._load
 
-            def load_patched(filename: str) -> str:
-                text = load(filename)
-                return shared_read_pcf(text) if filename.endswith("mesh.frag") else text
+        def load_patched(filename: str) -> str:
+            text = load(filename)
+            return shared_read_pcf(text) if filename.endswith("mesh.frag") else text
 
-            program._load = load_patched
-        return program
+        program._load = load_patched
 
-    cache.get_program = get_patched_program
+    patch_each_program(offscreen, patch_loader)
 
 
 def install_light_limits(offscreen: object) -> None:

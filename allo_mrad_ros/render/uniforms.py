@@ -101,31 +101,44 @@ class UniformSetter:
         self.calls += 1
 
 
-def install_uniform_cache(offscreen: object) -> None:
-    """Give every program this ``OffscreenRenderer`` compiles a :class:`UniformSetter`."""
+def patch_each_program(offscreen: object, patch: Callable[[object], None]) -> None:
+    """Call ``patch`` on every shader program this ``OffscreenRenderer`` hands out.
+
+    ``patch`` runs on each program the cache returns, cached or new, so it must leave an
+    already patched program as it is.
+    """
     renderer = getattr(offscreen, "_renderer", None)
     if renderer is None or not hasattr(renderer, "_program_cache"):
         return
-    import OpenGL.GL as gl
-
     cache = renderer._program_cache
     get_program = cache.get_program
 
     def get_patched_program(*args: object, **kwargs: object) -> object:
         program = get_program(*args, **kwargs)
-        if not isinstance(program.__dict__.get("set_uniform"), UniformSetter):
-            setter = UniformSetter(program, gl)
-            add_to_context = program._add_to_context
-
-            def add_and_forget() -> None:
-                setter.forget()
-                add_to_context()
-
-            program.set_uniform = setter
-            program._add_to_context = add_and_forget
+        patch(program)
         return program
 
     cache.get_program = get_patched_program
+
+
+def install_uniform_cache(offscreen: object) -> None:
+    """Give every program this ``OffscreenRenderer`` compiles a :class:`UniformSetter`."""
+    import OpenGL.GL as gl
+
+    def give_setter(program: object) -> None:
+        if isinstance(program.__dict__.get("set_uniform"), UniformSetter):
+            return
+        setter = UniformSetter(program, gl)
+        add_to_context = program._add_to_context
+
+        def add_and_forget() -> None:
+            setter.forget()
+            add_to_context()
+
+        program.set_uniform = setter
+        program._add_to_context = add_and_forget
+
+    patch_each_program(offscreen, give_setter)
 
 
 def install_lighting_once_per_pass(offscreen: object) -> None:
