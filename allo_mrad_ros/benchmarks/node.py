@@ -43,6 +43,7 @@ from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.ros.feed import OUTPUT_TYPES, CameraFeed, start_node, stop_node
+from allo_mrad_ros.ros.process_tuning import keep_freed_memory
 
 SUN = (0.3, -0.5, 0.8)
 
@@ -73,6 +74,9 @@ def _node_session(
     os.environ.setdefault(
         "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
     )
+    # The feed stands for a camera driver and a viewer, C++ programs that reuse their
+    # buffers; without this its Python receives would fault in pages the node competes for.
+    keep_freed_memory(512)
     rclpy.init()
     feed = CameraFeed(camera, keep_messages=False, **feed_options)
     process = start_node(log_path, *node_args)
@@ -95,10 +99,14 @@ def run(
     timeout_s: float,
     camera: CameraIntrinsics = ALLO_INTRINSICS,
     pipelined: bool = True,
+    node_parameters: tuple[str, ...] = (),
 ) -> dict:
-    """Drive the node at ``rate_hz`` until ``frames`` masks arrived; the report dictionary."""
+    """Drive the node at ``rate_hz`` until ``frames`` masks arrived; the report dictionary.
+
+    ``node_parameters`` are extra ``name:=value`` parameters of the node.
+    """
     pose, images = _frames(camera)
-    node_args = (f"pipelined:={str(pipelined).lower()}",)
+    node_args = (f"pipelined:={str(pipelined).lower()}", *node_parameters)
     with _node_session(log_path, {}, *node_args, camera=camera) as (feed, node):
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
@@ -135,6 +143,7 @@ def run(
         "image": f"{camera.width}x{camera.height}",
         "input_rate_hz": rate_hz,
         "pipelined": pipelined,
+        "node_parameters": list(node_parameters),
         "frames_published": len(published),
         "frames_processed": len(stamps),
         "frames_dropped": len(published) - len(stamps),
@@ -233,6 +242,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="CPU per frame with only ~/mask subscribed against every output, interleaved",
     )
+    parser.add_argument(
+        "--node-param",
+        action="append",
+        default=[],
+        metavar="NAME:=VALUE",
+        help="a node parameter for the runs (repeatable), e.g. opencv_threads:=0",
+    )
     parser.add_argument("--rounds", type=int, default=5, help="blocks per mode (compare)")
     parser.add_argument("--block", type=int, default=8, help="frames per block (compare)")
     args = parser.parse_args(argv)
@@ -252,10 +268,14 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(modes) - set(MODES))
     if unknown or not modes:
         parser.error(f"unknown mode(s) {unknown or modes}; choose from {list(MODES)}")
+    bad = [text for text in args.node_param if ":=" not in text]
+    if bad:
+        parser.error(f"--node-param needs NAME:=VALUE, got {bad}")
     variants = [False, True] if args.compare_serial else [not args.serial]
     results: dict[tuple[str, bool], dict] = {}
     print(
-        f"mrad_detector, default parameters and outputs (mask, score, overlay), "
+        f"mrad_detector, {' '.join(args.node_param) or 'default parameters'}; outputs mask, "
+        f"score, overlay; "
         f"{args.frames} frames per run, {os.cpu_count()} CPUs\n"
         f"{'mode':8} {'worker':9} {'fps':>6} {'dropped':>10} {'p50':>6} {'p95':>6} {'p99':>6} "
         f"{'cpu s/f':>7} {'RSS MB':>7} {'growth':>7} {'load':>5}"
@@ -264,7 +284,9 @@ def main(argv: list[str] | None = None) -> int:
         width, height, rate = MODES[name]
         for pipelined in variants:
             log = log_dir / f"node_{name}_{'pipelined' if pipelined else 'serial'}.log"
-            report = run(args.frames, rate, log, args.timeout, camera_of(width, height), pipelined)
+            camera = camera_of(width, height)
+            parameters = tuple(args.node_param)
+            report = run(args.frames, rate, log, args.timeout, camera, pipelined, parameters)
             results[name, pipelined] = report
             print(_summary_line(name, report), flush=True)
     first, main_variant = modes[0], variants[-1]

@@ -50,13 +50,12 @@ from visualization_msgs.msg import MarkerArray
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.pipeline import ProcessedFrame
-from allo_mrad_ros.ros import messages
+from allo_mrad_ros.ros import messages, process_tuning
 from allo_mrad_ros.ros.buffers import LatestSlot, StampedBuffer
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import (
-    NodeConfig,
     NodeParameter,
     ParameterError,
     check_params_files,
@@ -105,7 +104,9 @@ class MradDetectorNode(Node):
         except ParameterError:
             super().destroy_node()  # nothing else is built yet
             raise
-        self._config: NodeConfig = node_config_from(self._values)
+        config = self._config = node_config_from(self._values)
+        tuning = process_tuning.apply(config.keep_freed_memory_mb, config.opencv_threads)
+        self.get_logger().info(tuning)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._lock = threading.Lock()
@@ -117,7 +118,6 @@ class MradDetectorNode(Node):
         self._sun_directions: StampedBuffer[np.ndarray] = StampedBuffer(512)
         self._bodies: tuple = ()
 
-        config = self._config
         self._diagnostics = Diagnostics(
             self,
             config.diagnostics_period_s,
@@ -241,12 +241,9 @@ class MradDetectorNode(Node):
         self.create_subscription(
             image_type, image_topic, self._on_image, inputs(), qos_overriding_options=overrides
         )
+        info_topic, on_info = interface.CAMERA_INFO_INPUT, self._on_camera_info
         self.create_subscription(
-            CameraInfo,
-            interface.CAMERA_INFO_INPUT,
-            self._on_camera_info,
-            inputs(),
-            qos_overriding_options=overrides,
+            CameraInfo, info_topic, on_info, inputs(), qos_overriding_options=overrides
         )
         self.create_subscription(Vector3Stamped, interface.SUN_DIRECTION_INPUT, self._on_sun, state)
         self.create_subscription(

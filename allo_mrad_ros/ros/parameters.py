@@ -134,6 +134,28 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
             ),
             True,
         ),
+        "opencv_threads": NodeParameter(
+            1,
+            ParameterSpec(
+                int,
+                "threads of OpenCV's parallel loops; 0: OpenCV's default (one per core). "
+                "The pipelined node keeps two threads busy itself",
+                0,
+                64,
+            ),
+            True,
+        ),
+        "keep_freed_memory_mb": NodeParameter(
+            512,
+            ParameterSpec(
+                int,
+                "freed memory the C allocator (glibc) keeps mapped for the next frame's "
+                "buffers instead of returning it to the kernel; 0: the allocator's default",
+                0,
+                4096,
+            ),
+            True,
+        ),
         "publish_reference": NodeParameter(False, _flag("publish the rendered reference")),
         "publish_overlay": NodeParameter(True, _flag("publish the image with the mask outlined")),
         "diagnostics_period_s": NodeParameter(
@@ -177,8 +199,7 @@ def validate(name: str, parameter: NodeParameter, value: Any) -> Any:
             vector is None
             or len(vector) != 3
             or not all(
-                isinstance(v, int | float | np.number) and not isinstance(v, bool)
-                for v in vector
+                isinstance(v, int | float | np.number) and not isinstance(v, bool) for v in vector
             )
         ):
             raise ParameterError(f"{name} must be a list of 3 numbers, got {value!r}")
@@ -295,6 +316,8 @@ class NodeConfig:
     sun_direction: tuple[float, float, float]
     sun_strength: float
     pipelined: bool
+    opencv_threads: int
+    keep_freed_memory_mb: int
     publish_reference: bool
     publish_overlay: bool
     diagnostics_period_s: float
@@ -325,6 +348,8 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         sun_direction=tuple(float(v) for v in values["sun_direction"]),
         sun_strength=float(values["sun_strength"]),
         pipelined=values["pipelined"],
+        opencv_threads=int(values["opencv_threads"]),
+        keep_freed_memory_mb=int(values["keep_freed_memory_mb"]),
         publish_reference=values["publish_reference"],
         publish_overlay=values["publish_overlay"],
         diagnostics_period_s=float(values["diagnostics_period_s"]),
