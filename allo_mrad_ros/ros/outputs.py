@@ -124,11 +124,13 @@ class Outputs:
         """
         result = frame.primary
         fill = messages.fill_image
-        if score_map and self.score.get_subscription_count():
-            self.score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
+        # The mask and the flag first: they are what a consumer acts on, and the 8 MB score
+        # would otherwise delay them by its serialisation.
         if self.mask.get_subscription_count():
             self.mask.publish(fill(Image(), header, result.mask, interface.MONO8))
         self.anomaly.publish(Bool(data=bool(result.anomalous)))
+        if score_map and self.score.get_subscription_count():
+            self.score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
         if self.result.get_subscription_count() or self.regions.get_subscription_count():
             boxes = connected_boxes(result.mask)
             if self.regions.get_subscription_count():
