@@ -7,13 +7,12 @@ called from that thread. A parameter change never mutates the running pipeline: 
 stage sees a new :class:`~allo_mrad_ros.ros.parameters.NodeConfig` snapshot and swaps in a
 new :class:`~allo_mrad_ros.pipeline.Pipeline` sharing the provider between two frames.
 
-Pipelined (the default): a second thread detects frame n while the render thread renders
-frame n+1, and a third builds and publishes frame n-1's outputs, so both cores work at once
-and the detector never waits on serialising 16 MB of images. Between the stages are
-hand-overs of one frame; the render thread takes the newest image only when its hand-over
-is empty and the frame in detection is about one render time from done, so the frame it
-renders is as fresh as it can be and is ready when the detect thread is. Each stage is one
-thread taking frames in order, so results are published in the order of the images taken.
+Pipelined (the default): a second thread detects and publishes frame n while the render
+thread renders frame n+1, so two cores work at once. Between them is a hand-over of one
+frame; the render thread takes the newest image only when the hand-over is empty and the
+frame in detection is about one render time from done, so the frame it renders is as fresh
+as it can be and is ready when the detect thread is. One detect thread takes frames in the
+order they were rendered, so results are published in the order of the images taken.
 Serial (``pipelined: false``): one thread renders, then detects and publishes.
 """
 
@@ -73,16 +72,6 @@ class RenderedFrame:
     render_ms: float
 
 
-@dataclass(frozen=True)
-class DetectedFrame:
-    """A frame between the detect and publish stages."""
-
-    rendered: RenderedFrame
-    frame: ProcessedFrame
-    score_map: bool
-    detect_ms: float
-
-
 class _RunningMean:
     """An exponentially weighted mean of a stage's time in ms (None before the first)."""
 
@@ -90,7 +79,9 @@ class _RunningMean:
         self.value: float | None = None
 
     def add(self, ms: float) -> None:
-        self.value = ms if self.value is None else self.value + _ESTIMATE_WEIGHT * (ms - self.value)
+        self.value = ms if self.value is None else self.value + _ESTIMATE_WEIGHT * (
+            ms - self.value
+        )
 
 
 class ProcessingWorker:
@@ -142,15 +133,10 @@ class ProcessingWorker:
         self._stopping = threading.Event()
         self._publishing = threading.Lock()
         self._handover: HandOver[RenderedFrame] = HandOver()
-        self._to_publish: HandOver[DetectedFrame] = HandOver()
         self._render_ms = _RunningMean()
         self._detect_ms = _RunningMean()
         loops = (
-            [
-                ("mrad_render", self._render_loop),
-                ("mrad_detect", self._detect_loop),
-                ("mrad_publish", self._publish_loop),
-            ]
+            [("mrad_render", self._render_loop), ("mrad_detect", self._detect_loop)]
             if pipelined
             else [("mrad_processing", self._render_loop)]
         )
@@ -209,16 +195,6 @@ class ProcessingWorker:
                 self._detect(rendered)
             except Exception as error:  # one bad frame must not end the thread
                 self._report_failure((rendered.msg, rendered.received), error)
-
-    def _publish_loop(self) -> None:
-        while self._running:
-            detected = self._to_publish.take(timeout=_POLL_S)
-            if detected is None or not self._running:
-                continue
-            try:
-                self._publish_frame(detected)
-            except Exception as error:  # one bad frame must not end the thread
-                self._report_failure((detected.rendered.msg, detected.rendered.received), error)
 
     def _wait_for_detect_to_near_its_end(self) -> None:
         """Sleep until the frame in detection is about one render time from published.
@@ -320,22 +296,14 @@ class ProcessingWorker:
         return RenderedFrame(msg, received, image, reference, pipeline, render_ms)
 
     def _detect(self, rendered: RenderedFrame) -> None:
-        """Detect one rendered frame and hand it to the publish stage (or, serial, publish
-        it); the stage's time, hand-over included, is what the render thread schedules by."""
+        """Detect, publish (unless stopping), count and time one rendered frame."""
         start = time.perf_counter()
         try:
-            detected = self._detect_frame(rendered)
-            if detected is None:
-                return
-            if not self.pipelined:
-                self._publish_frame(detected)
-                return
-            while self._running and not self._to_publish.put(detected, timeout=_POLL_S):
-                pass
+            self._detect_and_publish(rendered)
         finally:
             self._detect_ms.add(1e3 * (time.perf_counter() - start))
 
-    def _detect_frame(self, rendered: RenderedFrame) -> DetectedFrame | None:
+    def _detect_and_publish(self, rendered: RenderedFrame) -> None:
         try:
             score_map = self._score_wanted()
             results, detect_ms = rendered.pipeline.detect(
@@ -343,24 +311,19 @@ class ProcessingWorker:
             )
         except ValueError as error:
             self._diagnostics.report(MessageError("processing", f"frame rejected: {error}"))
-            return None
+            return
         timings = {"render": rendered.render_ms, **detect_ms}
         timings["total"] = sum(timings.values())
         frame = ProcessedFrame(rendered.reference, results, timings)
-        return DetectedFrame(rendered, frame, score_map, next(iter(detect_ms.values())))
-
-    def _publish_frame(self, detected: DetectedFrame) -> None:
-        """Publish (unless stopping), count and time one detected frame."""
-        rendered, frame = detected.rendered, detected.frame
         with self._publishing:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
             if not self._running:
                 return
-            self._publish(rendered.msg, rendered.image, frame, detected.score_map)
+            self._publish(rendered.msg, rendered.image, frame, score_map)
         self._diagnostics.stages.record(
             {
                 "render": rendered.render_ms,
-                "detect": detected.detect_ms,
+                "detect": next(iter(detect_ms.values())),
                 "receive_to_publish": 1e3 * (time.monotonic() - rendered.received),
             }
         )
@@ -390,11 +353,11 @@ class ProcessingWorker:
         self._stopping.set()
         self._slot.close()
         self._handover.close()
-        self._to_publish.close()
         self.join(timeout_s)
 
 
 def _stamp_of(item: tuple[Any, float] | None) -> str:
+    """The stamp (ns) of a taken item for a log line, or ``?``."""
     try:
         return str(messages.stamp_to_ns(item[0].header.stamp))
     except (AttributeError, TypeError):

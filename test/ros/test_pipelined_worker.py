@@ -113,10 +113,8 @@ def image_at(stamp_ns, camera=CAMERA):
 class Run:
     """A worker on stand-in stages, fed by the test; records what it publishes and when."""
 
-    def __init__(self, pipelined, camera=CAMERA, score_wanted=lambda: True, publish_s=0.0):
+    def __init__(self, pipelined, camera=CAMERA, score_wanted=lambda: True):
         self.slot = LatestSlot()
-        self.publish_s = publish_s
-        self.publish_threads = set()
         self.score_maps = []  # what publish was told, per frame
         self.camera = camera
         self.diagnostics = Recording()
@@ -126,18 +124,14 @@ class Run:
             self.slot,
             lambda: Snapshot(self.camera, CONFIG, np.ones(3), 1.0, ()),
             lambda msg, state: "view",
-            self._publish,
+            lambda msg, image, frame, score_map: self.published.append(
+                (stamp_to_ns(msg.header.stamp), time.monotonic())
+            ) or self.score_maps.append(score_map),
             self.diagnostics,
             self.logger,
             pipelined,
             score_wanted,
         )
-
-    def _publish(self, msg, image, frame, score_map):
-        self.publish_threads.add(threading.current_thread().name)
-        time.sleep(self.publish_s)
-        self.published.append((stamp_to_ns(msg.header.stamp), time.monotonic()))
-        self.score_maps.append(score_map)
 
     def put(self, stamp_ns):
         """Offer an image; True if it replaced one never taken (the node counts those)."""
@@ -223,25 +217,6 @@ def test_the_two_stages_overlap_so_a_frame_costs_the_slower_stage_not_the_sum(mo
     assert serial >= 0.95 * 2 * stage_s, per_frame  # the serial worker pays for both stages
     assert pipelined < 0.75 * 2 * stage_s, per_frame
     assert pipelined < 0.75 * serial, per_frame
-
-
-def test_publishing_is_a_third_stage_overlapping_render_and_detect(monkeypatch):
-    stage_s, frames = 0.03, 10
-    per_frame, threads = {}, {}
-    for pipelined in (False, True):
-        stages = Stages(render_s=stage_s, detect_s=stage_s)
-        stages.install(monkeypatch)
-        run = Run(pipelined, publish_s=stage_s)
-        try:
-            run.feed_until(frames + 1)
-        finally:
-            run.worker.stop()
-        times = [at for _, at in run.published]
-        per_frame[pipelined] = (times[frames] - times[0]) / frames
-        threads[pipelined] = run.publish_threads
-    assert threads == {False: {"mrad_processing"}, True: {"mrad_publish"}}
-    assert per_frame[False] >= 0.95 * 3 * stage_s, per_frame
-    assert per_frame[True] < 0.6 * per_frame[False], per_frame
 
 
 def test_the_render_stage_starts_late_enough_that_its_frame_does_not_wait_for_detection(
@@ -332,26 +307,21 @@ def test_the_score_map_is_made_and_published_only_while_someone_reads_it(
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
-@pytest.mark.parametrize("stage", ["mrad_detect", "mrad_publish"])
-def test_a_dead_stage_thread_makes_the_worker_not_alive_and_says_so(monkeypatch, stage):
+def test_a_dead_detect_thread_makes_the_worker_not_alive_and_says_so(monkeypatch):
     stages = Stages()
     stages.install(monkeypatch)
     run = Run(True)
 
-    def die(*args, **kwargs):
+    def die(msg, image, frame, score_map):
         raise SystemExit("injected fault")
 
-    if stage == "mrad_publish":
-        run.worker._publish = die
-    else:
-        run.worker._detect_frame = die
+    run.worker._publish = die
     try:
         run.put(1)
         assert wait_until(lambda: not run.worker.is_alive())
-        alive = {t.name for t in run.worker._threads if t.is_alive()}
-        assert alive == {"mrad_render", "mrad_detect", "mrad_publish"} - {stage}
+        assert [t.name for t in run.worker._threads if t.is_alive()] == ["mrad_render"]
         lines = run.logger.fatal_lines
-        assert any(f"processing thread stopped ({stage})" in line for line in lines)
+        assert any("processing thread stopped (mrad_detect)" in line for line in lines)
     finally:
         run.worker.stop()
 
