@@ -89,14 +89,16 @@ def _direct(root: Path, params: MradParams, methods=METHODS, frames=None, refere
     return overall, per_type
 
 
-def _same(a: dict, b: dict) -> None:
+def _same(a: dict, b: dict, tolerance: float = 0.0) -> None:
     assert a.keys() == b.keys()
     for key in a:
         x, y = a[key], b[key]
         if isinstance(x, dict):
-            _same(x, y)
+            _same(x, y, tolerance)
         elif x is None or (isinstance(x, float) and math.isnan(x)):
             assert y is None or math.isnan(y), key
+        elif tolerance and isinstance(x, float):
+            assert x == pytest.approx(y, rel=tolerance, abs=tolerance), key
         else:
             assert x == y, key
 
@@ -153,8 +155,12 @@ def test_bag_input_and_two_jobs_give_the_same_numbers(data):
     overall, per_type = _direct(data / "seq", MradParams())
     assert report["frames"] == 6 and report["input"]["kind"] == "bag"
     assert report["throughput"]["jobs"] == 2
-    _same(report["methods"], overall)
-    _same({t: e["methods"] for t, e in report["per_anomaly_type"].items()}, per_type)
+    # Two worker processes against this one: once in many CI runs (the distro stage, under
+    # load) P.AUROC differed by a rounding-sized amount, so metrics agree to 1e-6 here; a lost,
+    # repeated or misread frame moves them by far more.
+    _same(report["methods"], overall, tolerance=1e-6)
+    per_type_report = {t: e["methods"] for t, e in report["per_anomaly_type"].items()}
+    _same(per_type_report, per_type, tolerance=1e-6)
     assert not (out / "overlays.png").exists()
 
 
