@@ -188,3 +188,19 @@ def test_several_models_in_one_pass_equal_one_model_at_a_time():
     for photometric, score in zip(["cell_affine", "none"], both, strict=True):
         single = cross_score(query, reference, 4, ABS_FLOOR, REL_FLOOR, photometric)
         np.testing.assert_array_equal(single, score)
+
+
+@pytest.mark.parametrize("photometric", ["none", "cell_affine"])
+def test_the_smallest_unchecked_floor_keeps_extreme_scores_finite(photometric):
+    # From abs_floor 1e-3 on the map is not checked for inf/NaN: its worst case must stay
+    # finite. Flat reference cells (black, saturated, grey) against full-range noise, and
+    # the largest gain the photometric fit may apply.
+    from allo_mrad_ros.detector.score import _BOUNDED_FLOOR
+
+    rng = np.random.default_rng(3)
+    reference = degenerate_image(rng, 48, 64)
+    reference[24:, 32:] = 128
+    query = rng.choice(np.array([0, 255], np.uint8), size=reference.shape)
+    score = cross_score(query, reference, 4, _BOUNDED_FLOOR, 0.0, photometric, max_gain=100.0)
+    assert np.isfinite(score).all()
+    assert np.abs(score).max() < 1e20
