@@ -69,13 +69,15 @@ def test_negative_memory_is_refused() -> None:
 
 
 def test_opencv_threads_are_set_and_zero_restores_the_default() -> None:
-    default = cv2.getNumThreads()
+    before = cv2.getNumThreads()  # an earlier test may have changed it
     try:
+        cv2.setNumThreads(-1)
+        opencv_default = cv2.getNumThreads()
         assert process_tuning.set_opencv_threads(1) == 1
         assert cv2.getNumThreads() == 1
-        assert process_tuning.set_opencv_threads(0) == default
+        assert process_tuning.set_opencv_threads(0) == opencv_default
     finally:
-        cv2.setNumThreads(default)
+        cv2.setNumThreads(before)
     with pytest.raises(ValueError, match="threads must be 0 or more, got -2"):
         process_tuning.set_opencv_threads(-2)
 
