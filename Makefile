@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles cycles-setup bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -118,6 +118,23 @@ synth-bench-val: $(STAMP)
 
 synth-demo: $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.cli generate --preset demo --seed 0 --out data/demo/sequence --overwrite
+
+# Path-traced queries (issue 11): the bench-cycles preset (test 16 normal + 32 anomalous at
+# 640x360) with queries rendered by Blender Cycles, references rasterised by the evaluator,
+# then the same plan with rasterised queries (its twin), both evaluated. Installs the optional
+# bpy (requirements-cycles.txt, ~375 MB) into the venv first; `make test` never needs it.
+CYCLES_STAMP := $(VENV)/.cycles-installed
+cycles-setup: $(CYCLES_STAMP)
+
+$(CYCLES_STAMP): requirements-cycles.txt $(STAMP)
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps -r requirements-cycles.txt
+	@touch $@
+
+bench-cycles: $(CYCLES_STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
+	$(PY) -m rosbag_tools evaluate data/bench_cycles --out reports/eval_bench_cycles --jobs 1
+	$(PY) -m rosbag_tools evaluate data/bench_cycles_twin --out reports/eval_bench_cycles_twin --jobs 1
 
 eval-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --jobs 2

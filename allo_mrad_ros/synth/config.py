@@ -322,8 +322,27 @@ def _bench_val() -> SynthConfig:
     return SynthConfig(name="bench-val", splits={"val": SplitSpec(110, 220, 10)})
 
 
+def _bench_cycles() -> SynthConfig:
+    # A path-traced test split: every object type twice, ALLO's 2:1 anomalous ratio, small
+    # frames (Cycles on 2 CPU cores), the renderer's own view transform as the only camera.
+    return SynthConfig(
+        name="bench-cycles",
+        splits={"test": SplitSpec(16, 32, 8)},
+        width=640,
+        height=360,
+        query_renderer="cycles",
+        camera_effects=False,
+    )
+
+
 PRESETS = MappingProxyType(
-    {"smoke": _smoke, "demo": _demo, "bench": _bench, "bench-val": _bench_val}
+    {
+        "smoke": _smoke,
+        "demo": _demo,
+        "bench": _bench,
+        "bench-val": _bench_val,
+        "bench-cycles": _bench_cycles,
+    }
 )
 """Preset name to a function returning its :class:`SynthConfig`."""
 
@@ -336,7 +355,9 @@ def preset(name: str) -> SynthConfig:
     name : str
         ``smoke`` (tiny images, 10 frames: for tests), ``demo`` (40 frames at 1920x1080,
         test split), ``bench`` (train 120, val 60, test 330 at 1920x1080) or ``bench-val``
-        (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1).
+        (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1)
+        or ``bench-cycles`` (test 48 at 640x360, queries path-traced by Blender Cycles
+        without our camera model; needs the optional bpy, ``make bench-cycles``).
 
     Returns
     -------

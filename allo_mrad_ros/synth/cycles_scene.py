@@ -111,7 +111,7 @@ def add_space_world(bpy: ModuleType, scene: object, ambient: float) -> None:
     """
     world = bpy.data.worlds.new("space")
     scene.world = world
-    if hasattr(world, "use_nodes"):
+    if world.node_tree is None:  # Blender before 5.0 made node trees on request
         world.use_nodes = True
     nodes, links = world.node_tree.nodes, world.node_tree.links
     nodes.clear()
@@ -139,7 +139,7 @@ def body_object(bpy: ModuleType, scene: object, body: CelestialBody) -> object:
     bm.free()
     mesh.shade_smooth()
     material = bpy.data.materials.new(f"body:{body.name}")
-    if hasattr(material, "use_nodes"):
+    if material.node_tree is None:
         material.use_nodes = True
     shader = next(n for n in material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     colour = (*body.resolved_colour, 1.0)
