@@ -23,7 +23,6 @@ process; a second one replaces the first one's scene.
 from __future__ import annotations
 
 import contextlib
-import importlib
 import math
 import os
 import tempfile
@@ -72,11 +71,12 @@ _ZNEAR, _ZFAR = 0.05, 1.0e4  # the reference renderer's clipping distances
 def import_bpy() -> ModuleType:
     """Import Blender's ``bpy`` module, or raise :class:`CyclesError` saying how to install it."""
     try:
-        return importlib.import_module("bpy")
+        import bpy
     except ImportError as error:
         raise CyclesError(
             f"Blender's bpy module is not installed ({error}); {INSTALL_HINT}"
         ) from None
+    return bpy
 
 
 def _matrix(bpy_matrix_cls: type, array: np.ndarray) -> object:
