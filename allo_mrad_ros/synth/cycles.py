@@ -37,13 +37,7 @@ import trimesh
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import optical_to_opengl_pose
 from allo_mrad_ros.render import ExtraObject
-from allo_mrad_ros.render.bodies import (
-    CelestialBody,
-    as_bodies,
-    frustum_planes,
-    pull_within,
-    sphere_in_view,
-)
+from allo_mrad_ros.render.bodies import CelestialBody, bodies_in_view, frustum_planes
 from allo_mrad_ros.render.renderer import AMBIENT, SPOT_CONE_DEG, SPOT_INTENSITY, SUN_INTENSITY
 from allo_mrad_ros.render.values import object_pose, unit_vector, z_towards
 from allo_mrad_ros.synth.cycles_scene import (
@@ -205,16 +199,12 @@ class CyclesRenderer:
         camera = optical_to_opengl_pose(T_station_camera)  # Blender's camera: OpenGL axes
         self._camera.matrix_world = _matrix(self._Matrix, camera)
         self._spot.matrix_world = _matrix(self._Matrix, camera)
-        eye, rotation = camera[:3, 3], np.asarray(T_station_camera, dtype=np.float64)[:3, :3]
+        pose = np.asarray(T_station_camera, dtype=np.float64)
         shown = set()
-        for body in as_bodies(bodies):
-            centre, radius = pull_within(body.centre_array, body.radius, eye, _ZFAR)
-            if not sphere_in_view(rotation.T @ (centre - eye), radius, self._planes, _ZNEAR, _ZFAR):
-                continue
-            pose = np.diag([radius, radius, radius, 1.0])
-            pose[:3, 3] = centre
-            obj = self._body(body)
-            obj.matrix_world = _matrix(self._Matrix, pose)
+        for body, centre, radius in bodies_in_view(pose, bodies, self._planes, _ZNEAR, _ZFAR):
+            scaled = np.diag([radius, radius, radius, 1.0])
+            scaled[:3, 3] = centre
+            self._body(body).matrix_world = _matrix(self._Matrix, scaled)
             shown.add(body.name)
         for name, obj in self._bodies.items():
             obj.hide_render = name not in shown
