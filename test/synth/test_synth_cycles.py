@@ -17,8 +17,9 @@ import pytest
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
+from allo_mrad_ros.benchmarks.cycles_silhouettes import silhouette_iou
 from allo_mrad_ros.camera import CameraIntrinsics
-from allo_mrad_ros.geometry import look_at, pose_matrix
+from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence import validate_sequence
@@ -37,11 +38,6 @@ MESH = share_path("meshes", "station.glb")
 INTRINSICS = CameraIntrinsics(320, 180, fx=250.0, fy=250.0, cx=141.3, cy=101.7)
 T_VIEW = look_at([24.0, -18.0, 9.0], [0.0, 0.0, 0.0])
 SUN = np.array([0.3, -0.5, 0.8])
-
-
-def _pose(extra: dict, prefix: str) -> np.ndarray:
-    position = [float(extra[f"{prefix}_{a}"]) for a in ("tx", "ty", "tz")]
-    return pose_matrix(position, [float(extra[f"{prefix}_{a}"]) for a in ("qx", "qy", "qz", "qw")])
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -187,27 +183,15 @@ def test_generated_cycles_queries_keep_the_rasterised_frame(tmp_path):
     twin, traced = tmp_path / "twin", tmp_path / "traced"
     generate(config, twin, 5, progress=False)
     generate(config.with_overrides(query_renderer="cycles"), traced, 5, progress=False)
-    sequence = validate_sequence(traced, decode_images=True)
+    validate_sequence(traced, decode_images=True)
     rows_twin, rows = (list(csv.DictReader((p / "frames.csv").open())) for p in (twin, traced))
-    from allo_mrad_ros.synth.cycles import CyclesRenderer
-
-    k = sequence.meta.camera
-    check = CyclesRenderer(MESH, k, samples=8)
-    anomalous = 0
-    for frame, a, b in zip(sequence, rows_twin, rows, strict=True):
+    for a, b in zip(rows_twin, rows, strict=True):
         assert b["query_renderer"] == "cycles"
         for key in ("tx", "qw", "true_tx", "true_qw", "obj_tx"):
             assert a.get(key) == b.get(key), key
         assert (twin / a["mask"]).read_bytes() == (traced / b["mask"]).read_bytes()
         image = cv2.imread(str(traced / b["image"]))
         assert np.abs(image.astype(int) - cv2.imread(str(twin / a["image"]))).mean() > 0.5
-        if frame.is_anomalous:
-            anomalous += 1
-            e = frame.extra
-            seed, scale = int(e["object_seed"]), float(e["scale"])
-            obj = build_anomaly(frame.anomaly, seed, e["colour"], scale)
-            pose, true = (_pose(e, prefix) for prefix in ("obj", "true"))
-            mask = cv2.imread(str(traced / b["mask"]), cv2.IMREAD_UNCHANGED) == LABEL_ANOMALY
-            silhouette = check.silhouette(true, [ExtraObject(obj.scene, pose)])
-            assert _iou(silhouette, mask) > 0.85
-    assert anomalous >= 1
+    # The rasterised mask is where Cycles drew the object.
+    checked = silhouette_iou(traced, frames=4)
+    assert checked and all(row["iou"] > 0.85 for row in checked), checked
