@@ -121,8 +121,10 @@ synth-demo: $(STAMP)
 
 # Path-traced queries (issue 11): the bench-cycles preset (test 16 normal + 32 anomalous at
 # 640x360) with queries rendered by Blender Cycles, references rasterised by the evaluator,
-# then the same plan with rasterised queries (its twin), both evaluated. Installs the optional
-# bpy (requirements-cycles.txt, ~375 MB) into the venv first; `make test` never needs it.
+# and its twin (the same plan with rasterised queries), each generated once (delete the
+# folder to regenerate); checks Cycles' silhouettes against the masks, evaluates both.
+# Installs the optional bpy (requirements-cycles.txt, ~375 MB) into the venv first;
+# `make test` and `make demo` never need it.
 CYCLES_STAMP := $(VENV)/.cycles-installed
 cycles-setup: $(CYCLES_STAMP)
 
@@ -130,11 +132,16 @@ $(CYCLES_STAMP): requirements-cycles.txt $(STAMP)
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps -r requirements-cycles.txt
 	@touch $@
 
-bench-cycles: $(CYCLES_STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
+bench-cycles: $(CYCLES_STAMP) data/bench_cycles/frames.csv data/bench_cycles_twin/frames.csv
+	$(PY) -m allo_mrad_ros.benchmarks.cycles_silhouettes data/bench_cycles --frames 8 --out reports/cycles_silhouettes.json
 	$(PY) -m rosbag_tools evaluate data/bench_cycles --out reports/eval_bench_cycles --jobs 1
 	$(PY) -m rosbag_tools evaluate data/bench_cycles_twin --out reports/eval_bench_cycles_twin --jobs 1
+
+data/bench_cycles/frames.csv: | $(CYCLES_STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
+
+data/bench_cycles_twin/frames.csv: | $(STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
 
 eval-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --jobs 2
