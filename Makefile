@@ -122,7 +122,8 @@ synth-demo: $(STAMP)
 # Path-traced queries (issue 11): the bench-cycles preset (test 16 normal + 32 anomalous at
 # 640x360) with queries rendered by Blender Cycles, references rasterised by the evaluator,
 # and its twin (the same plan with rasterised queries), each generated once (delete the
-# folder to regenerate); checks Cycles' silhouettes against the masks, evaluates both.
+# folder to regenerate); checks Cycles' silhouettes against the masks, evaluates both and
+# sorts the pixels that score falsely by kind (edges, space, dark/mid/bright station).
 # Installs the optional bpy (requirements-cycles.txt, ~375 MB) into the venv first;
 # `make test` and `make demo` never need it.
 CYCLES_STAMP := $(VENV)/.cycles-installed
@@ -136,6 +137,8 @@ bench-cycles: $(CYCLES_STAMP) data/bench_cycles/frames.csv data/bench_cycles_twi
 	$(PY) -m allo_mrad_ros.benchmarks.cycles_silhouettes data/bench_cycles --frames 8 --out reports/cycles_silhouettes.json
 	$(PY) -m rosbag_tools evaluate data/bench_cycles --out reports/eval_bench_cycles --jobs 1
 	$(PY) -m rosbag_tools evaluate data/bench_cycles_twin --out reports/eval_bench_cycles_twin --jobs 1
+	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles --out reports/false_scores_cycles.json
+	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles_twin --out reports/false_scores_cycles_twin.json
 
 data/bench_cycles/frames.csv: | $(CYCLES_STAMP)
 	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
