@@ -205,7 +205,9 @@ def configure_render(
     render.engine = "CYCLES"
     render.resolution_x, render.resolution_y = k.width, k.height
     render.resolution_percentage = 100
-    render.use_persistent_data = True  # the station's BVH is kept between frames
+    # Not persistent: with data kept between frames, Cycles took an object imported in a
+    # later frame for one of an earlier frame and drew it with the old material.
+    render.use_persistent_data = False
     render.image_settings.file_format = "PNG"
     render.image_settings.color_mode = "RGB"
     render.image_settings.color_depth = "8"

@@ -29,6 +29,8 @@ from allo_mrad_ros.synth.cycles import CyclesError, import_bpy
 from allo_mrad_ros.synth.cycles_scene import blender_camera
 from allo_mrad_ros.synth.generator import generate
 from allo_mrad_ros.synth.objects import build_anomaly
+from allo_mrad_ros.synth.realism_config import RealismConfig
+from allo_mrad_ros.synth.surfaces import worn_object
 
 needs_bpy = pytest.mark.skipif(
     importlib.util.find_spec("bpy") is None, reason="optional bpy not installed"
@@ -38,6 +40,7 @@ MESH = share_path("meshes", "station.glb")
 INTRINSICS = CameraIntrinsics(320, 180, fx=250.0, fy=250.0, cx=141.3, cy=101.7)
 T_VIEW = look_at([24.0, -18.0, 9.0], [0.0, 0.0, 0.0])
 SUN = np.array([0.3, -0.5, 0.8])
+REALISM = RealismConfig()
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -142,6 +145,26 @@ def test_silhouettes_match_the_rasterised_labels(cycles, rasteriser, kind):
     anomaly = labels == LABEL_ANOMALY
     assert np.count_nonzero(anomaly) > 100
     assert _iou(cycles.silhouette(T_VIEW, [extra]), anomaly) > 0.9
+
+
+@needs_bpy
+def test_each_frame_draws_its_own_objects_colours(cycles, rasteriser):
+    # Objects come and go every frame; each must be drawn with its own material, not with
+    # one a Cycles cache kept from an earlier frame (it did with persistent data on).
+    pose = np.eye(4)
+    pose[:3, 3] = T_VIEW[:3, :3] @ [0.0, 0.0, 3.0] + T_VIEW[:3, 3]
+    drawn = [("cubesat_6u", "default"), ("cable", "red"), ("cable", "green")]
+    drawn += [("tether_hook", "orange"), ("wrench", "blue"), ("drill", "yellow")]
+    for i, (kind, colour) in enumerate(drawn):
+        worn = worn_object(build_anomaly(kind, 3, colour).scene, np.random.default_rng(i), REALISM)
+        extra = ExtraObject(worn, pose)
+        rasterised = rasteriser.render(T_VIEW, SUN, extra_objects=[extra], labels=True)
+        where = rasterised.labels == LABEL_ANOMALY
+        expected = rasterised.rgb[where].mean(axis=0)
+        got = cycles.render(T_VIEW, SUN, extra_objects=[extra])[where].mean(axis=0)
+        tint, traced_tint = expected - expected.mean(), got - got.mean()
+        cosine = tint @ traced_tint / max(np.linalg.norm(tint) * np.linalg.norm(traced_tint), 1e-9)
+        assert cosine > 0.7, (kind, colour, expected.round(), got.round())
 
 
 @needs_bpy
