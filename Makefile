@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles cycles-setup bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -118,6 +118,33 @@ synth-bench-val: $(STAMP)
 
 synth-demo: $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.cli generate --preset demo --seed 0 --out data/demo/sequence --overwrite
+
+# Path-traced queries (issue 11): the bench-cycles preset (test 16 normal + 32 anomalous at
+# 640x360) with queries rendered by Blender Cycles, references rasterised by the evaluator,
+# and its twin (the same plan with rasterised queries), each generated once (delete the
+# folder to regenerate); checks Cycles' silhouettes against the masks, evaluates both and
+# sorts the pixels that score falsely by kind (edges, space, dark/mid/bright station).
+# Installs the optional bpy (requirements-cycles.txt, ~375 MB) into the venv first;
+# `make test` and `make demo` never need it.
+CYCLES_STAMP := $(VENV)/.cycles-installed
+cycles-setup: $(CYCLES_STAMP)
+
+$(CYCLES_STAMP): requirements-cycles.txt $(STAMP)
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps -r requirements-cycles.txt
+	@touch $@
+
+bench-cycles: $(CYCLES_STAMP) data/bench_cycles/frames.csv data/bench_cycles_twin/frames.csv
+	$(PY) -m allo_mrad_ros.benchmarks.cycles_silhouettes data/bench_cycles --frames 8 --out reports/cycles_silhouettes.json
+	$(PY) -m rosbag_tools evaluate data/bench_cycles --out reports/eval_bench_cycles --jobs 1
+	$(PY) -m rosbag_tools evaluate data/bench_cycles_twin --out reports/eval_bench_cycles_twin --jobs 1
+	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles --out reports/false_scores_cycles.json
+	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles_twin --out reports/false_scores_cycles_twin.json
+
+data/bench_cycles/frames.csv: | $(CYCLES_STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
+
+data/bench_cycles_twin/frames.csv: | $(STAMP)
+	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
 
 eval-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --jobs 2

@@ -50,6 +50,13 @@ MODULE_PROVIDERS = {
     "spectral": "spectral",
 }
 
+# Modules of optional extras, which neither the node nor `make test` needs: import name ->
+# the requirements file that installs them, and the only modules allowed to import them.
+OPTIONAL_PROVIDERS = {
+    name: ("requirements-cycles.txt", "bpy", ("allo_mrad_ros/synth/cycles",))
+    for name in ("bpy", "bmesh", "mathutils", "bpy_extras")
+}
+
 
 def _allowed_names() -> dict[str, set[str]]:
     sections: dict[str, set[str]] = {}
@@ -131,6 +138,13 @@ def test_every_runtime_import_has_a_provider_on_a_distro():
         if module in ros_packages:
             if module not in exec_keys:
                 missing.append(f"{module} ({where}): add <exec_depend>{module}</exec_depend>")
+            continue
+        if module in OPTIONAL_PROVIDERS:
+            requirements, package, owners = OPTIONAL_PROVIDERS[module]
+            if package not in _requirement_names(ROOT / requirements):
+                missing.append(f"{module} ({where}): {package} is not in {requirements}")
+            if not where.startswith(owners):
+                missing.append(f"{module} ({where}): optional, import it only in {owners}")
             continue
         provider = MODULE_PROVIDERS.get(module)
         if provider is None:

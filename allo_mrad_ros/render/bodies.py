@@ -142,6 +142,45 @@ def pull_within(
     return eye + offset * scale, radius * scale
 
 
+def bodies_in_view(
+    T_station_camera: np.ndarray,
+    bodies: Sequence[CelestialBody | Sequence],
+    planes: np.ndarray,
+    znear: float,
+    zfar: float,
+    cull: bool = True,
+) -> list[tuple[CelestialBody, np.ndarray, float]]:
+    """The bodies that intersect a view frustum, each moved within the far plane.
+
+    Parameters
+    ----------
+    T_station_camera : numpy.ndarray
+        (4, 4) optical-frame camera pose in the station frame (validated by the caller).
+    bodies : sequence of CelestialBody or (name, centre, radius[, colour]) tuples
+        Candidate bodies.
+    planes : numpy.ndarray
+        The frustum's side planes (:func:`frustum_planes`).
+    znear, zfar : float
+        Clipping distances.
+    cull : bool
+        False keeps every body (pulled within the far plane all the same).
+
+    Returns
+    -------
+    list of tuple
+        ``(body, centre, radius)`` for each body in view, with the drawn centre and radius.
+    """
+    eye = T_station_camera[:3, 3]
+    world_to_camera = T_station_camera[:3, :3].T
+    result = []
+    for body in as_bodies(bodies):
+        centre, radius = pull_within(body.centre_array, body.radius, eye, zfar)
+        optical = world_to_camera @ (centre - eye)
+        if not cull or sphere_in_view(optical, radius, planes, znear, zfar):
+            result.append((body, centre, radius))
+    return result
+
+
 def as_bodies(bodies: Sequence[CelestialBody | Sequence]) -> list[CelestialBody]:
     """Accept :class:`CelestialBody` objects or ``(name, centre, radius[, colour])`` tuples."""
     result = []

@@ -26,13 +26,7 @@ from allo_mrad_ros.render.backend import (
     import_pyrender,
     share_egl_display,
 )
-from allo_mrad_ros.render.bodies import (
-    CelestialBody,
-    as_bodies,
-    frustum_planes,
-    pull_within,
-    sphere_in_view,
-)
+from allo_mrad_ros.render.bodies import CelestialBody, bodies_in_view, frustum_planes
 from allo_mrad_ros.render.gl_patches import bounded_scene_class, install_patches
 from allo_mrad_ros.render.meshes import body_mesh, mesh_from_groups
 from allo_mrad_ros.render.model import MeshGroup, ModelSource, load_model
@@ -241,16 +235,7 @@ class ReferenceRenderer:
             ``(body, centre, radius)`` for each body in view, with the drawn centre and radius.
         """
         pose = validate_transform(T_station_camera, "T_station_camera")
-        eye = pose[:3, 3]
-        world_to_camera = pose[:3, :3].T
-        result = []
-        for body in as_bodies(bodies):
-            centre, radius = pull_within(body.centre_array, body.radius, eye, self._zfar)
-            optical = world_to_camera @ (centre - eye)
-            in_view = sphere_in_view(optical, radius, self._planes, self._znear, self._zfar)
-            if in_view or not self.cull_bodies:
-                result.append((body, centre, radius))
-        return result
+        return bodies_in_view(pose, bodies, self._planes, self._znear, self._zfar, self.cull_bodies)
 
     # ------------------------------------------------------------------ rendering
     def render(

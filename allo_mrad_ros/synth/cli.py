@@ -7,6 +7,7 @@ Examples
     allo-synth generate --preset demo --seed 0 --out data/demo
     allo-synth generate --preset bench --seed 0 --out data/bench --jobs 2
     allo-synth generate --preset smoke --frames 20 --width 480 --height 270 --out /tmp/s
+    allo-synth generate --preset cycles --seed 0 --out data/bench_cycles
     allo-synth import-allo ALLO/test --out data/allo_test
 """
 
@@ -22,7 +23,7 @@ from pathlib import Path
 from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
 from allo_mrad_ros.errors import AlloError
 from allo_mrad_ros.staging import signals_as_interrupt, staged_folder, staging_path
-from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
+from allo_mrad_ros.synth.config import PRESETS, QUERY_RENDERERS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
 
 
@@ -93,6 +94,18 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         "--pose-error-deg", type=_non_negative, help="reported pose error, deg (0.2)"
     )
     parser.add_argument(
+        "--query-renderer",
+        choices=QUERY_RENDERERS,
+        help="renderer of the query: pyrender (default, as the references) or cycles "
+        "(Blender's path tracer; needs the optional bpy: make bench-cycles)",
+    )
+    parser.add_argument("--cycles-samples", type=_positive_int, help="Cycles samples (32)")
+    parser.add_argument(
+        "--camera-effects",
+        action=argparse.BooleanOptionalAction,
+        help="apply the camera model (exposure, tone curve, noise, ...) to the query (default on)",
+    )
+    parser.add_argument(
         "--clean", action="store_true", help="no camera effects or material variation (debugging)"
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing sequence")
@@ -118,6 +131,9 @@ def _run_generate(args: argparse.Namespace) -> int:
             rotation_sigma_rad=args.rotation_sigma,
             pose_error_m=args.pose_error_m,
             pose_error_rad=pose_error_rad,
+            query_renderer=args.query_renderer,
+            cycles_samples=args.cycles_samples,
+            camera_effects=args.camera_effects,
         )
         if args.clean:
             config = config.with_overrides(realism=replace(config.realism, enabled=False))

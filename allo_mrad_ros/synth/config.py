@@ -20,6 +20,7 @@ from allo_mrad_ros.synth.validation import SynthError, _count, _finite, _pair
 
 __all__ = [
     "PRESETS",
+    "QUERY_RENDERERS",
     "RealismConfig",
     "SplitSpec",
     "SynthConfig",
@@ -60,6 +61,8 @@ class SplitSpec:
 DEFAULT_DEPTHS_M = (0.0, -1.0, 1.0, -2.0, 2.0)
 DEFAULT_SUN_STRENGTHS = (0.1, 0.5, 1.0)
 DEFAULT_SUN_WEIGHTS = (0.2, 0.3, 0.5)
+QUERY_RENDERERS = ("pyrender", "cycles")
+"""Renderers of the query: the rasteriser the references use, or Blender Cycles (optional)."""
 
 
 @dataclass(frozen=True)
@@ -118,6 +121,16 @@ class SynthConfig:
         Directional shadows from the Sun in the query.
     realism : RealismConfig
         The query's departures from the model.
+    query_renderer : str
+        ``"pyrender"`` (the rasteriser the references are made with) or ``"cycles"``
+        (Blender's path tracer, :mod:`~.cycles`; needs the optional ``bpy``). Masks,
+        placement and references are rasterised either way.
+    camera_effects : bool
+        Apply :func:`~.realism.apply_camera` to the query (when realism is enabled). False
+        writes the renderer's own output, e.g. Cycles' view transform without our camera
+        model on top; the per-frame draws are made either way, so poses and objects match.
+    cycles_samples : int
+        Path-tracing samples per pixel of the Cycles query (denoised).
     rate_hz : float
         Nominal frame rate for the stamps.
     png_compression : int
@@ -152,6 +165,9 @@ class SynthConfig:
     reference_scale: float = 0.25
     shadows: bool = True
     realism: RealismConfig = field(default_factory=RealismConfig)
+    query_renderer: str = "pyrender"
+    camera_effects: bool = True
+    cycles_samples: int = 32
     rate_hz: float = 10.0
     png_compression: int = 3
 
@@ -219,6 +235,14 @@ class SynthConfig:
         _finite(self.reference_scale, "reference_scale", 0.05, 1.0)
         if not isinstance(self.realism, RealismConfig):
             raise SynthError(f"realism must be a RealismConfig, got {self.realism!r}")
+        if self.query_renderer not in QUERY_RENDERERS:
+            raise SynthError(
+                f"query_renderer must be one of {', '.join(QUERY_RENDERERS)}, "
+                f"got {self.query_renderer!r}"
+            )
+        if not isinstance(self.camera_effects, bool):
+            raise SynthError(f"camera_effects must be a bool, got {self.camera_effects!r}")
+        _count(self.cycles_samples, "cycles_samples", 1)
         _finite(self.rate_hz, "rate_hz", 1e-3, 1e4)
         if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
             raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
@@ -298,8 +322,27 @@ def _bench_val() -> SynthConfig:
     return SynthConfig(name="bench-val", splits={"val": SplitSpec(110, 220, 10)})
 
 
+def _bench_cycles() -> SynthConfig:
+    # A path-traced test split: every object type twice, ALLO's 2:1 anomalous ratio, small
+    # frames (Cycles on 2 CPU cores), the renderer's own view transform as the only camera.
+    return SynthConfig(
+        name="bench-cycles",
+        splits={"test": SplitSpec(16, 32, 8)},
+        width=640,
+        height=360,
+        query_renderer="cycles",
+        camera_effects=False,
+    )
+
+
 PRESETS = MappingProxyType(
-    {"smoke": _smoke, "demo": _demo, "bench": _bench, "bench-val": _bench_val}
+    {
+        "smoke": _smoke,
+        "demo": _demo,
+        "bench": _bench,
+        "bench-val": _bench_val,
+        "bench-cycles": _bench_cycles,
+    }
 )
 """Preset name to a function returning its :class:`SynthConfig`."""
 
@@ -312,7 +355,9 @@ def preset(name: str) -> SynthConfig:
     name : str
         ``smoke`` (tiny images, 10 frames: for tests), ``demo`` (40 frames at 1920x1080,
         test split), ``bench`` (train 120, val 60, test 330 at 1920x1080) or ``bench-val``
-        (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1).
+        (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1)
+        or ``bench-cycles`` (test 48 at 640x360, queries path-traced by Blender Cycles
+        without our camera model; needs the optional bpy, ``make bench-cycles``).
 
     Returns
     -------

@@ -149,10 +149,25 @@ class FrameSynthesizer:
             )
         self._check = self._low is not None and low_scale <= 0.5
         self._sky = lru_cache(maxsize=512)(self.ephemeris.sky_on_day)
+        self._cycles = None
+        if config.query_renderer == "cycles":
+            from allo_mrad_ros.synth.cycles import CyclesRenderer
+
+            # The same surfaces and lamps as the rasterised query (the file itself when
+            # realism is off, so nothing is re-exported).
+            self._cycles = CyclesRenderer(
+                station if realism.enabled else self.mesh,
+                self.intrinsics,
+                samples=config.cycles_samples,
+                ambient=self.ambient,
+                spot_intensity=self.spot_intensity,
+            )
 
     def close(self) -> None:
         """Free the renderers."""
         self._query.close()
+        if self._cycles is not None:
+            self._cycles.close()
         if self._low is not None:
             self._low.close()
 
@@ -177,35 +192,58 @@ class FrameSynthesizer:
             plan.sun_strength,
         )
         extra: dict[str, object] = {"day": plan.day, "pose_id": base.pose_id}
+        extras: list[ExtraObject] = []
         if plan.is_anomalous:
-            T_true, result, anomaly_extra = self._place(plan, base, sky, light, rng)
+            T_true, result, anomaly_extra, extras = self._place(plan, base, sky, light, rng)
             extra.update(anomaly_extra)
         else:
             T_true = self._camera(base, rng)
             result = self._query.render(
                 T_true, light.sun_direction, light.sun_strength, bodies, labels=True
             )
+        query = result.rgb
+        if self._cycles is not None:
+            # Path-traced from the same pose, light and objects; the mask stays the
+            # rasteriser's label image of the same geometry.
+            query = self._cycles.render(
+                T_true, light.sun_direction, light.sun_strength, bodies, extras
+            )
         sun = find_sun(result, sky.sun[:3], T_true, float(sky.sun[3]))
-        image, effects = apply_camera(result.rgb, rng, realism, sun, light.sun_strength, self.look)
+        # Drawn even when not applied: the pose error below comes from the same stream.
+        image, effects = apply_camera(query, rng, realism, sun, light.sun_strength, self.look)
+        if not self.config.camera_effects:
+            image = query
         T_reported = pose_error(T_true, rng, self.config.pose_error_m, self.config.pose_error_rad)
         reference = None
         if self.config.references:
             low = self._low.render(T_reported, sky.sun_direction, plan.sun_strength, bodies)
             reference = resize_to(low.rgb, self.intrinsics)
         extra.update(_pose_columns("true", T_true))
+        if self.config.camera_effects:
+            extra.update(
+                {
+                    "exposure": round(effects.exposure, 6),
+                    "noise_gain": round(effects.noise_gain, 6),
+                    "white_balance_r": round(effects.white_balance[0], 6),
+                    "white_balance_b": round(effects.white_balance[1], 6),
+                }
+            )
         extra.update(
             {
-                "exposure": round(effects.exposure, 6),
-                "noise_gain": round(effects.noise_gain, 6),
-                "white_balance_r": round(effects.white_balance[0], 6),
-                "white_balance_b": round(effects.white_balance[1], 6),
                 "query_sun_strength": round(light.sun_strength, 6),
                 "query_sun_angle_deg": round(light.angle_deg, 4),
-                "tone_contrast": round(self.look.tone_contrast, 4),
-                "saturation": round(self.look.saturation, 4),
-                "sun_in_view": 0.0 if sun is None else round(sun.visible, 4),
             }
         )
+        if self.config.camera_effects:
+            extra.update(
+                {
+                    "tone_contrast": round(self.look.tone_contrast, 4),
+                    "saturation": round(self.look.saturation, 4),
+                }
+            )
+        extra["sun_in_view"] = 0.0 if sun is None else round(sun.visible, 4)
+        if self._cycles is not None:
+            extra["query_renderer"] = "cycles"
         return FrameOutput(plan, image, result.labels, reference, T_true, T_reported, sky, extra)
 
     def _camera(self, base: BasePose, rng: np.random.Generator) -> np.ndarray:
@@ -233,7 +271,7 @@ class FrameSynthesizer:
         sky: Sky,
         light: QueryLight,
         rng: np.random.Generator,
-    ) -> tuple[np.ndarray, RenderResult, dict[str, object]]:
+    ) -> tuple[np.ndarray, RenderResult, dict[str, object], list[ExtraObject]]:
         config = self.config
         need = math.ceil(config.min_anomaly_fraction * config.width * config.height)
         bodies = sky.bodies()
@@ -279,7 +317,7 @@ class FrameSynthesizer:
                             pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
                             if pixels >= need:
                                 extra = self._anomaly_extra(plan, obj, candidate, pixels, tries)
-                                return T, result, extra
+                                return T, result, extra, extras
                             reason = "small"
                         reasons[reason] = reasons.get(reason, 0) + 1
         raise SynthError(
