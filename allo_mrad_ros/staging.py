@@ -175,6 +175,20 @@ def signals_as_interrupt() -> Iterator[None]:
             signal.signal(signum, handler)
 
 
+@contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM inside the block; one that arrived is raised on leaving it.
+
+    For constructors whose half-built object would fail in its finaliser (tqdm's progress
+    bar prints a traceback from ``__del__`` when interrupted inside ``__init__``).
+    """
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
 def run_interruptible(prog: str, load: Callable[[], Callable[[], int]]) -> int:
     """Load a command with ``load()`` and run what it returns; the exit status.
 

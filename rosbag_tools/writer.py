@@ -30,7 +30,13 @@ from tqdm import tqdm
 
 from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
-from allo_mrad_ros.staging import StagingError, prepare_staging, put_in_place, refuse_overlap
+from allo_mrad_ros.staging import (
+    StagingError,
+    interrupts_held,
+    prepare_staging,
+    put_in_place,
+    refuse_overlap,
+)
 from rosbag_tools.bag_meta import (
     BAG_FORMAT,
     KEY_FORMAT,
@@ -356,7 +362,9 @@ def _write(
             digests.add(topics.tf_static, data)
             counts[topics.tf_static] = 1
         encoder = _FrameEncoder(sequence, topics, factory)
-        for frame in tqdm(frames, desc="write", unit="frame", disable=not progress):
+        with interrupts_held():
+            bar = tqdm(frames, desc="write", unit="frame", disable=not progress)
+        for frame in bar:
             for topic, _, data in encoder.encode(frame):
                 writer.write(connections[topic], frame.stamp_ns, data)
                 digests.add(topic, data)
