@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from signal_probes import catches_sigterm, default_signals, loaded_numpy
 
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.sequence import SequenceMeta, SequenceWriter
@@ -48,13 +49,6 @@ def sequence(tmp_path_factory) -> Path:
     return root
 
 
-def _default_signals() -> None:
-    # What a terminal gives a command: SIGINT neither ignored nor blocked, so a process that
-    # ends itself by SIGINT shows as -2 (a shell in the background would hide it as 130).
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    signal.pthread_sigmask(signal.SIG_SETMASK, [])
-
-
 def _start(argv: list[str], cwd: Path) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", *argv],
@@ -62,19 +56,8 @@ def _start(argv: list[str], cwd: Path) -> subprocess.Popen:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_default_signals,
+        preexec_fn=default_signals,
     )
-
-
-def _catches_sigterm(pid: int) -> bool:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("SigCgt:"):
-            return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
-    return False
-
-
-def _loaded_numpy(pid: int) -> bool:
-    return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
 
 
 def _wait_for(process: subprocess.Popen, ready, what: str) -> None:
@@ -100,9 +83,9 @@ def test_sigterm_at_any_point_exits_130_and_leaves_nothing(sequence, tmp_path, a
     process = _start(["rosbag_tools", "write", str(sequence), str(out / "bag")], tmp_path)
     try:
         if after == "handler":
-            _wait_for(process, lambda: _catches_sigterm(process.pid), "its SIGTERM handler")
+            _wait_for(process, lambda: catches_sigterm(process.pid), "its SIGTERM handler")
         elif after == "numpy":
-            _wait_for(process, lambda: _loaded_numpy(process.pid), "NumPy loaded")
+            _wait_for(process, lambda: loaded_numpy(process.pid), "NumPy loaded")
         else:
             _wait_for(
                 process,

@@ -11,25 +11,10 @@ import time
 from pathlib import Path
 
 import pytest
+from signal_probes import catches_sigterm, default_signals, loaded_numpy
 
 TIME_LIMIT_S = 120.0
 pytestmark = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
-
-
-def _default_signals() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    signal.pthread_sigmask(signal.SIG_SETMASK, [])
-
-
-def _catches_sigterm(pid: int) -> bool:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("SigCgt:"):
-            return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
-    return False
-
-
-def _loaded_numpy(pid: int) -> bool:
-    return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
 
 
 @pytest.mark.parametrize("delay_s", [0.0, 0.2])
@@ -44,16 +29,16 @@ def test_sigterm_while_importing_exits_130_and_leaves_nothing(tmp_path, delay_s)
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_default_signals,
+        preexec_fn=default_signals,
     )
     try:
         start = time.monotonic()
-        while not _loaded_numpy(process.pid):
+        while not loaded_numpy(process.pid):
             assert process.poll() is None, "allo-synth ended before NumPy was loaded"
             assert time.monotonic() - start < TIME_LIMIT_S, "NumPy never loaded"
             time.sleep(0.001)
         # NumPy comes with the command's own imports: by then the handler must be in place.
-        assert _catches_sigterm(process.pid)
+        assert catches_sigterm(process.pid)
         time.sleep(delay_s)
         process.send_signal(signal.SIGTERM)
         _, stderr = process.communicate(timeout=TIME_LIMIT_S)
