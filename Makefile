@@ -110,14 +110,14 @@ data/bench_val/frames.csv:
 	$(MAKE) synth-bench-val
 
 synth-bench: $(STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench --seed 0 --out data/bench --overwrite --jobs 2
+	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench --seed 0 --out data/bench --overwrite --jobs 2
 
 # The selection split of `make bench`: another seed, so it shares no frame plan with the test.
 synth-bench-val: $(STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-val --seed 1 --out data/bench_val --overwrite --jobs 2
+	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-val --seed 1 --out data/bench_val --overwrite --jobs 2
 
 synth-demo: $(STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset demo --seed 0 --out data/demo/sequence --overwrite
+	$(PY) -m allo_mrad_ros.synth.entry generate --preset demo --seed 0 --out data/demo/sequence --overwrite
 
 # Path-traced queries (issue 11): the bench-cycles preset (test 16 normal + 32 anomalous at
 # 640x360) with queries rendered by Blender Cycles, references rasterised by the evaluator,
@@ -141,10 +141,10 @@ bench-cycles: $(CYCLES_STAMP) data/bench_cycles/frames.csv data/bench_cycles_twi
 	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles_twin --out reports/false_scores_cycles_twin.json
 
 data/bench_cycles/frames.csv: | $(CYCLES_STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
+	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
 
 data/bench_cycles_twin/frames.csv: | $(STAMP)
-	$(PY) -m allo_mrad_ros.synth.cli generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
+	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
 
 eval-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --jobs 2
