@@ -16,7 +16,7 @@ ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip li
 
 setup: $(STAMP)
 
-$(STAMP): requirements.txt requirements-dev.txt setup.py
+$(STAMP): requirements.txt requirements-dev.txt requirements-torch.txt setup.py
 	@if ! ldconfig -p 2>/dev/null | grep -q libOSMesa.so; then \
 	  echo "installing libosmesa6 (headless OpenGL)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libosmesa6 >/dev/null; \

@@ -2,9 +2,10 @@
 
 The node, ``allo-bag evaluate``/``ablate`` and the trade-off benchmark all build a
 :class:`PipelineConfig` (render settings, :class:`~allo_mrad_ros.detector.MradParams`,
-methods) and run frames through a :class:`Pipeline`, so what is measured offline is what
-runs online. A :class:`Pipeline` is immutable: a change of parameters builds a new one that
-shares the :class:`ReferenceProvider` (the GL context), it never mutates a running one.
+methods, array backend) and run frames through a :class:`Pipeline`, so what is measured
+offline is what runs online. A :class:`Pipeline` is immutable: a change of parameters builds
+a new one that shares the :class:`ReferenceProvider` (the GL context), it never mutates a
+running one.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import METHODS, PROFILES, DetectionResult, MradParams, profile
+from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, BackendError, select_backend
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
@@ -130,12 +132,16 @@ class PipelineConfig:
     """Everything that decides a frame's result: ``render`` (:class:`RenderSettings`),
     ``params`` (:class:`~allo_mrad_ros.detector.MradParams`; PAD and RXD use its shared
     post-processing fields) and ``methods`` (names from
-    :data:`allo_mrad_ros.detector.METHODS`; the first is the primary one, MRAD for the node).
+    :data:`allo_mrad_ros.detector.METHODS`; the first is the primary one, MRAD for the node)
+    and ``array_backend`` (where the detectors' per-pixel work runs, one of
+    :data:`~allo_mrad_ros.detector.backends.ARRAY_BACKENDS`; the results do not depend on
+    it beyond float32 rounding).
     """
 
     render: RenderSettings = field(default_factory=RenderSettings)
     params: MradParams = field(default_factory=MradParams)
     methods: tuple[str, ...] = ("MRAD",)
+    array_backend: str = "numpy"
 
     def __post_init__(self) -> None:
         methods = tuple(self.methods)
@@ -146,6 +152,10 @@ class PipelineConfig:
                 f"choose from {sorted(METHODS)}"
             )
         object.__setattr__(self, "methods", methods)
+        if self.array_backend not in ARRAY_BACKENDS:
+            raise ProcessingError(
+                f"array_backend must be one of {list(ARRAY_BACKENDS)}, got {self.array_backend!r}"
+            )
 
     def replace(self, **changes: Any) -> PipelineConfig:
         """A copy with ``changes`` (fields of this class or of :class:`RenderSettings`)."""
@@ -246,6 +256,10 @@ class Pipeline:
             )
         self._provider = provider
         self._config = config
+        try:
+            self._backend = select_backend(config.array_backend)
+        except BackendError as error:
+            raise ProcessingError(str(error)) from None
         # What the methods run with when no one reads the score map (see detect()). The
         # map_top image score is taken from the map, so then the map is made anyway.
         params = config.params
@@ -286,7 +300,7 @@ class Pipeline:
         results, timings = {}, {}
         for name in self._config.methods:
             start = time.perf_counter()
-            results[name] = METHODS[name](image, reference, params)
+            results[name] = METHODS[name](image, reference, params, backend=self._backend)
             timings[name] = 1e3 * (time.perf_counter() - start)
         return results, timings
 

@@ -139,6 +139,12 @@ def _parser() -> argparse.ArgumentParser:
             default=DEFAULT_SHADOWS,
             help=f"render Sun shadows in the reference (default {DEFAULT_SHADOWS})",
         )
+        sub.add_argument(
+            "--array-backend",
+            default="numpy",
+            help="where the detectors' per-pixel work runs: numpy (default), torch, "
+            "torch:cuda or torch:cpu (README, 'GPU')",
+        )
         sub.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "evaluate":
             sub.add_argument(
@@ -210,6 +216,7 @@ def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)
             RenderSettings(reference_scale=args.reference_scale, shadows=args.shadows),
             params_from(args.profile, args.set),
             tuple(methods),
+            args.array_backend,
         )
     except ProcessingError as error:
         raise CliError(str(error)) from None

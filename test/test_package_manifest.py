@@ -53,8 +53,16 @@ MODULE_PROVIDERS = {
 # Modules of optional extras, which neither the node nor `make test` needs: import name ->
 # the requirements file that installs them, and the only modules allowed to import them.
 OPTIONAL_PROVIDERS = {
-    name: ("requirements-cycles.txt", "bpy", ("allo_mrad_ros/synth/cycles",))
-    for name in ("bpy", "bmesh", "mathutils", "bpy_extras")
+    **{
+        name: ("requirements-cycles.txt", "bpy", ("allo_mrad_ros/synth/cycles",))
+        for name in ("bpy", "bmesh", "mathutils", "bpy_extras")
+    },
+    # The detector's PyTorch array backend: imported only when selected.
+    "torch": (
+        "requirements-torch.txt",
+        "torch",
+        ("allo_mrad_ros/detector/backends", "allo_mrad_ros/detector/torch_backend"),
+    ),
 }
 
 
@@ -83,11 +91,14 @@ def _manifest_depends() -> dict[str, set[str]]:
 
 
 def _requirement_names(path: Path) -> set[str]:
+    """Requirement names of a pip requirements file and the files it includes (``-r``)."""
     names = set()
     for line in path.read_text().splitlines():
         line = line.split("#", 1)[0].strip()
-        if line and not line.startswith("-"):
-            names.add(re.split(r"[<>=!~;\[ ]", line, maxsplit=1)[0].lower())
+        if line.startswith("-r "):
+            names |= _requirement_names(path.parent / line[3:].strip())
+        elif line and not line.startswith("-"):
+            names.add(re.split(r"[<>=!~;\[ +]", line, maxsplit=1)[0].lower())
     return names
 
 

@@ -9,6 +9,7 @@ background must still find the patch.
 import cv2
 import numpy as np
 import pytest
+from array_backends import ARRAY_BACKENDS, skip_unless_runnable
 
 from allo_mrad_ros.benchmarks.perturbations import PERTURBATIONS, exposure
 from allo_mrad_ros.detector import detect, profile
@@ -97,7 +98,8 @@ def test_cross_score_with_cell_affine_is_unchanged_by_a_common_gain():
     assert np.abs(darker - clean).max() < 10.0 and np.abs(clean).max() < 1.0
 
 
-def test_cell_affine_score_matches_a_float64_oracle_in_reference_units():
+@pytest.mark.parametrize("backend", ARRAY_BACKENDS)
+def test_cell_affine_score_matches_a_float64_oracle_in_reference_units(backend):
     # Per pixel: x_ref = (x - offset) / gain per cell and channel; both Mahalanobis terms in
     # the reference's units, floors there, saturated reference channels widened.
     from mrad_oracle import edges, regularised_cov
@@ -111,7 +113,10 @@ def test_cell_affine_score_matches_a_float64_oracle_in_reference_units():
     query = np.clip(reference * np.array([1.3, 1.1, 0.8]) + 7, 0, 255).astype(np.uint8)
     query[30:36, 40:50] = (20, 200, 20)
     grid, abs_floor, rel_floor, max_gain = 3, 16.0, 1e-3, 2.0
-    fast = cross_score(query, reference, grid, abs_floor, rel_floor, "cell_affine", max_gain)
+    skip_unless_runnable(backend)
+    fast = cross_score(
+        query, reference, grid, abs_floor, rel_floor, "cell_affine", max_gain, backend
+    )
     gain, offset = fit_cell_affine(query, reference, grid, max_gain)
     extra = saturation_variance(reference, grid, max_gain)
     rows, cols = edges(48, grid), edges(72, grid)
@@ -133,11 +138,16 @@ def test_cell_affine_score_matches_a_float64_oracle_in_reference_units():
     np.testing.assert_allclose(fast, expected, atol=1e-3 * np.abs(expected).max() + 1e-2)
 
 
+@pytest.mark.parametrize("backend", ARRAY_BACKENDS)
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_cell_quantiles_equal_numpy_quantile(dtype):
+def test_cell_quantiles_equal_numpy_quantile(dtype, backend):
     from mrad_oracle import cell_pixels, to_255
 
-    from allo_mrad_ros.detector.photometric import QUANTILES, cell_quantiles
+    from allo_mrad_ros.detector.backends import select_backend
+    from allo_mrad_ros.detector.photometric import QUANTILES
+
+    skip_unless_runnable(backend)
+    cell_quantiles = select_backend(backend).cell_quantiles
 
     rng = np.random.default_rng(3)
     image = rng.integers(0, 256, (23, 31, 3)).astype(np.uint8)

@@ -1,9 +1,11 @@
 """Benchmark of :func:`allo_mrad_ros.detector.detect` at 1920x1080.
 
-Prints median and p95 per stage and in total, the peak resident memory, and the speed and
-error of the float64 per-pixel oracle measured in the same run; writes the same figures to
-a JSON report. The oracle lives in the tests (``test/mrad_oracle.py`` of a source checkout)
-and is skipped when the package runs from an install without its tests.
+Prints median and p95 per stage and in total, the peak resident memory, the speed and
+error of the float64 per-pixel oracle measured in the same run, and ``detect()`` on each
+array backend (NumPy, and PyTorch where installed: on a GPU when one is visible), interleaved;
+writes the same figures to a JSON report. The oracle lives in the tests
+(``test/mrad_oracle.py`` of a source checkout) and is skipped when the package runs from an
+install without its tests.
 
 Usage: ``python -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json``
 """
@@ -23,7 +25,8 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.benchmarks import finish
-from allo_mrad_ros.detector import detect, profile
+from allo_mrad_ros.detector import MradParams, detect, profile
+from allo_mrad_ros.detector.backends import BackendError, select_backend
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.render import DEFAULT_SCALE
@@ -48,8 +51,57 @@ def _summary(samples: list[float]) -> dict[str, float]:
     return {"median": float(np.median(samples)), "p95": float(np.percentile(samples, 95))}
 
 
+def compare_backends(
+    query: np.ndarray, reference: np.ndarray, params: MradParams, specs: list[str], frames: int
+) -> dict[str, dict]:
+    """``detect()`` on each array backend in ``specs``, interleaved frame by frame.
+
+    Returns, per backend name, its median total and cross-score milliseconds, and how far its
+    raw score and mask are from NumPy's; a backend that cannot run here gives its reason.
+    """
+    backends, figures = {}, {}
+    for spec in specs:
+        try:
+            backend = select_backend(spec)
+        except BackendError as error:
+            figures[spec] = {"unavailable": str(error)}
+            continue
+        backends[backend.name] = backend
+    baseline = detect(query, reference, params)
+    totals: dict[str, list[float]] = {name: [] for name in backends}
+    scores: dict[str, list[float]] = {name: [] for name in backends}
+    for name, backend in backends.items():
+        for _ in range(3):
+            result = detect(query, reference, params, backend=backend)
+        error = np.abs(result.raw_score.astype(np.float64) - baseline.raw_score)
+        figures[name] = {
+            "max_abs_raw_diff_vs_numpy": float(error.max()),
+            "max_raw_score": float(np.abs(baseline.raw_score).max()),
+            "mask_pixels_differing": int(np.count_nonzero(result.mask != baseline.mask)),
+        }
+    for _ in range(frames):
+        for name, backend in backends.items():
+            start = time.perf_counter()
+            result = detect(query, reference, params, backend=backend)
+            totals[name].append(1e3 * (time.perf_counter() - start))
+            scores[name].append(result.timings_ms["cross_score"])
+    for name in backends:
+        figures[name]["detect_ms_median"] = float(np.median(totals[name]))
+        figures[name]["cross_score_ms_median"] = float(np.median(scores[name]))
+    return figures
+
+
+def _default_backends() -> list[str]:
+    return ["numpy", "torch"] if importlib.util.find_spec("torch") else ["numpy"]
+
+
 def run(
-    frames: int, warmup: int, oracle_frames: int, reference_scale: float, profile_name: str
+    frames: int,
+    warmup: int,
+    oracle_frames: int,
+    reference_scale: float,
+    profile_name: str,
+    backends: list[str] | None = None,
 ) -> dict:
     """Time ``detect`` and the oracle on the built-in 1080p example; return the figures."""
     pair = example_pair(1080, 1920)
@@ -135,6 +187,9 @@ def run(
         )
         report["oracle_max_abs_error"] = float(error.max())
         report["oracle_max_rel_error"] = float(error.max() / max(np.abs(exact).max(), 1e-12))
+    report["array_backends"] = compare_backends(
+        pair.query, reference, params, backends or _default_backends(), frames
+    )
     report["peak_rss_mb"] = _peak_rss_mb()
     return report
 
@@ -190,6 +245,17 @@ def format_report(report: dict) -> str:
         )
     else:
         lines.append("oracle: not measured (test/mrad_oracle.py not found)")
+    lines.append("array backends, interleaved (detect() and its cross-score stage, median):")
+    for name, figures in report.get("array_backends", {}).items():
+        if "unavailable" in figures:
+            lines.append(f"  {name}: not run ({figures['unavailable']})")
+            continue
+        lines.append(
+            f"  {name:<14}{figures['detect_ms_median']:>8.2f} ms"
+            f"{figures['cross_score_ms_median']:>8.2f} ms; max |raw - NumPy's| "
+            f"{figures['max_abs_raw_diff_vs_numpy']:.2e} of "
+            f"{figures['max_raw_score']:.3g}, {figures['mask_pixels_differing']} mask pixels differ"
+        )
     lines.append(f"peak resident memory: {report['peak_rss_mb']:.0f} MB")
     lines.append(f"frame decision: anomalous={report['anomalous']} area={report['area']} px")
     return "\n".join(lines)
@@ -205,11 +271,19 @@ def main(argv: list[str] | None = None) -> int:
         "--reference-scale", type=float, default=DEFAULT_SCALE, help="reference scale"
     )
     parser.add_argument("--profile", default="default", help="detector parameter profile")
+    parser.add_argument(
+        "--array-backends",
+        help="comma-separated array backends to compare (default: numpy, and torch where "
+        "PyTorch is installed)",
+    )
     parser.add_argument("--out", type=Path, default=Path("reports/bench_detector.json"))
     args = parser.parse_args(argv)
     if args.frames < 20:
         parser.error("--frames must be at least 20")
-    report = run(args.frames, args.warmup, args.oracle_frames, args.reference_scale, args.profile)
+    backends = [b.strip() for b in args.array_backends.split(",")] if args.array_backends else None
+    report = run(
+        args.frames, args.warmup, args.oracle_frames, args.reference_scale, args.profile, backends
+    )
     print(format_report(report))
     return finish(args.out, report)
 

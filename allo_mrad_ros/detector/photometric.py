@@ -15,6 +15,7 @@ local) and fits its offset under that gain.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
@@ -99,7 +100,11 @@ def _histogram_base(height: int, width: int, grid: int) -> np.ndarray:
 
 
 def fit_cell_affine(
-    query: np.ndarray, reference: np.ndarray, grid: int, max_gain: float
+    query: np.ndarray,
+    reference: np.ndarray,
+    grid: int,
+    max_gain: float,
+    quantiles: Callable[[np.ndarray, int], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``query ~ gain * reference + offset`` per cell and channel.
 
@@ -114,6 +119,9 @@ def fit_cell_affine(
         Cells per side.
     max_gain : float
         Gains are clipped to ``[1 / max_gain, max_gain]`` (>= 1).
+    quantiles : callable, optional
+        ``(image, grid) -> quantiles`` as :func:`cell_quantiles` (the default), e.g. an
+        array backend's.
 
     Returns
     -------
@@ -123,8 +131,9 @@ def fit_cell_affine(
     if not max_gain >= 1.0:
         raise PhotometricError(f"max_gain must be at least 1, got {max_gain!r}")
     query, reference = _same_size(query, reference)
-    q = cell_quantiles(query, grid)
-    r = cell_quantiles(reference, grid)
+    quantiles = quantiles or cell_quantiles
+    q = quantiles(query, grid)
+    r = quantiles(reference, grid)
     i, j = np.triu_indices(QUANTILES.size, k=1)
     dq, dr = q[..., j] - q[..., i], r[..., j] - r[..., i]
     # Pairs with a flat reference carry no slope; they are left out of the median.

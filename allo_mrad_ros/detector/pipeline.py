@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from allo_mrad_ros.detector.backends import PixelBackend, resolve_backend
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -69,7 +70,8 @@ class DetectionResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
-Detector = Callable[[np.ndarray, np.ndarray | None, MradParams], DetectionResult]
+Detector = Callable[..., DetectionResult]
+"""``(query, reference, params, *, backend=None) -> DetectionResult``."""
 
 
 class _StageTimer:
@@ -118,7 +120,11 @@ def image_score(score: np.ndarray, area: int, params: MradParams) -> float:
 
 
 def detect(
-    query: np.ndarray, reference: np.ndarray | None, params: MradParams | None = None
+    query: np.ndarray,
+    reference: np.ndarray | None,
+    params: MradParams | None = None,
+    *,
+    backend: PixelBackend | str | None = None,
 ) -> DetectionResult:
     """Run MRAD on a query image against the rendered reference of the same view.
 
@@ -130,6 +136,9 @@ def detect(
         Rendered reference, same aspect ratio, any resolution.
     params : MradParams, optional
         Detector parameters (defaults if omitted).
+    backend : PixelBackend or str, optional
+        Array backend of the cross score's per-pixel work (see
+        :func:`~allo_mrad_ros.detector.backends.select_backend`); NumPy when omitted.
 
     Returns
     -------
@@ -170,6 +179,7 @@ def detect(
             params.rel_floor,
             models,
             params.max_gain,
+            resolve_backend(backend),
         )
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(
@@ -224,7 +234,11 @@ def _pixel_score(
 
 
 def detect_pad(
-    query: np.ndarray, reference: np.ndarray | None, params: MradParams | None = None
+    query: np.ndarray,
+    reference: np.ndarray | None,
+    params: MradParams | None = None,
+    *,
+    backend: PixelBackend | str | None = None,
 ) -> DetectionResult:
     """PAD baseline: the cross score with one cell and only a threshold after scaling.
 
@@ -239,12 +253,16 @@ def detect_pad(
     check_aspect(query, reference)
     timer = _StageTimer()
     with timer.stage("cross_score"):
-        raw = cross_score(query, reference, 1, params.abs_floor, params.rel_floor)
+        raw = cross_score(query, reference, 1, params.abs_floor, params.rel_floor, backend=backend)
     return _threshold_only(raw, params, timer)
 
 
 def detect_rxd(
-    query: np.ndarray, reference: np.ndarray | None = None, params: MradParams | None = None
+    query: np.ndarray,
+    reference: np.ndarray | None = None,
+    params: MradParams | None = None,
+    *,
+    backend: PixelBackend | str | None = None,
 ) -> DetectionResult:
     """RXD baseline: each pixel against the whole query's mean and covariance.
 
@@ -255,7 +273,7 @@ def detect_rxd(
     query = check_image(query, "query", params.bit_depth)
     timer = _StageTimer()
     with timer.stage("rx_score"):
-        raw = rx_score(query, params.abs_floor, params.rel_floor)
+        raw = rx_score(query, params.abs_floor, params.rel_floor, backend)
     return _threshold_only(raw, params, timer)
 
 

@@ -1,10 +1,8 @@
 """Stage 1b: the cross RXD score (and the plain RX score) per grid cell.
 
-Per cell, ``(x-mu0)^T P0 (x-mu0) - (x-mu1)^T P1 (x-mu1)`` is one quadratic form in ``x``.
-It is evaluated around the query mean in the eigenbasis of ``A = P0 - P1``:
-``sum_i l_i y_i^2 + m . y + k`` with ``y = V^T (x - mu1)``. The coefficients are computed
-in float64 (so equal statistics cancel exactly to ``A = 0``), the per-pixel evaluation is
-a few OpenCV channel transforms in float32.
+The per-cell Gaussians are built here (plain, or through the ``cell_affine`` photometric
+fit) and their quadratic forms (:mod:`.quadratic`) evaluated at every pixel on the chosen
+array backend (:mod:`.backends`).
 
 :func:`cross_scores` scores one query under several photometric models at once: the cell
 statistics and the photometric fit are computed once and every model's per-pixel work is
@@ -14,44 +12,19 @@ done while a cell's pixels are in cache.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.grid import cell_slices
-from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.backends import PixelBackend, resolve_backend
 from allo_mrad_ros.detector.photometric import fit_cell_affine, saturation_variance
-from allo_mrad_ros.detector.statistics import (
-    CellStatistics,
-    cell_statistics,
-    regularised_precision,
-)
-from allo_mrad_ros.detector.threads import for_each_block
+from allo_mrad_ros.detector.quadratic import CellModels, pixel_quadratic
+from allo_mrad_ros.detector.statistics import CellStatistics, regularised_precision
 
 PHOTOMETRIC_MODELS = ("none", "cell_affine")
 # From this absolute floor on a precision's eigenvalues are at most max_gain**2 / floor
 # (<= 1e7), so every score is far inside float32's range and the final finiteness check
 # over the whole map can be skipped; below it (property tests run unregularised) it runs.
 _BOUNDED_FLOOR = 1e-3
-
-
-@dataclass(frozen=True)
-class CellModels:
-    """The two Gaussians a cross score compares, per cell.
-
-    Attributes
-    ----------
-    ref_mean, query_mean : numpy.ndarray
-        (G*G, 3) float64 means on the 0..255 scale.
-    ref_precision, query_precision : numpy.ndarray
-        (G*G, 3, 3) float64 precision matrices.
-    """
-
-    ref_mean: np.ndarray
-    ref_precision: np.ndarray
-    query_mean: np.ndarray
-    query_precision: np.ndarray
 
 
 def cross_score(
@@ -62,6 +35,7 @@ def cross_score(
     rel_floor: float,
     photometric: str = "none",
     max_gain: float = 2.0,
+    backend: PixelBackend | str | None = None,
 ) -> np.ndarray:
     """Return the cross RXD score of every query pixel against its reference cell.
 
@@ -74,7 +48,9 @@ def cross_score(
     numpy.ndarray
         H x W float32 raw score of the query, finite.
     """
-    return cross_scores(query, reference, grid, abs_floor, rel_floor, (photometric,), max_gain)[0]
+    return cross_scores(
+        query, reference, grid, abs_floor, rel_floor, (photometric,), max_gain, backend
+    )[0]
 
 
 def cross_scores(
@@ -85,6 +61,7 @@ def cross_scores(
     rel_floor: float,
     photometrics: Sequence[str],
     max_gain: float = 2.0,
+    backend: PixelBackend | str | None = None,
 ) -> list[np.ndarray]:
     """Return :func:`cross_score` under each photometric model, sharing the statistics.
 
@@ -100,6 +77,9 @@ def cross_scores(
         One score map is returned per entry, in order.
     max_gain : float
         Gain limit of the ``cell_affine`` fit.
+    backend : PixelBackend or str, optional
+        Where the per-pixel work runs (see :func:`~.backends.select_backend`); NumPy when
+        omitted.
 
     Returns
     -------
@@ -109,8 +89,9 @@ def cross_scores(
     for photometric in photometrics:
         if photometric not in PHOTOMETRIC_MODELS:
             raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
-    ref_stats = cell_statistics(reference, grid)
-    query_stats = cell_statistics(query, grid)
+    backend = resolve_backend(backend)
+    ref_stats = backend.cell_statistics(reference, grid)
+    query_stats = backend.cell_statistics(query, grid)
     affine = None
     models = []
     for photometric in photometrics:
@@ -118,10 +99,13 @@ def cross_scores(
             models.append(_plain_models(ref_stats, query_stats, abs_floor, rel_floor))
             continue
         if affine is None:
-            gain, offset = fit_cell_affine(query, reference, grid, max_gain)
+            gain, offset = fit_cell_affine(
+                query, reference, grid, max_gain, quantiles=backend.cell_quantiles
+            )
             affine = (gain, offset, saturation_variance(reference, grid, max_gain))
         models.append(_affine_models(ref_stats, query_stats, *affine, abs_floor, rel_floor))
-    return _evaluate(to_float32(query), grid, models, check_finite=abs_floor < _BOUNDED_FLOOR)
+    quadratics = [pixel_quadratic(model) for model in models]
+    return backend.evaluate(query, grid, quadratics, check_finite=abs_floor < _BOUNDED_FLOOR)
 
 
 def _plain_models(
@@ -167,95 +151,16 @@ def _to_query_units(precision: np.ndarray, inverse_gain: np.ndarray) -> np.ndarr
     return precision * inverse_gain[:, :, None] * inverse_gain[:, None, :]
 
 
-def rx_score(image: np.ndarray, abs_floor: float, rel_floor: float) -> np.ndarray:
+def rx_score(
+    image: np.ndarray,
+    abs_floor: float,
+    rel_floor: float,
+    backend: PixelBackend | str | None = None,
+) -> np.ndarray:
     """Return the global RX score: squared Mahalanobis distance to the image's own model."""
-    stats = cell_statistics(image, 1)
+    backend = resolve_backend(backend)
+    stats = backend.cell_statistics(image, 1)
     precision = regularised_precision(stats.cov, abs_floor, rel_floor)
     model = CellModels(stats.mean, precision, stats.mean, np.zeros_like(precision))
-    return _evaluate(to_float32(image), 1, [model], check_finite=abs_floor < _BOUNDED_FLOOR)[0]
-
-
-def quadratic_coefficients(
-    mu0: np.ndarray, p0: np.ndarray, mu1: np.ndarray, p1: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Coefficients of ``(x-mu0)^T p0 (x-mu0) - (x-mu1)^T p1 (x-mu1)`` around ``mu1``.
-
-    Works on one cell (``mu`` of shape (3,), ``p`` of shape (3, 3)) or on a stack of cells
-    (leading dimensions broadcast).
-
-    Returns
-    -------
-    transform : numpy.ndarray
-        (..., 3, 4) affine map ``x -> y = V^T (x - mu1)``.
-    eigenvalues : numpy.ndarray
-        (..., 3) eigenvalues ``l`` of ``A = p0 - p1``.
-    linear : numpy.ndarray
-        (..., 3) coefficients ``m`` of ``y``.
-    constant : numpy.ndarray
-        (...) ``k``, the score at ``x = mu1``.
-    """
-    a = p0 - p1
-    a = 0.5 * (a + np.swapaxes(a, -1, -2))
-    eigenvalues, vectors = np.linalg.eigh(a)
-    vectors_t = np.swapaxes(vectors, -1, -2)
-    delta = (mu1 - mu0)[..., :, None]
-    p0_delta = p0 @ delta
-    linear = (vectors_t @ (2.0 * p0_delta))[..., 0]
-    constant = (np.swapaxes(delta, -1, -2) @ p0_delta)[..., 0, 0]
-    transform = np.concatenate([vectors_t, -(vectors_t @ mu1[..., :, None])], axis=-1)
-    return transform, eigenvalues, linear, constant
-
-
-def _evaluate(
-    image: np.ndarray, grid: int, models: Sequence[CellModels], check_finite: bool = True
-) -> list[np.ndarray]:
-    # Per cell and model the score is sum_i y_i (l_i y_i + m_i) + k: two 3 x 4 colour
-    # transforms of the pixel (y and l * y + m), their product, and a 1 x 4 transform that
-    # sums the channels and adds k straight into the score map. OpenCV vectorises only
-    # 3- and 1-channel outputs, so each step keeps to those.
-    height, width = image.shape[:2]
-    prepared = []
-    for model in models:
-        transform, eigenvalues, linear, constant = quadratic_coefficients(
-            model.ref_mean, model.ref_precision, model.query_mean, model.query_precision
-        )
-        weighted = eigenvalues[:, :, None] * transform
-        weighted[:, :, 3] += linear
-        channel_sum = np.ones((len(constant), 1, 4))
-        channel_sum[:, 0, 3] = constant
-        # A cell whose two models are identical scores its constant: no per-pixel work.
-        trivial = ~(eigenvalues.any(axis=-1) | linear.any(axis=-1))
-        prepared.append(
-            (
-                transform.astype(np.float32),
-                weighted.astype(np.float32),
-                channel_sum.astype(np.float32),
-                constant,
-                trivial,
-            )
-        )
-    scores = [np.empty((height, width), dtype=np.float32) for _ in models]
-    slices = cell_slices(height, width, grid)
-
-    def evaluate_cells(indices: range) -> None:
-        for index in indices:
-            cell = slices[index]
-            pixels = image[cell]
-            for score, (transform, weighted, channel_sum, constant, trivial) in zip(
-                scores, prepared, strict=True
-            ):
-                if trivial[index]:
-                    score[cell] = constant[index]
-                    continue
-                products = cv2.multiply(
-                    cv2.transform(pixels, transform[index]), cv2.transform(pixels, weighted[index])
-                )
-                cv2.transform(products, channel_sum[index], dst=score[cell])
-
-    for_each_block(evaluate_cells, len(slices), pixels=height * width)
-    for score in scores:
-        if check_finite and not cv2.checkRange(score):
-            # Only reachable with unregularised, near-singular statistics: saturate, never NaN.
-            big = float(np.finfo(np.float32).max)
-            np.nan_to_num(score, copy=False, nan=0.0, posinf=big, neginf=-big)
-    return scores
+    quadratic = pixel_quadratic(model)
+    return backend.evaluate(image, 1, [quadratic], check_finite=abs_floor < _BOUNDED_FLOOR)[0]

@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from allo_mrad_ros import interface
+from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, DEFAULT_BACKEND, select_backend
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
 from allo_mrad_ros.errors import InvalidInput, one_line
 from allo_mrad_ros.geometry import unit_vector
@@ -114,6 +115,15 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
         "render_backend": NodeParameter(
             "",
             _choice("OpenGL backend: osmesa, egl, or empty to choose", "", "osmesa", "egl"),
+            True,
+        ),
+        "array_backend": NodeParameter(
+            DEFAULT_BACKEND,
+            _choice(
+                "where the detector's per-pixel work runs: numpy (CPU), torch (PyTorch on the "
+                "first CUDA GPU, else the CPU), torch:cuda, torch:cpu",
+                *ARRAY_BACKENDS,
+            ),
             True,
         ),
         "shadows": NodeParameter(
@@ -328,6 +338,9 @@ class NodeConfig:
 
 def node_config_from(values: dict[str, Any]) -> NodeConfig:
     """A :class:`NodeConfig` from validated parameter values (raises ValueError)."""
+    # Built here, at start, so that a backend this machine cannot run stops the node with
+    # its reason (library or GPU missing) instead of failing every frame.
+    select_backend(values["array_backend"])
     if values["mesh"] and not Path(values["mesh"]).is_file():
         # Checked here, at start: else the node would run and report it per camera_info.
         raise ParameterError(f"mesh must be an existing model file, got {values['mesh']!r}")
@@ -355,5 +368,7 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         diagnostics_period_s=float(values["diagnostics_period_s"]),
         input_timeout_s=float(values["input_timeout_s"]),
         hardware_id=values["hardware_id"],
-        pipeline=PipelineConfig(render, detector_params_from(values)),
+        pipeline=PipelineConfig(
+            render, detector_params_from(values), array_backend=values["array_backend"]
+        ),
     )

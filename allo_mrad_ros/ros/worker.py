@@ -29,6 +29,7 @@ import numpy as np
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.backends import select_backend
 from allo_mrad_ros.pipeline import Pipeline, ProcessedFrame, ReferenceProvider
 from allo_mrad_ros.render import RendererError
 from allo_mrad_ros.ros import messages
@@ -228,7 +229,8 @@ class ProcessingWorker:
         renderer = provider.renderer
         self._logger.info(
             f"renderer ready: {renderer.backend}, {renderer.triangle_count} triangles, reference "
-            f"{renderer.output_intrinsics.width}x{renderer.output_intrinsics.height}"
+            f"{renderer.output_intrinsics.width}x{renderer.output_intrinsics.height}; detector "
+            f"arrays on {select_backend(config.pipeline.array_backend).name}"
         )
         return provider
 

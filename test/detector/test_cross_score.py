@@ -1,4 +1,5 @@
-"""The fast cross score against the float64 per-pixel oracle, and its invariances.
+"""The fast cross score against the float64 per-pixel oracle, and its invariances, on every
+array backend this machine has (the ``backend`` fixture: NumPy, PyTorch on the CPU, on CUDA).
 
 Tolerance: the fast path evaluates in float32 after float64 coefficients, so its error is
 bounded relative to the two Mahalanobis terms that cancel, not to their difference:
@@ -17,8 +18,10 @@ from allo_mrad_ros.detector.score import cross_score, rx_score
 ABS_FLOOR, REL_FLOOR = 4.0, 1e-3
 
 
-def assert_matches_oracle(query, reference, grid, abs_floor=ABS_FLOOR, rel_floor=REL_FLOOR):
-    fast = cross_score(query, reference, grid, abs_floor, rel_floor)
+def assert_matches_oracle(
+    query, reference, grid, abs_floor=ABS_FLOOR, rel_floor=REL_FLOOR, backend="numpy"
+):
+    fast = cross_score(query, reference, grid, abs_floor, rel_floor, backend=backend)
     t0, t1 = cross_score_terms(query, reference, grid, abs_floor, rel_floor)
     assert fast.dtype == np.float32
     assert np.isfinite(fast).all()
@@ -38,56 +41,56 @@ def degenerate_image(rng, height=24, width=32):
 
 
 @pytest.mark.parametrize("grid", [1, 2, 3, 4])
-def test_random_cells_match_oracle(grid):
+def test_random_cells_match_oracle(grid, backend):
     rng = np.random.default_rng(grid)
     query = rng.integers(0, 256, (20, 28, 3), dtype=np.uint8)
     reference = rng.integers(0, 256, (20, 28, 3), dtype=np.uint8)
-    assert_matches_oracle(query, reference, grid)
+    assert_matches_oracle(query, reference, grid, backend=backend)
 
 
 @pytest.mark.parametrize("grid", [1, 2, 4])
-def test_degenerate_cells_match_oracle(grid):
+def test_degenerate_cells_match_oracle(grid, backend):
     rng = np.random.default_rng(10 + grid)
     query = degenerate_image(rng)
     reference = degenerate_image(rng)
     reference[:12, :16] = 0  # black in both: exactly-zero covariances on both sides
-    assert_matches_oracle(query, reference, grid)
+    assert_matches_oracle(query, reference, grid, backend=backend)
 
 
-def test_lower_resolution_reference_matches_oracle():
+def test_lower_resolution_reference_matches_oracle(backend):
     rng = np.random.default_rng(3)
     query = rng.integers(0, 256, (32, 48, 3), dtype=np.uint8)
     reference = rng.integers(0, 256, (8, 12, 3), dtype=np.uint8)
-    assert_matches_oracle(query, reference, 4)
+    assert_matches_oracle(query, reference, 4, backend=backend)
 
 
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32, np.float64])
-def test_other_dtypes_match_oracle(dtype):
+def test_other_dtypes_match_oracle(dtype, backend):
     rng = np.random.default_rng(4)
     base = rng.random((16, 20, 3))
     scale = 65535 if dtype == np.uint16 else 1.0
     query = (base * scale).astype(dtype)
     reference = (rng.random((16, 20, 3)) * scale).astype(dtype)
-    assert_matches_oracle(query, reference, 2)
+    assert_matches_oracle(query, reference, 2, backend=backend)
 
 
-def test_unregularised_singular_cells_stay_finite():
+def test_unregularised_singular_cells_stay_finite(backend):
     # Flat cells have singular covariances; without a floor the precision is clamped, not
     # infinite. The patch's pixels are ~1e16 away from the flat reference; the cell where
     # query and reference are the same flat colour scores exactly 0.
     query = np.full((8, 8, 3), 100, dtype=np.uint8)
     query[2:4, 2:4] = 200
     reference = np.full((8, 8, 3), 100, dtype=np.uint8)
-    score = cross_score(query, reference, 2, 0.0, 0.0)
+    score = cross_score(query, reference, 2, 0.0, 0.0, backend=backend)
     assert np.isfinite(score).all()
     assert score[2, 2] > 1e15
     assert score[7, 7] == 0.0
 
 
-def test_identical_images_score_exactly_zero():
+def test_identical_images_score_exactly_zero(backend):
     rng = np.random.default_rng(5)
     image = degenerate_image(rng)
-    assert not cross_score(image, image, 4, ABS_FLOOR, REL_FLOOR).any()
+    assert not cross_score(image, image, 4, ABS_FLOOR, REL_FLOOR, backend=backend).any()
 
 
 def test_oracle_loop_agrees_with_vectorised_oracle():
@@ -99,14 +102,16 @@ def test_oracle_loop_agrees_with_vectorised_oracle():
     np.testing.assert_allclose(vectorised, t0 - t1, rtol=1e-9, atol=1e-9)
 
 
-def test_rx_score_is_mahalanobis_to_own_model():
+def test_rx_score_is_mahalanobis_to_own_model(backend):
     rng = np.random.default_rng(7)
     image = rng.integers(0, 256, (10, 12, 3), dtype=np.uint8)
     pixels = image.reshape(-1, 3).astype(np.float64)
     cov = np.cov(pixels.T) + ABS_FLOOR * np.eye(3)
     d = pixels - pixels.mean(axis=0)
     expected = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d).reshape(10, 12)
-    np.testing.assert_allclose(rx_score(image, ABS_FLOOR, 0.0), expected, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(
+        rx_score(image, ABS_FLOOR, 0.0, backend), expected, rtol=1e-4, atol=1e-3
+    )
 
 
 well_conditioned = arrays(np.float64, (3, 3), elements=st.floats(-1, 1)).map(
@@ -191,7 +196,7 @@ def test_several_models_in_one_pass_equal_one_model_at_a_time():
 
 
 @pytest.mark.parametrize("photometric", ["none", "cell_affine"])
-def test_the_smallest_unchecked_floor_keeps_extreme_scores_finite(photometric):
+def test_the_smallest_unchecked_floor_keeps_extreme_scores_finite(photometric, backend):
     # From abs_floor 1e-3 on the map is not checked for inf/NaN: its worst case must stay
     # finite. Flat reference cells (black, saturated, grey) against full-range noise, and
     # the largest gain the photometric fit may apply.
@@ -201,6 +206,8 @@ def test_the_smallest_unchecked_floor_keeps_extreme_scores_finite(photometric):
     reference = degenerate_image(rng, 48, 64)
     reference[24:, 32:] = 128
     query = rng.choice(np.array([0, 255], np.uint8), size=reference.shape)
-    score = cross_score(query, reference, 4, _BOUNDED_FLOOR, 0.0, photometric, max_gain=100.0)
+    score = cross_score(
+        query, reference, 4, _BOUNDED_FLOOR, 0.0, photometric, max_gain=100.0, backend=backend
+    )
     assert np.isfinite(score).all()
     assert np.abs(score).max() < 1e20

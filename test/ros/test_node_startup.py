@@ -42,6 +42,27 @@ def test_invalid_value_refuses_to_start_with_one_line_naming_it(parameter, expec
     assert len(lines) == 1 and expected in lines[0], done.stderr
 
 
+def _cuda_visible() -> bool:
+    try:
+        import torch
+    except ImportError:
+        return False
+    return torch.cuda.is_available()
+
+
+@pytest.mark.skipif(_cuda_visible(), reason="this machine can run the CUDA backend")
+def test_an_array_backend_this_machine_cannot_run_refuses_to_start_with_the_reason():
+    # Without PyTorch the reason is the missing library, with it the missing GPU.
+    done = run_node("-p", "pose_source:=topic", "-p", "array_backend:=torch:cuda")
+    assert done.returncode == EXIT_INVALID_PARAMETER, done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "array_backend 'torch:cuda' needs" in lines[0], done.stderr
+    unknown = run_node("-p", "pose_source:=topic", "-p", "array_backend:=cupy")
+    assert unknown.returncode == EXIT_INVALID_PARAMETER, unknown.stderr
+    assert "array_backend must be one of" in unknown.stderr
+
+
 def test_command_line_value_is_checked_even_where_a_params_file_sets_it(tmp_path):
     # rcl keeps the file's value when -p gives another type: that must not pass silently.
     params = tmp_path / "params.yaml"

@@ -1,0 +1,154 @@
+"""The PyTorch array backend: the cross score's per-pixel work on a GPU (or the CPU).
+
+Imported only when a ``torch`` backend is selected (:func:`.backends.select_backend`).
+Each operation uploads its image, works over all pixels at once -- per-cell sums by
+scatter-add into the cell of each pixel, the quadratic forms by gathering each pixel's cell
+coefficients -- and returns NumPy arrays. Sums and covariances are float64 (on the device),
+the per-pixel score float32, as on the NumPy backend.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+
+import numpy as np
+import torch
+
+from allo_mrad_ros.detector.grid import cell_edges, cell_slices
+from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.photometric import QUANTILES, cell_quantiles
+from allo_mrad_ros.detector.quadratic import PixelQuadratic
+from allo_mrad_ros.detector.statistics import CellStatistics
+
+
+class TorchBackend:
+    """Per-pixel operations on a PyTorch device.
+
+    Parameters
+    ----------
+    device : str, optional
+        A PyTorch device (``"cuda"``, ``"cuda:1"``, ``"cpu"``); None: the first CUDA GPU
+        when one is visible, else the CPU.
+    """
+
+    def __init__(self, device: str | None = None) -> None:
+        # Imported here so that a missing or broken PyTorch is the selector's error.
+        from allo_mrad_ros.detector.backends import BackendError
+
+        if device is None:
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+        if device.startswith("cuda") and not torch.cuda.is_available():
+            raise BackendError(
+                f"array_backend 'torch:{device}' needs a CUDA GPU, and PyTorch "
+                f"{torch.__version__} sees none here; use 'torch:cpu' or 'numpy'"
+            )
+        # No CUDA call that creates a context here: selecting a backend (as the node's
+        # parameter check does) must stay cheap, and a forked child could not use it.
+        self._device = torch.device(device)
+
+    @property
+    def name(self) -> str:
+        return f"torch:{self._device}"
+
+    @property
+    def device(self) -> torch.device:
+        """The PyTorch device the work runs on."""
+        return self._device
+
+    def _pixels(self, image: np.ndarray) -> torch.Tensor:
+        # (H*W, 3) float32 on the 0..255 scale. 8-bit images travel as bytes (a quarter of
+        # the transfer) and are converted on the device, exactly.
+        if image.dtype == np.uint8:
+            uploaded = torch.from_numpy(np.ascontiguousarray(image)).to(self._device)
+            return uploaded.reshape(-1, 3).to(torch.float32)
+        uploaded = torch.from_numpy(to_float32(image)).to(self._device)
+        return uploaded.reshape(-1, 3)
+
+    def cell_statistics(self, image: np.ndarray, grid: int) -> CellStatistics:
+        height, width = image.shape[:2]
+        cells = _cell_index(height, width, grid, self._device)
+        pixels = self._pixels(image).to(torch.float64)
+        n_cells = grid * grid
+        count = torch.bincount(cells, minlength=n_cells)
+        n = count.to(torch.float64)[:, None]
+        sums = torch.zeros((n_cells, 3), dtype=torch.float64, device=self._device)
+        mean = sums.index_add_(0, cells, pixels) / n
+        # Two passes, around each cell's mean: a flat cell's deviations are exact zeros.
+        centred = pixels - mean[cells]
+        products = (centred[:, :, None] * centred[:, None, :]).reshape(-1, 9)
+        second = torch.zeros((n_cells, 9), dtype=torch.float64, device=self._device)
+        second.index_add_(0, cells, products)
+        cov = second.reshape(n_cells, 3, 3) / torch.clamp(n - 1.0, min=1.0)[:, :, None]
+        return CellStatistics(
+            mean=mean.cpu().numpy(), cov=cov.cpu().numpy(), count=count.cpu().numpy()
+        )
+
+    def cell_quantiles(self, image: np.ndarray, grid: int) -> np.ndarray:
+        if image.dtype != np.uint8:
+            # Deeper images are sorted per cell on the CPU (the node's cameras are 8-bit).
+            return cell_quantiles(image, grid)
+        # One histogram per (cell, channel), then each quantile's order statistics by one
+        # sorted search over the histograms' cumulative counts, lifted one above another.
+        height, width = image.shape[:2]
+        histograms = grid * grid * 3
+        bins = _histogram_bins(height, width, grid, self._device)
+        values = torch.from_numpy(np.ascontiguousarray(image)).to(self._device)
+        bin_of_pixel = bins + values.reshape(-1).to(torch.int64)
+        counts = torch.bincount(bin_of_pixel, minlength=histograms * 256)
+        cdf = torch.cumsum(counts.reshape(histograms, 256), dim=1)
+        total = cdf[:, -1:].to(torch.float64)
+        quantiles = torch.as_tensor(QUANTILES, dtype=torch.float64, device=self._device)
+        position = quantiles[None, :] * (total - 1.0)
+        low = torch.floor(position)
+        high = torch.minimum(low + 1.0, total - 1.0)
+        lift = torch.arange(histograms, device=self._device)[:, None] * (int(total.max()) + 1)
+        lifted = (cdf + lift).reshape(-1)
+        base = torch.arange(histograms, device=self._device)[:, None] * 256
+        below = torch.searchsorted(lifted, low.to(torch.int64) + lift, right=True) - base
+        above = torch.searchsorted(lifted, high.to(torch.int64) + lift, right=True) - base
+        result = below + (position - low) * (above - below)
+        return result.reshape(grid * grid, 3, QUANTILES.size).cpu().numpy()
+
+    def evaluate(
+        self,
+        image: np.ndarray,
+        grid: int,
+        quadratics: Sequence[PixelQuadratic],
+        check_finite: bool,
+    ) -> list[np.ndarray]:
+        height, width = image.shape[:2]
+        cells = _cell_index(height, width, grid, self._device)
+        pixels = self._pixels(image)
+        homogeneous = torch.cat([pixels, torch.ones_like(pixels[:, :1])], dim=1)[:, :, None]
+        big = float(np.finfo(np.float32).max)
+        scores = []
+        for quadratic in quadratics:
+            transform = torch.from_numpy(quadratic.transform).to(self._device)[cells]
+            weighted = torch.from_numpy(quadratic.weighted).to(self._device)[cells]
+            constant = torch.from_numpy(quadratic.constant.astype(np.float32)).to(self._device)
+            y = torch.bmm(transform, homogeneous)
+            z = torch.bmm(weighted, homogeneous)
+            score = (y * z).sum(dim=(1, 2)) + constant[cells]
+            if check_finite:
+                score = torch.nan_to_num(score, nan=0.0, posinf=big, neginf=-big)
+            scores.append(score.reshape(height, width).cpu().numpy())
+        return scores
+
+
+@lru_cache(maxsize=16)
+def _cell_index(height: int, width: int, grid: int, device: torch.device) -> torch.Tensor:
+    # The row-major cell of every pixel, flattened; cells as in grid.cell_slices.
+    cell_slices(height, width, grid)  # raises for an image smaller than the grid
+    rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
+    cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
+    cells = (rows[:, None] * grid + cols[None, :]).reshape(-1)
+    return torch.from_numpy(cells.astype(np.int64)).to(device)
+
+
+@lru_cache(maxsize=16)
+def _histogram_bins(height: int, width: int, grid: int, device: torch.device) -> torch.Tensor:
+    # The first bin of each pixel channel's (cell, channel) histogram, flattened like H x W x 3.
+    cells = _cell_index(height, width, grid, device)
+    channel = torch.arange(3, device=device)
+    return (cells[:, None] * 768 + 256 * channel[None, :]).reshape(-1)
