@@ -1,9 +1,16 @@
-"""What a test of a command's signal handling reads about the child process (Linux /proc)."""
+"""What a test of a command's signal handling needs: starting it as a terminal would, what it
+shows of itself in Linux /proc, and the checks of an interrupted run."""
 
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
+
+import pytest
 
 
 def default_signals() -> None:
@@ -24,3 +31,36 @@ def catches_sigterm(pid: int) -> bool:
 def loaded_numpy(pid: int) -> bool:
     """Whether the process has NumPy's core extension mapped."""
     return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
+
+
+def start_command(argv: list[str], cwd: Path) -> subprocess.Popen:
+    """``python -m <argv>`` with a terminal's signal disposition, stdout/stderr as text."""
+    return subprocess.Popen(
+        [sys.executable, "-m", *argv],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=default_signals,
+    )
+
+
+def wait_for(
+    process: subprocess.Popen, ready: Callable[[], bool], what: str, limit_s: float
+) -> None:
+    """Poll ``ready`` every millisecond; fail if the process ends or ``limit_s`` passes first."""
+    start = time.monotonic()
+    while not ready():
+        if process.poll() is not None:
+            pytest.fail(f"the command ended ({process.returncode}) before {what}")
+        if time.monotonic() - start > limit_s:
+            process.kill()
+            pytest.fail(f"no {what} within {limit_s} s")
+        time.sleep(0.001)
+
+
+def assert_interrupted(process: subprocess.Popen, stderr: str) -> None:
+    """Exit status 130 and a last line ending in "interrupted", with no traceback."""
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1].endswith("interrupted"), stderr
+    assert "Traceback" not in stderr

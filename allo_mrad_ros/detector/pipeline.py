@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.backends import PixelBackend, resolve_backend
+from allo_mrad_ros.detector.backends import PixelBackend
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -179,7 +179,7 @@ def detect(
             params.rel_floor,
             models,
             params.max_gain,
-            resolve_backend(backend),
+            backend,
         )
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(

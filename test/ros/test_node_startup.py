@@ -50,8 +50,9 @@ def _cuda_visible() -> bool:
     return torch.cuda.is_available()
 
 
-@pytest.mark.skipif(_cuda_visible(), reason="this machine can run the CUDA backend")
 def test_an_array_backend_this_machine_cannot_run_refuses_to_start_with_the_reason():
+    if _cuda_visible():
+        pytest.skip("this machine can run the CUDA backend")
     # Without PyTorch the reason is the missing library, with it the missing GPU.
     done = run_node("-p", "pose_source:=topic", "-p", "array_backend:=torch:cuda")
     assert done.returncode == EXIT_INVALID_PARAMETER, done.stderr
