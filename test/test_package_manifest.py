@@ -161,8 +161,10 @@ def test_every_runtime_import_has_a_provider_on_a_distro():
         if provider is None:
             missing.append(f"{module} ({where}): no provider known; add it to MODULE_PROVIDERS")
         elif provider not in exec_keys and provider.lower() not in distro_pip:
-            missing.append(f"{module} ({where}): {provider} is in neither package.xml nor "
-                           "requirements-distro*.txt")
+            missing.append(
+                f"{module} ({where}): {provider} is in neither package.xml nor "
+                "requirements-distro*.txt"
+            )
     assert not missing, "\n".join(missing)
 
 

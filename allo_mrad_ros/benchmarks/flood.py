@@ -61,9 +61,7 @@ def peak_growth(samples: list[tuple[float, float]], duration_s: float) -> dict:
     figures: dict = {}
     for name, (start, end) in windows.items():
         values = sorted(mb for t, mb in samples if start <= t <= end)
-        figures[name] = (
-            {"peak": values[-1], "median": values[len(values) // 2]} if values else None
-        )
+        figures[name] = {"peak": values[-1], "median": values[len(values) // 2]} if values else None
     first, last = figures["second_minute"], figures["last_minute"]
     figures["growth_percent"] = (
         100.0 * (last["peak"] / first["peak"] - 1) if first and last else None

@@ -115,9 +115,7 @@ def time_config(
     return {**info, **_summary(samples)}
 
 
-def time_patched_against_plain(
-    scale: float, frames: int, warmup: int, backend: str | None
-) -> dict:
+def time_patched_against_plain(scale: float, frames: int, warmup: int, backend: str | None) -> dict:
     """Time the default reference with and without the CPU patches, alternating per frame.
 
     Each frame is rendered by both renderers (which goes first alternates), timing wall

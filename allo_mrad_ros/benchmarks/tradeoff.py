@@ -213,9 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         best = _most_accurate(mrad_test)
         on_test = next(r for r in mrad_test if r["setting"] == default["setting"])
         test_gap = _gap_with_interval(test_outcomes, default["setting"], best["setting"])
-        leads = {
-            m: _gap_to_baseline(test_outcomes, default["setting"], m) for m in ("PAD", "RXD")
-        }
+        leads = {m: _gap_to_baseline(test_outcomes, default["setting"], m) for m in ("PAD", "RXD")}
         del test_outcomes
         print(f"test split: {len(test)} frames ({sum(f.is_anomalous for f in test)} anomalous)")
         print(format_table(test_rows, default["setting"]))

@@ -21,9 +21,7 @@ def basis_with_z(axis: np.ndarray) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def placed(
-    mesh: trimesh.Trimesh, rotation: np.ndarray, origin: Sequence[float]
-) -> trimesh.Trimesh:
+def placed(mesh: trimesh.Trimesh, rotation: np.ndarray, origin: Sequence[float]) -> trimesh.Trimesh:
     transform = np.eye(4)
     transform[:3, :3] = rotation
     transform[:3, 3] = origin

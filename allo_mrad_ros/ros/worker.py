@@ -80,9 +80,7 @@ class _RunningMean:
         self.value: float | None = None
 
     def add(self, ms: float) -> None:
-        self.value = ms if self.value is None else self.value + _ESTIMATE_WEIGHT * (
-            ms - self.value
-        )
+        self.value = ms if self.value is None else self.value + _ESTIMATE_WEIGHT * (ms - self.value)
 
 
 class ProcessingWorker:

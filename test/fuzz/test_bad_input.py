@@ -53,8 +53,23 @@ def clean(outcome: str) -> bool:
 
 
 @given(
-    encoding=st.sampled_from(["rgb8", "bgr8", "mono8", "rgba8", "16UC1", "rgb16", "bgra16",
-                              "mono16", "32FC1", "yuv422", "", "RGB8", "bayer_rggb8"]),
+    encoding=st.sampled_from(
+        [
+            "rgb8",
+            "bgr8",
+            "mono8",
+            "rgba8",
+            "16UC1",
+            "rgb16",
+            "bgra16",
+            "mono16",
+            "32FC1",
+            "yuv422",
+            "",
+            "RGB8",
+            "bayer_rggb8",
+        ]
+    ),
     width=SIZES,
     height=SIZES,
     step_delta=st.integers(-8, 8),
@@ -66,7 +81,11 @@ def test_image_headers(encoding, width, height, step_delta, data_delta, bigendia
     step = max(0, min(width, 64) * channels + step_delta)
     size = max(0, step * min(height, 64) + data_delta)
     msg = types.SimpleNamespace(
-        encoding=encoding, width=width, height=height, step=step, is_bigendian=bigendian,
+        encoding=encoding,
+        width=width,
+        height=height,
+        step=step,
+        is_bigendian=bigendian,
         data=bytes(size),
     )
     expected = (min(width, 64), min(height, 64))
@@ -108,8 +127,10 @@ def _xyz(values):
     return types.SimpleNamespace(x=values[0], y=values[1], z=values[2])
 
 
-@given(position=st.lists(FLOATS, min_size=3, max_size=3),
-       orientation=st.lists(FLOATS, min_size=4, max_size=4))
+@given(
+    position=st.lists(FLOATS, min_size=3, max_size=3),
+    orientation=st.lists(FLOATS, min_size=4, max_size=4),
+)
 def test_poses(position, orientation):
     quaternion = types.SimpleNamespace(
         x=orientation[0], y=orientation[1], z=orientation[2], w=orientation[3]
@@ -160,8 +181,26 @@ def sequence_template(tmp_path_factory) -> Path:
 
 
 CELLS = st.one_of(
-    st.sampled_from(["", "nan", "inf", "-1", "1e400", "0", "train", "drill", "x", "1,2",
-                     "frame9999.png", "../etc/passwd", "\u00e9", " 1", "2", "-0"]),
+    st.sampled_from(
+        [
+            "",
+            "nan",
+            "inf",
+            "-1",
+            "1e400",
+            "0",
+            "train",
+            "drill",
+            "x",
+            "1,2",
+            "frame9999.png",
+            "../etc/passwd",
+            "\u00e9",
+            " 1",
+            "2",
+            "-0",
+        ]
+    ),
     st.text(max_size=6),
 )
 

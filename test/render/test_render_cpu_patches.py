@@ -176,9 +176,7 @@ def _fake_gl(calls: list) -> SimpleNamespace:
 def test_uniform_setter_sends_each_changed_value_once_per_linked_program():
     calls: list = []
     plain_calls: list = []
-    program = SimpleNamespace(
-        _program_id=7, set_uniform=lambda *args: plain_calls.append(args)
-    )
+    program = SimpleNamespace(_program_id=7, set_uniform=lambda *args: plain_calls.append(args))
     setter = UniformSetter(program, _fake_gl(calls))
     pose = np.arange(16.0).reshape(4, 4)
     setter("M", pose)

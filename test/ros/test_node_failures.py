@@ -147,9 +147,7 @@ def test_huge_sun_vector_keeps_its_direction_and_frames_keep_flowing(live):
     assert np.allclose(node._config.sun_direction, (2**-0.5, 2**-0.5, 0.0))
 
 
-def test_absurd_camera_info_is_rejected_once_with_the_limit_and_no_renderer_retries(
-    live, capfd
-):
+def test_absurd_camera_info_is_rejected_once_with_the_limit_and_no_renderer_retries(live, capfd):
     _node, feed = live
     info = feed.camera_info()
     info.width = 2**32 - 1
@@ -166,9 +164,7 @@ def test_absurd_camera_info_is_rejected_once_with_the_limit_and_no_renderer_retr
     assert process_one(feed) is not None  # the good camera_info of the next frames still works
 
 
-def test_any_exception_in_one_frame_is_logged_with_its_stamp_and_processing_goes_on(
-    live, capfd
-):
+def test_any_exception_in_one_frame_is_logged_with_its_stamp_and_processing_goes_on(live, capfd):
     node, feed = live
     worker = node._worker
     view_of = worker._view_of
@@ -255,4 +251,3 @@ def test_diagnostics_say_error_when_the_processing_thread_dies(live, capfd):
     assert wait_for_level(feed, DiagnosticStatus.ERROR, keep_publishing=True)
     assert "processing thread stopped" in latest_status(feed).message
     assert "processing thread stopped" in capfd.readouterr().err
-

@@ -94,9 +94,7 @@ def test_qos_overrides_reach_subscriptions_and_publishers():
             image = next(s for s in node.subscriptions if s.topic_name == "/arm_camera/image_raw")
             assert image.qos_profile.reliability == ReliabilityPolicy.RELIABLE
             assert image.qos_profile.depth == 3
-            info = next(
-                s for s in node.subscriptions if s.topic_name == "/arm_camera/camera_info"
-            )
+            info = next(s for s in node.subscriptions if s.topic_name == "/arm_camera/camera_info")
             assert info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT  # untouched
             assert node._outputs.mask.qos_profile.depth == 1
             assert node._outputs.score.qos_profile.depth == 5

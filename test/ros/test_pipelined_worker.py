@@ -124,9 +124,10 @@ class Run:
             self.slot,
             lambda: Snapshot(self.camera, CONFIG, np.ones(3), 1.0, ()),
             lambda msg, state: "view",
-            lambda msg, image, frame, score_map: self.published.append(
-                (stamp_to_ns(msg.header.stamp), time.monotonic())
-            ) or self.score_maps.append(score_map),
+            lambda msg, image, frame, score_map: (
+                self.published.append((stamp_to_ns(msg.header.stamp), time.monotonic()))
+                or self.score_maps.append(score_map)
+            ),
             self.diagnostics,
             self.logger,
             pipelined,
@@ -157,9 +158,7 @@ def wait_until(condition, timeout_s=30.0):
 
 
 @pytest.mark.parametrize("pipelined", [True, False])
-def test_results_are_published_in_stamp_order_with_stages_of_varying_length(
-    monkeypatch, pipelined
-):
+def test_results_are_published_in_stamp_order_with_stages_of_varying_length(monkeypatch, pipelined):
     stages = Stages()
     stages.install(monkeypatch)
     # Each call takes another time, so the stages finish in shifting phase.
@@ -176,9 +175,7 @@ def test_results_are_published_in_stamp_order_with_stages_of_varying_length(
 
 
 @pytest.mark.parametrize("pipelined", [True, False])
-def test_the_newest_image_wins_and_every_other_one_is_dropped_and_counted(
-    monkeypatch, pipelined
-):
+def test_the_newest_image_wins_and_every_other_one_is_dropped_and_counted(monkeypatch, pipelined):
     stages = Stages()
     stages.install(monkeypatch)
     stages.gate.clear()  # the first frame stays in detection
@@ -288,9 +285,7 @@ def test_stop_ends_every_thread_promptly_while_frames_flow(monkeypatch, pipeline
 
 
 @pytest.mark.parametrize("pipelined", [True, False])
-def test_the_score_map_is_made_and_published_only_while_someone_reads_it(
-    monkeypatch, pipelined
-):
+def test_the_score_map_is_made_and_published_only_while_someone_reads_it(monkeypatch, pipelined):
     stages = Stages()
     stages.install(monkeypatch)
     readers = [0]

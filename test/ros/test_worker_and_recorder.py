@@ -36,9 +36,7 @@ class Counting(Quiet):
 
 
 @pytest.mark.parametrize("pipelined", [True, False])
-def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(
-    monkeypatch, pipelined
-):
+def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monkeypatch, pipelined):
     entered, release = threading.Event(), threading.Event()
 
     class SlowPipeline:
@@ -58,8 +56,13 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(
     slot = LatestSlot()
     state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
     worker = ProcessingWorker(
-        slot, lambda: state, lambda msg, s: "view", lambda *a: published.append(a),
-        Counting(), Quiet(), pipelined,
+        slot,
+        lambda: state,
+        lambda msg, s: "view",
+        lambda *a: published.append(a),
+        Counting(),
+        Quiet(),
+        pipelined,
     )
     msg = fill_image(Image(), None, np.zeros((6, 8, 3), np.uint8), "rgb8")
     slot.put((msg, 0.0))
@@ -195,9 +198,12 @@ def test_sun_direction_is_stored_as_a_unit_vector_or_refused(value, reason):
     if reason is None:
         unit = np.array(validate("sun_direction", parameter, value))
         assert np.isclose(np.linalg.norm(unit), 1.0)
-        assert np.allclose(unit, np.array(value) / np.max(np.abs(value)) / np.linalg.norm(
-            np.array(value) / np.max(np.abs(value))
-        ))
+        assert np.allclose(
+            unit,
+            np.array(value)
+            / np.max(np.abs(value))
+            / np.linalg.norm(np.array(value) / np.max(np.abs(value))),
+        )
     else:
         with pytest.raises(ValueError, match=reason):
             validate("sun_direction", parameter, value)

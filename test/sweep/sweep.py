@@ -69,9 +69,22 @@ def build_fixtures(work: Path, baseline: bool, long: bool) -> dict:
     if baseline:
         report = work / "baseline"
         subprocess.run(
-            [sys.executable, "-m", "rosbag_tools", "evaluate", str(bag), "--out", str(report),
-             "--methods", "MRAD", "--overlays", "0", "--quiet"],
-            check=True, capture_output=True,
+            [
+                sys.executable,
+                "-m",
+                "rosbag_tools",
+                "evaluate",
+                str(bag),
+                "--out",
+                str(report),
+                "--methods",
+                "MRAD",
+                "--overlays",
+                "0",
+                "--quiet",
+            ],
+            check=True,
+            capture_output=True,
         )
         fixtures["baseline"] = json.loads((report / "metrics.json").read_text())
     return fixtures

@@ -242,8 +242,12 @@ def run_start(case: StartCase, timeout_s: float = 60.0) -> Outcome:
             return Outcome(group, case.name, UNCLEAR, f"exit {returncode}: {output[-200:]}")
         if not re.search(case.keyword, output):
             return Outcome(group, case.name, SILENT, f"started without saying /{case.keyword}/")
-        return Outcome(group, case.name, CLEAN, "started; " + re.search(
-            f".*{case.keyword}.*", output)[0][-160:])
+        return Outcome(
+            group,
+            case.name,
+            CLEAN,
+            "started; " + re.search(f".*{case.keyword}.*", output)[0][-160:],
+        )
     if returncode is None:
         return Outcome(group, case.name, SILENT, "started with the invalid value")
     verdict, detail = classify_exit(returncode, output, case.keyword, [], True)

@@ -28,7 +28,9 @@ def start_cases(work: Path) -> list[StartCase]:
         StartCase("mrad.grid 0", (p, "mrad.grid:=0"), r"mrad\.grid .*got 0", quick=True),
         StartCase("reference_scale 0.0", (p, "reference_scale:=0.0"), "reference_scale"),
         StartCase("mrad.tolerance nan", (p, "mrad.tolerance:=.nan"), "mrad.tolerance .*nan"),
-        StartCase("diagnostics_period_s 0", (p, "diagnostics_period_s:=0.0"), "diagnostics_period_s"),
+        StartCase(
+            "diagnostics_period_s 0", (p, "diagnostics_period_s:=0.0"), "diagnostics_period_s"
+        ),
         StartCase("mrad.grid abc", (p, "mrad.grid:=abc"), "mrad.grid .*abc", quick=True),
         StartCase("mrad.kernel_fraction 0", (p, "mrad.kernel_fraction:=0.0"), "kernel_fraction"),
         StartCase("sun_direction nan", (p, "sun_direction:=[1e300,1e300,.nan]"), "sun_direction"),
@@ -82,8 +84,16 @@ def pixels(array_: np.ndarray, encoding: str, bytes_per_value: int = 1, big: int
     def send(live: Live, stamp: int) -> None:
         height, width = array_.shape[:2]
         channels = array_.shape[2] if array_.ndim == 3 else 1
-        msg = _image(live, stamp, data=array_.tobytes(), encoding=encoding, height=height,
-                     width=width, step=width * channels * bytes_per_value, is_bigendian=big)
+        msg = _image(
+            live,
+            stamp,
+            data=array_.tobytes(),
+            encoding=encoding,
+            height=height,
+            width=width,
+            step=width * channels * bytes_per_value,
+            is_bigendian=big,
+        )
         live.feed.publish_frame(stamp, None, POSE, image=msg)
 
     return send
@@ -91,8 +101,7 @@ def pixels(array_: np.ndarray, encoding: str, bytes_per_value: int = 1, big: int
 
 def huge_image(live: Live, stamp: int) -> None:
     side = 8000
-    msg = _image(live, stamp, data=bytes(side * side * 3), height=side, width=side,
-                 step=side * 3)
+    msg = _image(live, stamp, data=bytes(side * side * 3), height=side, width=side, step=side * 3)
     for _ in range(3):
         live.feed.publish_frame(stamp, None, POSE, image=msg)
         live.feed.spin(2.0)
@@ -115,8 +124,9 @@ def camera_info(**fields):
     return send
 
 
-def _publish_pose(live: Live, stamp: int, pose, position=None, quaternion=None,
-                  frame=interface.STATION_FRAME) -> None:
+def _publish_pose(
+    live: Live, stamp: int, pose, position=None, quaternion=None, frame=interface.STATION_FRAME
+) -> None:
     msg = PoseStamped()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
     msg.header.frame_id = frame
@@ -188,19 +198,33 @@ def run_cases() -> list[RunCase]:
     nan, inf = float("nan"), float("inf")
     rgb16 = (IMAGE.astype(np.uint16) * 256).astype(">u2")
     return [
-        RunCase("encoding yuv422", image(encoding="yuv422"), "errors_encoding", "yuv422", quick=True),
+        RunCase(
+            "encoding yuv422", image(encoding="yuv422"), "errors_encoding", "yuv422", quick=True
+        ),
         RunCase("empty encoding", image(encoding=""), "errors_encoding", "encoding ''"),
         RunCase("encoding bayer_rggb8", image(encoding="bayer_rggb8"), "errors_encoding", "bayer"),
         RunCase("encoding 16UC1", image(encoding="16UC1"), "errors_encoding", "16UC1"),
         RunCase("width 0", image(width=0), "errors_size", "empty"),
         RunCase("height 0", image(height=0), "errors_size", "empty"),
-        RunCase("size differs from camera_info", pixels(IMAGE[:90, :160], "rgb8"), "errors_size", "differs from camera_info"),
+        RunCase(
+            "size differs from camera_info",
+            pixels(IMAGE[:90, :160], "rgb8"),
+            "errors_size",
+            "differs from camera_info",
+        ),
         RunCase("step too small", image(step=100), "errors_step", "step", quick=True),
         RunCase("data too short", image(data=IMAGE.tobytes()[:-7]), "errors_data", "bytes"),
         RunCase("data too long", image(data=IMAGE.tobytes() + b"extra"), "errors_data", "bytes"),
-        RunCase("width 2^31-1 header", image(width=2**31 - 1), "errors_size", "differs from camera_info"),
+        RunCase(
+            "width 2^31-1 header", image(width=2**31 - 1), "errors_size", "differs from camera_info"
+        ),
         RunCase("8000x8000 rgb8 (beyond the segment)", huge_image, rss_bound=True),
-        RunCase("4000x4000 rgb8, camera_info 320x180", pixels(np.zeros((4000, 4000, 3), np.uint8), "rgb8"), "errors_size", "differs from camera_info"),
+        RunCase(
+            "4000x4000 rgb8, camera_info 320x180",
+            pixels(np.zeros((4000, 4000, 3), np.uint8), "rgb8"),
+            "errors_size",
+            "differs from camera_info",
+        ),
         RunCase("mono8 image", pixels(IMAGE[..., 0], "mono8"), accepted=True),
         RunCase("bgr8 image", pixels(IMAGE, "bgr8"), accepted=True),
         RunCase("rgba8 image", pixels(np.dstack([IMAGE, IMAGE[..., :1]]), "rgba8"), accepted=True),
@@ -208,34 +232,163 @@ def run_cases() -> list[RunCase]:
         RunCase("empty frame_id", image(header=_header("")), accepted=True),
         RunCase("frame_id with a slash", image(header=_header("/arm_camera")), accepted=True),
         RunCase("stamp 0 (no pose near)", stamp_zero, "pose_lookup_failures", "no camera pose"),
-        RunCase("camera_info width 0", camera_info(width=0), "errors_camera_info", "camera_info", frame_is_bad=False),
-        RunCase("camera_info width 2^32-1", camera_info(width=2**32 - 1), "errors_camera_info", "4294967295", quick=True, frame_is_bad=False),
-        RunCase("camera_info K zero", camera_info(k=[0.0] * 9), "errors_camera_info", "camera_info", frame_is_bad=False),
-        RunCase("camera_info K NaN", camera_info(k=[nan] * 9), "errors_camera_info", "camera_info", frame_is_bad=False),
-        RunCase("camera_info fx negative", camera_info(k=[-222.2, 0.0, 160.0, 0.0, 222.2, 90.0, 0.0, 0.0, 1.0]), "errors_camera_info", "camera_info", frame_is_bad=False),
-        RunCase("camera_info cx 1e9", camera_info(k=[222.2, 0.0, 1e9, 0.0, 222.2, 90.0, 0.0, 0.0, 1.0]), "errors_camera_info|errors_renderer", "camera_info|cx", either=True),
-        RunCase("camera_info distortion", camera_info(d=[0.1, 0.0, 0.0, 0.0, 0.0]), "errors_distortion", "distortion", frame_is_bad=False),
-        RunCase("camera_info D NaN", camera_info(d=[nan] * 5), "errors_distortion", "distortion", frame_is_bad=False),
-        RunCase("camera_info 640x360 (image 320x180)", camera_info(width=640, height=360, k=[444.4, 0.0, 320.0, 0.0, 444.4, 180.0, 0.0, 0.0, 1.0]), "errors_size", "differs from camera_info", frame_is_bad=False),
-        RunCase("pose NaN position", pose(position=[nan, 0.0, 0.0]), "errors_pose|pose_lookup_failures", "pose", quick=True, frame_is_bad=False),
-        RunCase("pose inf position", pose(position=[inf, 0.0, 0.0]), "errors_pose|pose_lookup_failures", "pose", frame_is_bad=False),
-        RunCase("pose zero quaternion", pose(quaternion=[0.0, 0.0, 0.0, 0.0]), "errors_pose|pose_lookup_failures", "quaternion", frame_is_bad=False),
-        RunCase("pose NaN quaternion", pose(quaternion=[nan, 0.0, 0.0, 1.0]), "errors_pose|pose_lookup_failures", "quaternion", frame_is_bad=False),
+        RunCase(
+            "camera_info width 0",
+            camera_info(width=0),
+            "errors_camera_info",
+            "camera_info",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info width 2^32-1",
+            camera_info(width=2**32 - 1),
+            "errors_camera_info",
+            "4294967295",
+            quick=True,
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info K zero",
+            camera_info(k=[0.0] * 9),
+            "errors_camera_info",
+            "camera_info",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info K NaN",
+            camera_info(k=[nan] * 9),
+            "errors_camera_info",
+            "camera_info",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info fx negative",
+            camera_info(k=[-222.2, 0.0, 160.0, 0.0, 222.2, 90.0, 0.0, 0.0, 1.0]),
+            "errors_camera_info",
+            "camera_info",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info cx 1e9",
+            camera_info(k=[222.2, 0.0, 1e9, 0.0, 222.2, 90.0, 0.0, 0.0, 1.0]),
+            "errors_camera_info|errors_renderer",
+            "camera_info|cx",
+            either=True,
+        ),
+        RunCase(
+            "camera_info distortion",
+            camera_info(d=[0.1, 0.0, 0.0, 0.0, 0.0]),
+            "errors_distortion",
+            "distortion",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info D NaN",
+            camera_info(d=[nan] * 5),
+            "errors_distortion",
+            "distortion",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "camera_info 640x360 (image 320x180)",
+            camera_info(
+                width=640, height=360, k=[444.4, 0.0, 320.0, 0.0, 444.4, 180.0, 0.0, 0.0, 1.0]
+            ),
+            "errors_size",
+            "differs from camera_info",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "pose NaN position",
+            pose(position=[nan, 0.0, 0.0]),
+            "errors_pose|pose_lookup_failures",
+            "pose",
+            quick=True,
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "pose inf position",
+            pose(position=[inf, 0.0, 0.0]),
+            "errors_pose|pose_lookup_failures",
+            "pose",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "pose zero quaternion",
+            pose(quaternion=[0.0, 0.0, 0.0, 0.0]),
+            "errors_pose|pose_lookup_failures",
+            "quaternion",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "pose NaN quaternion",
+            pose(quaternion=[nan, 0.0, 0.0, 1.0]),
+            "errors_pose|pose_lookup_failures",
+            "quaternion",
+            frame_is_bad=False,
+        ),
         RunCase("pose quaternion of norm 2", pose(quaternion=[0.0, 0.0, 0.0, 2.0]), accepted=True),
-        RunCase("pose 1e300 m away", pose(position=[1e300, 0.0, 0.0]), "errors_.*|pose_lookup_failures", "pose|position", either=True),
-        RunCase("pose in frame 'map'", pose(frame="map"), "errors_pose.*|pose_lookup_failures", "map", frame_is_bad=False),
-        RunCase("pose 1 s off the image", pose(offset_s=1.0), "pose_lookup_failures", "no camera pose"),
+        RunCase(
+            "pose 1e300 m away",
+            pose(position=[1e300, 0.0, 0.0]),
+            "errors_.*|pose_lookup_failures",
+            "pose|position",
+            either=True,
+        ),
+        RunCase(
+            "pose in frame 'map'",
+            pose(frame="map"),
+            "errors_pose.*|pose_lookup_failures",
+            "map",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "pose 1 s off the image", pose(offset_s=1.0), "pose_lookup_failures", "no camera pose"
+        ),
         RunCase("sun NaN", sun([nan, 0.0, 1.0]), "errors_sun", "sun direction", frame_is_bad=False),
-        RunCase("sun zero vector", sun([0.0, 0.0, 0.0]), "errors_sun", "sun direction", quick=True, frame_is_bad=False),
+        RunCase(
+            "sun zero vector",
+            sun([0.0, 0.0, 0.0]),
+            "errors_sun",
+            "sun direction",
+            quick=True,
+            frame_is_bad=False,
+        ),
         RunCase("sun inf", sun([inf, 0.0, 0.0]), "errors_sun", "sun direction", frame_is_bad=False),
         RunCase("sun 1e300", sun([1e300, -1e300, 1e300]), accepted=True),
-        RunCase("sun in frame 'map'", sun([0.0, 0.0, 1.0], frame="map"), "errors_sun.*", "map", frame_is_bad=False),
-        RunCase("sun strength NaN", sun_strength(nan), "errors_sun", "strength", frame_is_bad=False),
-        RunCase("sun strength -1", sun_strength(-1.0), "errors_sun", "strength", frame_is_bad=False),
-        RunCase("sun strength inf", sun_strength(inf), "errors_sun", "strength", frame_is_bad=False),
-        RunCase("body NaN centre", body(position=(nan, 0.0, 0.0)), "errors_bodies", "earth", frame_is_bad=False),
-        RunCase("body negative diameter", body(diameter=-5.0), "errors_bodies", "earth", frame_is_bad=False),
-        RunCase("body zero diameter", body(diameter=0.0), "errors_bodies", "earth", frame_is_bad=False),
+        RunCase(
+            "sun in frame 'map'",
+            sun([0.0, 0.0, 1.0], frame="map"),
+            "errors_sun.*",
+            "map",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "sun strength NaN", sun_strength(nan), "errors_sun", "strength", frame_is_bad=False
+        ),
+        RunCase(
+            "sun strength -1", sun_strength(-1.0), "errors_sun", "strength", frame_is_bad=False
+        ),
+        RunCase(
+            "sun strength inf", sun_strength(inf), "errors_sun", "strength", frame_is_bad=False
+        ),
+        RunCase(
+            "body NaN centre",
+            body(position=(nan, 0.0, 0.0)),
+            "errors_bodies",
+            "earth",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "body negative diameter",
+            body(diameter=-5.0),
+            "errors_bodies",
+            "earth",
+            frame_is_bad=False,
+        ),
+        RunCase(
+            "body zero diameter", body(diameter=0.0), "errors_bodies", "earth", frame_is_bad=False
+        ),
         RunCase("body in frame 'map'", body_in_map, "errors_bodies.*", "map", frame_is_bad=False),
     ]
 
@@ -284,14 +437,42 @@ def param_cases() -> list[ParamCase]:
         ParamCase("mrad.grid 0", "mrad.grid", _value("int", 0), "mrad.grid", quick=True),
         ParamCase("mrad.grid as a string", "mrad.grid", _value("string", "abc"), "mrad.grid|type"),
         ParamCase("mrad.tolerance nan", "mrad.tolerance", _value("double", nan), "mrad.tolerance"),
-        ParamCase("mrad.kernel_fraction 0", "mrad.kernel_fraction", _value("double", 0.0), "kernel_fraction"),
-        ParamCase("read-only reference_scale", "reference_scale", _value("double", 0.5), "read-only|read only"),
-        ParamCase("read-only pose_source", "pose_source", _value("string", "tf"), "read-only|read only"),
-        ParamCase("sun_direction zero", "sun_direction", _value("doubles", [0.0, 0.0, 0.0]), "zero"),
-        ParamCase("sun_direction NaN", "sun_direction", _value("doubles", [nan, 1.0, 0.0]), "finite"),
+        ParamCase(
+            "mrad.kernel_fraction 0",
+            "mrad.kernel_fraction",
+            _value("double", 0.0),
+            "kernel_fraction",
+        ),
+        ParamCase(
+            "read-only reference_scale",
+            "reference_scale",
+            _value("double", 0.5),
+            "read-only|read only",
+        ),
+        ParamCase(
+            "read-only pose_source", "pose_source", _value("string", "tf"), "read-only|read only"
+        ),
+        ParamCase(
+            "sun_direction zero", "sun_direction", _value("doubles", [0.0, 0.0, 0.0]), "zero"
+        ),
+        ParamCase(
+            "sun_direction NaN", "sun_direction", _value("doubles", [nan, 1.0, 0.0]), "finite"
+        ),
         ParamCase("sun_direction of 2", "sun_direction", _value("doubles", [1.0, 0.0]), "3"),
         ParamCase("sun_strength -1", "sun_strength", _value("double", -1.0), "sun_strength"),
-        ParamCase("undeclared parameter", "mrad.gird", _value("int", 4), "gird|not declared|undeclared"),
-        ParamCase("sun_direction [0, 2, 0]", "sun_direction", _value("doubles", array.array("d", [0.0, 2.0, 0.0])), accepted=True),
-        ParamCase("sun_direction 1e300", "sun_direction", _value("doubles", [1e300, 1e300, 0.0]), accepted=True),
+        ParamCase(
+            "undeclared parameter", "mrad.gird", _value("int", 4), "gird|not declared|undeclared"
+        ),
+        ParamCase(
+            "sun_direction [0, 2, 0]",
+            "sun_direction",
+            _value("doubles", array.array("d", [0.0, 2.0, 0.0])),
+            accepted=True,
+        ),
+        ParamCase(
+            "sun_direction 1e300",
+            "sun_direction",
+            _value("doubles", [1e300, 1e300, 0.0]),
+            accepted=True,
+        ),
     ]

@@ -38,14 +38,17 @@ def test_verdicts_can_fail():
     # The classification itself: each failure is named, never passed as clean.
     assert classify_exit(1, "x: error: bad thing\n", "bad", [], True)[0] == CLEAN
     assert classify_exit(0, "", "bad", [], True)[0] == "silent wrong"
-    assert classify_exit(1, "Traceback (most recent call last):\n  x\nE: y\n", "", [], True)[0] \
+    assert (
+        classify_exit(1, "Traceback (most recent call last):\n  x\nE: y\n", "", [], True)[0]
         == "traceback"
+    )
     assert classify_exit(None, "", "", [], True)[0] == "crash"
     assert classify_exit(-9, "", "", [], True)[0] == "crash"
     assert classify_exit(1, "e: one\ne: two\n", "", [], True)[0] == UNCLEAR
     assert classify_exit(1, "e: other\n", "bad", [], True)[0] == UNCLEAR
-    assert classify_exit(1, "x: error: bad\n", "bad", [".out.partial-1"], True)[0] \
-        == "partial output"
+    assert (
+        classify_exit(1, "x: error: bad\n", "bad", [".out.partial-1"], True)[0] == "partial output"
+    )
     assert classify_exit(0, "", "", [], False, "metrics differ")[0] == "silent wrong"
     usage = "usage: prog [-h]\n       prog more\nprog: error: argument --x: bad\n"
     assert error_lines(usage) == ["prog: error: argument --x: bad"]
