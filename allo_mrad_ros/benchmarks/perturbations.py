@@ -1,8 +1,9 @@
 """How a camera image differs from a render: photometric perturbations of a uint8 query.
 
 Each function takes an H x W x 3 uint8 image and returns a new uint8 image; together they
-are the render-to-camera gap of issue 11 (exposure, gamma, tone curve, desaturation, white
-balance, vignetting, light fall-off, sensor noise, JPEG, bloom). The photometric tests and
+are the render-to-camera gap (exposure, gamma, tone curves including filmic and AgX-like
+view transforms, desaturation, white balance, vignetting, light fall-off, sensor noise, JPEG,
+bloom). The photometric tests and
 ``python -m allo_mrad_ros.benchmarks.photometric`` apply them to normal frames.
 """
 
@@ -104,7 +105,38 @@ def bloom(image: np.ndarray, sigma: float = 8.0, strength: float = 0.6) -> np.nd
     return _to_uint8(x + strength * glow[..., None])
 
 
-# The render-to-camera gap of issue 11, each at the end of its stated range.
+def _to_linear(x: np.ndarray) -> np.ndarray:
+    return x**2.2
+
+
+def filmic(image: np.ndarray, exposure_factor: float = 2.0) -> np.ndarray:
+    """A filmic view transform: Hable's curve on linear light, white at 11.2, display gamma.
+
+    Lifts mid-tones and rolls highlights off, as a path tracer's filmic view does against a
+    rasteriser's plain gamma."""
+
+    def hable(v: np.ndarray) -> np.ndarray:
+        a, b, c, d, e, f = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
+        return (v * (a * v + c * b) + d * e) / (v * (a * v + b) + d * f) - e / f
+
+    linear = _to_linear(_check(image)) * exposure_factor * 4.0
+    return _to_uint8(np.clip(hable(linear) / hable(np.float64(11.2)), 0, 1) ** (1 / 2.2))
+
+
+def agx_like(image: np.ndarray, exposure_factor: float = 1.0) -> np.ndarray:
+    """An AgX-like view transform: log2 encoding of linear light over 16.5 stops, a sigmoid
+    per channel, and highlights pulled towards grey (AgX desaturates bright colours)."""
+    linear = np.maximum(_to_linear(_check(image)) * exposure_factor, 2.0**-12.5)
+    encoded = np.clip((np.log2(linear / 0.18) + 10.0) / 16.5, 0.0, 1.0)
+    curved = 1.0 / (1.0 + np.exp(-9.0 * (encoded - 0.606)))
+    low, high = 1.0 / (1.0 + np.exp(9.0 * 0.606)), 1.0 / (1.0 + np.exp(-9.0 * 0.394))
+    curved = (curved - low) / (high - low)
+    luma = curved @ np.array([0.2126, 0.7152, 0.0722])
+    mix = 0.35 * luma[..., None] ** 2
+    return _to_uint8(np.clip(curved + mix * (luma[..., None] - curved), 0.0, 1.0))
+
+
+# The render-to-camera gap, each at the end of its stated range.
 PERTURBATIONS: dict[str, Perturbation] = {
     "exposure x0.6": lambda im: exposure(im, 0.6),
     "exposure x1.6": lambda im: exposure(im, 1.6),

@@ -18,6 +18,7 @@ PixelScore = Literal["continuous", "regions", "blurred"]
 Growth = Literal["tolerance", "hysteresis"]
 Photometric = Literal["none", "cell_affine"]
 ImageScore = Literal["area", "map_top"]
+ColourTransferDirection = Literal["none", "reference", "query"]
 
 SCORE_RANGE = 255.0
 
@@ -101,6 +102,26 @@ class MradParams:
         does not hang on one pixel). The anomalous flag always comes from the mask's area.
     image_top_fraction : float
         Fraction of the processed pixels ``map_top`` averages, (0, 1].
+    colour_transfer : {"none", "reference", "query"}
+        Per-frame colour transfer before the cell statistics (a 3-D table from reference
+        colour to query colour, medians per colour bin, fitted away from reference edges):
+        ``query`` maps the query into the reference's colours (the reference's statistics
+        stay its own), ``reference`` maps the reference into the query's; ``none`` skips it.
+    transfer_bin : int
+        Width of the finest colour bins of the transfer, 8-bit levels: 4, 8, 16, 32 or 64.
+    transfer_min_count : int
+        Pixel pairs a colour bin needs for an offset of its own (else the enclosing coarser
+        bin's), 1..1e6.
+    transfer_edge_margin : int
+        Pixels around reference edges left out of the transfer's fit, 0..16.
+    transfer_gain : bool
+        With ``colour_transfer="query"``, divide what departs from the transferred colours by
+        each cell's contrast gain (the ``cell_affine`` fit), so an object keeps its contrast
+        in the reference's units under a darker or flatter query.
+    glare_level : float
+        With a colour transfer, a query pixel whose every channel reaches this level over
+        station surface is glare (it says "brighter than white", not which colour) and
+        takes the reference's colour; 256 disables it, 128..256.
     """
 
     grid: int = 8
@@ -128,6 +149,12 @@ class MradParams:
     bit_depth: int = 16
     image_score: ImageScore = "map_top"
     image_top_fraction: float = 1e-3
+    colour_transfer: ColourTransferDirection = "query"
+    transfer_bin: int = 16
+    transfer_min_count: int = 16
+    transfer_edge_margin: int = 0
+    transfer_gain: bool = True
+    glare_level: float = 250.0
 
     def __post_init__(self) -> None:
         for name, spec in PARAMETER_SPECS.items():
@@ -276,6 +303,30 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
         1,
         low_open=True,
     ),
+    "colour_transfer": ParameterSpec(
+        str,
+        "per-frame colour table before the statistics: query (map the query), reference, none",
+        choices=("none", "reference", "query"),
+    ),
+    "transfer_bin": ParameterSpec(
+        int,
+        "finest colour-bin width of the colour transfer (8-bit levels)",
+        choices=(4, 8, 16, 32, 64),
+    ),
+    "transfer_min_count": ParameterSpec(
+        int, "pixel pairs a colour bin needs for its own offset", 1, 1_000_000
+    ),
+    "transfer_edge_margin": ParameterSpec(
+        int, "pixels around reference edges left out of the colour-transfer fit", 0, 16
+    ),
+    "transfer_gain": ParameterSpec(
+        bool,
+        "divide departures from the transferred colours by the cell's contrast gain",
+        choices=(True, False),
+    ),
+    "glare_level": ParameterSpec(
+        float, "query level (every channel) above which station pixels are glare; 256 off", 128, 256
+    ),
 }
 
 
@@ -289,6 +340,7 @@ _PAPER_OPTIMUM = MradParams(
     map_photometric="none",
     growth="tolerance",
     image_score="area",
+    colour_transfer="none",
 )
 
 PROFILES: dict[str, MradParams] = {

@@ -15,6 +15,12 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.backends import PixelBackend
+from allo_mrad_ros.detector.colour_transfer import (
+    apply_to_query,
+    apply_to_reference,
+    clip_glare,
+    fit_colour_transfer,
+)
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -22,6 +28,7 @@ from allo_mrad_ros.detector.images import (
     nearest_upscale,
 )
 from allo_mrad_ros.detector.params import MradParams
+from allo_mrad_ros.detector.photometric import fit_cell_affine
 from allo_mrad_ros.detector.postprocess import (
     blur_scores,
     continuous_scores,
@@ -165,6 +172,9 @@ def detect(
             f"processed at process_scale={params.process_scale} "
             f"({work.shape[1]}x{work.shape[0]}); use a larger image or process_scale=1"
         )
+    if params.colour_transfer != "none":
+        with timer.stage("colour_transfer"):
+            work, reference = transfer_colours(work, reference, params)
     # The ranking map may use another photometric model than the mask; both come from
     # one pass that shares the cell statistics.
     models = [params.photometric]
@@ -218,6 +228,36 @@ def detect(
         area, anomalous = decide(mask, params.area_threshold)
         frame_score = image_score(work_score, area, params)
     return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish())
+
+
+def transfer_colours(
+    query: np.ndarray, reference: np.ndarray, params: MradParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 0: bring query and reference to one set of colours (``params.colour_transfer``).
+
+    Returns
+    -------
+    query, reference : numpy.ndarray
+        The pair with one of them mapped (uint8); both unchanged for ``none``.
+    """
+    if params.colour_transfer == "none":
+        return query, reference
+    transfer = fit_colour_transfer(
+        query,
+        reference,
+        params.transfer_bin,
+        params.transfer_min_count,
+        params.transfer_edge_margin,
+    )
+    if params.colour_transfer == "query":
+        gain = None
+        if params.transfer_gain:
+            gain, _ = fit_cell_affine(query, reference, params.grid, params.max_gain)
+        return apply_to_query(query, reference, transfer, params.glare_level, gain), reference
+    reference = apply_to_reference(reference, transfer)
+    if params.glare_level < 256.0:
+        query = clip_glare(query, reference, params.glare_level)
+    return query, reference
 
 
 def _pixel_score(

@@ -10,6 +10,9 @@ import numpy as np
 from allo_mrad_ros.detector.grid import cell_slices
 from allo_mrad_ros.detector.params import SCORE_RANGE
 
+NEGATIVE_BAND = 1.0
+"""Part of the continuous map's 0..255 range that ranks negative cross scores."""
+
 
 def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
     """Map the raw score onto 0..255.
@@ -43,12 +46,14 @@ def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
 
 
 def continuous_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
-    """Map the raw score onto 0..255 without clipping ties at the top.
+    """Map the signed raw score onto 0..255 by a strictly increasing function.
 
-    ``fixed`` scaling saturates softly: ``255 * s / (s + score_ref)`` with ``s = max(raw, 0)``,
-    which follows ``255 * s / score_ref`` for small scores and is strictly increasing up to
-    255, so the strongest pixels keep their order (hard clipping ties them at 255).
-    ``per_image`` scaling is :func:`scale_scores`'s (already unclipped).
+    Non-negative scores follow ``NEGATIVE_BAND + (255 - NEGATIVE_BAND) * s / (s + ref)``
+    (``fixed``; ``s / peak`` for ``per_image``, ``peak`` the frame's largest score), which
+    saturates softly so the strongest pixels keep their order. Negative scores, where the
+    query pixel is closer to the reference model than to its own, fill the band below,
+    ``NEGATIVE_BAND * exp(s / ref)``: they keep their order instead of tying at 0, so the
+    lowest-ranked anomaly pixels are still ranked.
 
     Returns
     -------
@@ -56,11 +61,22 @@ def continuous_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.nda
         H x W float32 in [0, 255].
     """
     if scaling == "per_image":
-        return scale_scores(raw, scaling, score_ref)
-    if scaling != "fixed":
+        peak = float(raw.max())
+        ref = peak if peak > 0.0 else 1.0
+    elif scaling == "fixed":
+        ref = float(score_ref)
+    else:
         raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
     _, positive = cv2.threshold(raw, 0.0, 0.0, cv2.THRESH_TOZERO)
-    return cv2.divide(positive * np.float32(SCORE_RANGE), positive + np.float32(score_ref))
+    span = np.float32(SCORE_RANGE - NEGATIVE_BAND)
+    if scaling == "fixed":
+        upper = cv2.divide(positive * span, positive + np.float32(ref))
+    else:
+        upper = cv2.multiply(positive, float(span) / ref)
+    _, negative = cv2.threshold(raw, 0.0, 0.0, cv2.THRESH_TRUNC)
+    lower = np.exp(negative * np.float32(1.0 / ref)) * np.float32(NEGATIVE_BAND)
+    # At 0 both branches give NEGATIVE_BAND; each covers its own side.
+    return np.where(raw > 0.0, upper + np.float32(NEGATIVE_BAND), lower).astype(np.float32)
 
 
 def threshold_scores(scaled: np.ndarray, min_score: float) -> np.ndarray:

@@ -62,6 +62,8 @@ DEFAULT_DEPTHS_M = (0.0, -1.0, 1.0, -2.0, 2.0)
 DEFAULT_SUN_STRENGTHS = (0.1, 0.5, 1.0)
 DEFAULT_SUN_WEIGHTS = (0.2, 0.3, 0.5)
 QUERY_RENDERERS = ("pyrender", "cycles")
+VIEW_TRANSFORMS = ("AgX", "Filmic", "Standard", "Khronos PBR Neutral")
+"""Blender view transforms a Cycles query may be developed with."""
 """Renderers of the query: the rasteriser the references use, or Blender Cycles (optional)."""
 
 
@@ -131,6 +133,14 @@ class SynthConfig:
         model on top; the per-frame draws are made either way, so poses and objects match.
     cycles_samples : int
         Path-tracing samples per pixel of the Cycles query (denoised).
+    cycles_view_transforms : tuple of str
+        Blender view transforms the Cycles query draws one of per frame (e.g. ``AgX``,
+        ``Filmic``, ``Standard``); empty keeps Blender's default.
+    cycles_exposure_ev : tuple of float
+        Range of the Cycles view's exposure, stops, drawn uniformly per frame.
+    jpeg_quality : int
+        0 keeps the query lossless; 1-100 passes it through a JPEG encoder of that quality
+        before it is written (a camera that streams JPEG).
     rate_hz : float
         Nominal frame rate for the stamps.
     png_compression : int
@@ -168,6 +178,9 @@ class SynthConfig:
     query_renderer: str = "pyrender"
     camera_effects: bool = True
     cycles_samples: int = 32
+    cycles_view_transforms: tuple[str, ...] = ()
+    cycles_exposure_ev: tuple[float, float] = (0.0, 0.0)
+    jpeg_quality: int = 0
     rate_hz: float = 10.0
     png_compression: int = 3
 
@@ -243,6 +256,19 @@ class SynthConfig:
         if not isinstance(self.camera_effects, bool):
             raise SynthError(f"camera_effects must be a bool, got {self.camera_effects!r}")
         _count(self.cycles_samples, "cycles_samples", 1)
+        if not isinstance(self.cycles_view_transforms, tuple) or not all(
+            isinstance(name, str) and name in VIEW_TRANSFORMS
+            for name in self.cycles_view_transforms
+        ):
+            raise SynthError(
+                f"cycles_view_transforms must be a tuple of {', '.join(VIEW_TRANSFORMS)}, "
+                f"got {self.cycles_view_transforms!r}"
+            )
+        low_ev, high_ev = _pair(self.cycles_exposure_ev, "cycles_exposure_ev", -10.0)
+        if high_ev > 10.0:
+            raise SynthError(f"cycles_exposure_ev must lie in [-10, 10], got {(low_ev, high_ev)}")
+        if isinstance(self.jpeg_quality, bool) or self.jpeg_quality not in range(101):
+            raise SynthError(f"jpeg_quality must be 0-100, got {self.jpeg_quality!r}")
         _finite(self.rate_hz, "rate_hz", 1e-3, 1e4)
         if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
             raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
@@ -335,6 +361,29 @@ def _bench_cycles() -> SynthConfig:
     )
 
 
+def _bench_stations() -> SynthConfig:
+    # One station's share of the multi-station path-traced bench (``make bench-stations``
+    # generates it once per station model): Cycles queries developed under several view
+    # transforms and exposures, JPEG as a camera streams it, 4:3 frames, a larger pose
+    # error than the rasterised bench; anomalies recoloured and scaled as ALLO does.
+    return SynthConfig(
+        name="bench-stations",
+        splits={"test": SplitSpec(8, 16, 4)},
+        width=512,
+        height=384,
+        query_renderer="cycles",
+        camera_effects=False,
+        cycles_samples=16,
+        cycles_view_transforms=("AgX", "Filmic", "Standard"),
+        cycles_exposure_ev=(-0.7, 0.7),
+        jpeg_quality=85,
+        pose_error_m=0.03,
+        pose_error_rad=math.radians(0.3),
+        colour_probability=0.3,
+        scale_probability=0.3,
+    )
+
+
 PRESETS = MappingProxyType(
     {
         "smoke": _smoke,
@@ -342,6 +391,7 @@ PRESETS = MappingProxyType(
         "bench": _bench,
         "bench-val": _bench_val,
         "bench-cycles": _bench_cycles,
+        "bench-stations": _bench_stations,
     }
 )
 """Preset name to a function returning its :class:`SynthConfig`."""

@@ -259,6 +259,9 @@ class CyclesRenderer:
         sun_strength: float = 1.0,
         bodies: Sequence[CelestialBody | Sequence] = (),
         extra_objects: Sequence[ExtraObject | Sequence] = (),
+        *,
+        view_transform: str | None = None,
+        exposure_ev: float = 0.0,
     ) -> np.ndarray:
         """Path-trace one query, as :meth:`ReferenceRenderer.render` rasterises it.
 
@@ -274,6 +277,10 @@ class CyclesRenderer:
             Celestial bodies; those in view are drawn.
         extra_objects : sequence
             :class:`~allo_mrad_ros.render.ExtraObject` for this frame only.
+        view_transform : str or None
+            Blender view transform of this frame; None keeps the renderer's.
+        exposure_ev : float
+            Exposure of the view, stops (finite).
 
         Returns
         -------
@@ -283,6 +290,15 @@ class CyclesRenderer:
         direction = unit_vector(sun_direction, "sun_direction")
         if not math.isfinite(sun_strength) or sun_strength < 0:
             raise CyclesError(f"sun_strength must be finite and >= 0, got {sun_strength!r}")
+        if not math.isfinite(exposure_ev):
+            raise CyclesError(f"exposure_ev must be finite, got {exposure_ev!r}")
+        view = self.scene.view_settings
+        if view_transform is not None:
+            try:
+                view.view_transform = view_transform
+            except TypeError as error:
+                raise CyclesError(f"unknown view transform {view_transform!r}: {error}") from None
+        view.exposure = float(exposure_ev)
         self._pose_frame(T_station_camera, bodies)
         self._sun.matrix_world = _matrix(self._Matrix, z_towards(direction))  # shines along -z
         self._sun.data.energy = self._sun_intensity * float(sun_strength)

@@ -26,6 +26,7 @@ from allo_mrad_ros.synth.objects import AnomalyObject, build_anomaly
 from allo_mrad_ros.synth.occupancy import StationOccupancy
 from allo_mrad_ros.synth.planning import (
     STREAM_CAMERA,
+    STREAM_DEVELOP,
     STREAM_FRAME,
     STREAM_LIGHT,
     STREAM_MATERIALS,
@@ -35,7 +36,13 @@ from allo_mrad_ros.synth.planning import (
     stream,
 )
 from allo_mrad_ros.synth.poses import BasePose, clear_camera, make_base_poses, perturb, pose_error
-from allo_mrad_ros.synth.realism import CameraLook, apply_camera, find_sun, resize_to
+from allo_mrad_ros.synth.realism import (
+    CameraLook,
+    apply_camera,
+    find_sun,
+    jpeg_round_trip,
+    resize_to,
+)
 from allo_mrad_ros.synth.surfaces import as_built_station, worn_object
 
 # The low-resolution pre-check of an object's visible area accepts down to this share of
@@ -205,14 +212,26 @@ class FrameSynthesizer:
         if self._cycles is not None:
             # Path-traced from the same pose, light and objects; the mask stays the
             # rasteriser's label image of the same geometry.
+            view_transform, exposure_ev = self._development(plan)
             query = self._cycles.render(
-                T_true, light.sun_direction, light.sun_strength, bodies, extras
+                T_true,
+                light.sun_direction,
+                light.sun_strength,
+                bodies,
+                extras,
+                view_transform=view_transform,
+                exposure_ev=exposure_ev,
             )
+            if view_transform is not None:
+                extra["view_transform"] = view_transform
+            extra["exposure_ev"] = round(exposure_ev, 4)
         sun = find_sun(result, sky.sun[:3], T_true, float(sky.sun[3]))
         # Drawn even when not applied: the pose error below comes from the same stream.
         image, effects = apply_camera(query, rng, realism, sun, light.sun_strength, self.look)
         if not self.config.camera_effects:
             image = query
+        if self.config.jpeg_quality:
+            image = jpeg_round_trip(image, self.config.jpeg_quality)
         T_reported = pose_error(T_true, rng, self.config.pose_error_m, self.config.pose_error_rad)
         reference = None
         if self.config.references:
@@ -245,6 +264,14 @@ class FrameSynthesizer:
         if self._cycles is not None:
             extra["query_renderer"] = "cycles"
         return FrameOutput(plan, image, result.labels, reference, T_true, T_reported, sky, extra)
+
+    def _development(self, plan: FramePlan) -> tuple[str | None, float]:
+        # Its own stream, so adding it leaves every other draw of a sequence unchanged.
+        rng = stream(plan.seed, STREAM_DEVELOP, plan.index)
+        transforms = self.config.cycles_view_transforms
+        view_transform = transforms[int(rng.integers(len(transforms)))] if transforms else None
+        low, high = self.config.cycles_exposure_ev
+        return view_transform, float(rng.uniform(low, high)) if high > low else low
 
     def _camera(self, base: BasePose, rng: np.random.Generator) -> np.ndarray:
         """A perturbed camera pose that is clear of the station."""

@@ -18,6 +18,7 @@ from allo_mrad_ros.synth.objects import ANOMALY_TYPES, COLOURS, DEFAULT_COLOUR
 # Independent random streams derived from the sequence seed.
 STREAM_PLAN, STREAM_POSES, STREAM_MATERIALS, STREAM_FRAME, STREAM_CAMERA = range(5)
 STREAM_LIGHT, STREAM_WEAR = 5, 6  # per frame: the query's Sun, the object's wear
+STREAM_DEVELOP = 7  # per frame: the path tracer's view transform and exposure
 
 
 def stream(seed: int, kind: int, *index: int) -> np.random.Generator:

@@ -277,3 +277,11 @@ def resize_to(image: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
     if image.shape[:2] == (intrinsics.height, intrinsics.width):
         return image
     return cv2.resize(image, (intrinsics.width, intrinsics.height), interpolation=cv2.INTER_LINEAR)
+
+
+def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
+    """The RGB image as a camera streaming JPEG at ``quality`` (1-100) delivers it."""
+    ok, encoded = cv2.imencode(".jpg", image[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f"JPEG encoding failed at quality {quality}")
+    return np.ascontiguousarray(cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1])

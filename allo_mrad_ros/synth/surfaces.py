@@ -170,7 +170,8 @@ def as_built_station(
     -------
     trimesh.Scene
         A new scene (the model itself when realism is off); the input is not modified.
-        Parts without a PBR material keep theirs.
+        Parts without a PBR material keep theirs; textured parts (a real CAD export's
+        artwork) keep their texture and UVs and vary only in colour factor and roughness.
     """
     source = model if isinstance(model, trimesh.Scene) else trimesh.load(model, force="scene")
     if not isinstance(source, trimesh.Scene):
@@ -191,6 +192,11 @@ def as_built_station(
             continue  # vertex-coloured or plain parts keep their look
         colour, roughness = nominal[material.name]
         colour = colour * _log_gain(rng, realism.part_variation)
+        if material.baseColorTexture is not None:
+            # A textured part of a real CAD export keeps its own texture and UVs: the model's
+            # artwork is what the station looks like; only its colour factor varies.
+            scene.geometry[name] = _retinted(mesh, material, colour, roughness, name)
+            continue
         texture = None
         if realism.texture_contrast > 0:
             texture = procedural_texture(rng, realism.texture_contrast, realism.seam_darkening)
@@ -208,6 +214,30 @@ def as_built_station(
         )
         scene.geometry[name] = mesh
     return scene
+
+
+def _retinted(
+    mesh: trimesh.Trimesh, material: PBRMaterial, colour: np.ndarray, roughness: float, name: str
+) -> trimesh.Trimesh:
+    visual = trimesh.visual.TextureVisuals(
+        uv=mesh.visual.uv,
+        material=PBRMaterial(
+            name=f"{material.name}_{name}",
+            baseColorFactor=(*np.clip(colour, 0.0, 1.0), 1.0),
+            baseColorTexture=material.baseColorTexture,
+            metallicFactor=material.metallicFactor,
+            roughnessFactor=roughness,
+            doubleSided=material.doubleSided,
+        ),
+    )
+    # A new mesh on the same arrays keeps the file's normals (a copy recomputes them).
+    return trimesh.Trimesh(
+        mesh.vertices,
+        mesh.faces,
+        vertex_normals=mesh.vertex_normals,
+        visual=visual,
+        process=False,
+    )
 
 
 def _drawn(material: PBRMaterial, rng: np.random.Generator, amount: float) -> tuple:

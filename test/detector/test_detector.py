@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 
 from allo_mrad_ros.detector import METHODS, MradParams, detect, profile
+from allo_mrad_ros.detector.postprocess import NEGATIVE_BAND
 from allo_mrad_ros.example_scene import example_pair
 
 STAGES = [
+    "colour_transfer",
     "cross_score",
     "scale_threshold",
     "noise_removal",
@@ -153,7 +155,9 @@ def test_lower_resolution_reference_still_finds_the_object(size):
 def test_constant_score_map_gives_no_seeds_and_empty_mask():
     image = np.full((32, 32, 3), 77, dtype=np.uint8)
     result = detect(image, image.copy())
-    assert result.area == 0 and not result.mask.any() and not result.score.any()
+    assert result.area == 0 and not result.mask.any()
+    # A zero raw score maps to the bottom of the positive range, the same everywhere.
+    np.testing.assert_array_equal(result.score, np.float32(NEGATIVE_BAND))
 
 
 @pytest.mark.parametrize(
@@ -281,7 +285,13 @@ def test_continuous_score_is_the_soft_saturated_raw_score_and_keeps_the_mask(pai
     regions = detect(pair.query, pair.reference, params.replace(pixel_score="regions"))
     np.testing.assert_array_equal(continuous.mask, regions.mask)
     raw = continuous.raw_score.astype(np.float64)
-    expected = 255.0 * np.maximum(raw, 0) / (np.maximum(raw, 0) + params.score_ref)
+    band = NEGATIVE_BAND
+    positive = np.maximum(raw, 0)
+    expected = np.where(
+        raw > 0,
+        band + (255.0 - band) * positive / (positive + params.score_ref),
+        band * np.exp(np.minimum(raw, 0) / params.score_ref),
+    )
     if process_scale < 1.0:
         size = pair.query.shape[1::-1]
         expected = cv2.resize(expected.astype(np.float32), size, interpolation=cv2.INTER_LINEAR)

@@ -1,0 +1,210 @@
+"""Station models for the multi-station path-traced bench (``make bench-stations``).
+
+Public spacecraft models (NASA's 3D Resources, glTF binary) come as their authors exported
+them: arbitrary units (centimetres, inches, a unit cube), Draco-compressed geometry, nodes
+with scales. :func:`prepare_station` turns one into what the generator and the renderer
+read: decoded geometry, the model's own materials and textures kept, centred on its bounding
+box and scaled so that its longest side has the real craft's length in metres.
+
+The models are not part of the package or of git: put the ``.glb`` files named in
+:data:`STATIONS` into a folder (``STATIONS_SRC``, default ``data/stations``) and run
+``make bench-stations``. The ISS model is held out for evaluation: it is in no bench.
+
+Usage::
+
+    python -m allo_mrad_ros.benchmarks.stations prepare data/stations --out data/stations_prepared
+    python -m allo_mrad_ros.benchmarks.stations generate data/stations_prepared \\
+        --out data/bench_stations
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+__all__ = [
+    "BENCH_SPLITS",
+    "STATIONS",
+    "StationError",
+    "StationModel",
+    "generate_bench",
+    "prepare_station",
+]
+
+
+class StationError(ValueError):
+    """A station model cannot be prepared."""
+
+
+@dataclass(frozen=True)
+class StationModel:
+    """One public model of the bench.
+
+    Attributes
+    ----------
+    name : str
+        Short name (also the prepared file's stem).
+    source : str
+        File name in NASA-3D-Resources' ``3D Models`` tree as redistributed (``.glb``).
+    length_m : float
+        Longest side of the real craft, metres.
+    """
+
+    name: str
+    source: str
+    length_m: float
+
+
+STATIONS: dict[str, StationModel] = {
+    model.name: model
+    for model in (
+        StationModel("skylab", "skylab.glb", 36.1),
+        StationModel("tdrs", "tdrs.glb", 17.4),
+        StationModel("hubble", "hubble_space_telescope.glb", 13.2),
+        StationModel("apollo_soyuz", "apollo_soyuz.glb", 20.0),
+        StationModel("mir", "mir.glb", 31.0),
+    )
+}
+"""Real public models of the bench (``station`` is the package's own procedural mesh)."""
+
+BENCH_SPLITS: dict[str, tuple[str, ...]] = {
+    "val": ("station", "skylab", "tdrs"),
+    "test": ("hubble", "apollo_soyuz", "mir"),
+}
+"""Stations per split: defaults are chosen on ``val``; ``test`` shares no model with it."""
+
+
+def prepare_station(source: Path, destination: Path, length_m: float) -> dict[str, float]:
+    """Decode, centre and scale one glTF model, keeping its materials.
+
+    Parameters
+    ----------
+    source : Path
+        A ``.glb`` file (Draco-compressed geometry needs the ``DracoPy`` package).
+    destination : Path
+        The ``.glb`` to write.
+    length_m : float
+        Length of the longest bounding-box side after scaling, > 0.
+
+    Returns
+    -------
+    dict
+        ``faces``, ``scale`` and the written extents.
+
+    Raises
+    ------
+    StationError
+        When the file cannot be read, holds no triangles, or its geometry did not decode.
+    """
+    if not length_m > 0:
+        raise StationError(f"length_m must be positive, got {length_m!r}")
+    try:
+        scene = trimesh.load(source, force="scene")
+    except Exception as error:
+        raise StationError(f"{source}: cannot read the model ({error})") from None
+    meshes = [g for g in scene.geometry.values() if isinstance(g, trimesh.Trimesh)]
+    faces = sum(len(mesh.faces) for mesh in meshes)
+    if faces == 0:
+        raise StationError(f"{source}: the model holds no triangles")
+    extents = np.asarray(scene.extents, dtype=float)
+    if not np.all(np.isfinite(extents)) or extents.max() <= 0:
+        raise StationError(
+            f"{source}: the geometry did not decode (all vertices at one point); "
+            "Draco-compressed models need the DracoPy package"
+        )
+    scale = length_m / float(extents.max())
+    centre = np.asarray(scene.bounds, dtype=float).mean(axis=0)
+    transform = np.eye(4)
+    transform[:3, :3] *= scale
+    transform[:3, 3] = -scale * centre
+    scene.apply_transform(transform)
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    scene.export(destination, file_type="glb")
+    return {
+        "faces": float(faces),
+        "scale": scale,
+        **dict(zip("xyz", scene.extents.tolist(), strict=True)),
+    }
+
+
+def generate_bench(
+    prepared: Path, out: Path, splits: dict[str, tuple[str, ...]] = BENCH_SPLITS
+) -> list[Path]:
+    """Generate each split's station sequences (``bench-stations`` preset) not yet there.
+
+    The validation split uses seed 1, the test split seed 0, so no two share a frame plan.
+    The package's own station is ``station``. Needs the optional ``bpy``.
+
+    Returns
+    -------
+    list of Path
+        The sequences generated now.
+    """
+    from allo_mrad_ros.resources import share_path
+    from allo_mrad_ros.synth.config import preset
+    from allo_mrad_ros.synth.generator import generate
+
+    made = []
+    for split, stations in splits.items():
+        for station in stations:
+            folder = out / split / station
+            if (folder / "frames.csv").is_file():
+                continue
+            mesh = (
+                share_path("meshes", "station.glb")
+                if station == "station"
+                else prepared / f"{station}.glb"
+            )
+            if not mesh.is_file():
+                raise StationError(f"{mesh}: prepared model missing (run the prepare step)")
+            seed = 1 if split == "val" else 0
+            generate(
+                preset("bench-stations"), folder, seed, mesh=mesh, overwrite=True, progress=False
+            )
+            print(f"generated {folder}")
+            made.append(folder)
+    return made
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``prepare SOURCE --out PREPARED`` or ``generate PREPARED --out BENCH``."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("step", choices=("prepare", "generate"))
+    parser.add_argument("source", type=Path, help="models' .glb folder, or prepared models")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    args = parser.parse_args(argv)
+    if args.step == "generate":
+        try:
+            generate_bench(args.source, args.out)
+        except StationError as error:
+            print(f"stations: {error}", file=sys.stderr)
+            return 2
+        return 0
+    missing = [m.source for m in STATIONS.values() if not (args.source / m.source).is_file()]
+    if missing:
+        print(
+            f"stations: missing in {args.source}: {', '.join(missing)} "
+            "(NASA-3D-Resources, '3D Models' folder)",
+            file=sys.stderr,
+        )
+        return 2
+    for model in STATIONS.values():
+        try:
+            facts = prepare_station(
+                args.source / model.source, args.out / f"{model.name}.glb", model.length_m
+            )
+        except StationError as error:
+            print(f"stations: {error}", file=sys.stderr)
+            return 2
+        extents = " x ".join(f"{facts[a]:.1f}" for a in "xyz")
+        print(f"{model.name}: {int(facts['faces'])} faces, {extents} m")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,259 @@
+"""The multi-station path-traced bench (``make bench-stations``): colour gap, per station.
+
+Each station of :data:`~allo_mrad_ros.benchmarks.stations.BENCH_SPLITS` has its own
+sequence (``allo-synth generate --preset bench-stations --mesh <station>``): queries
+path-traced by Blender Cycles under several view transforms and exposures, JPEG, references
+rasterised here from the reported pose at the evaluator's default scale. Every reference is
+rendered once per frame; each named setting (an MRAD parameter set, or a baseline) then runs
+on the same frames, so settings are compared on identical inputs.
+
+Per split it prints, per setting, the pooled P.AP, P.AUROC, P.FPR95 and I.AUROC and the
+P.AP of each station, then (``--compare A,B``) a paired frame bootstrap of the P.AP
+difference of B over A with its 95 % interval, and the pixel recall per anomaly type at the
+threshold where the setting's false-positive rate is 5 %. Writes a JSON report.
+
+Usage::
+
+    python -m allo_mrad_ros.benchmarks.stations_bench data/bench_stations --split val \\
+        --settings default,no_transfer,PAD,RXD --out reports/bench_stations_val.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from allo_mrad_ros.benchmarks import machine_facts
+from allo_mrad_ros.benchmarks.stations import BENCH_SPLITS
+from allo_mrad_ros.detector import METHODS, MradParams, profile
+from allo_mrad_ros.metrics import (
+    MetricsAccumulator,
+    bootstrap_ap_difference,
+    frame_counts,
+)
+from allo_mrad_ros.pipeline import ReferenceProvider, RenderSettings
+from allo_mrad_ros.sequence import read_sequence
+from allo_mrad_ros.view import View
+
+MASK_ANOMALY = 2
+
+
+@dataclass(frozen=True)
+class BenchFrame:
+    """One frame with its rendered reference."""
+
+    station: str
+    anomaly: str
+    image: np.ndarray
+    truth: np.ndarray
+    reference: np.ndarray
+
+
+@dataclass(frozen=True)
+class NamedSetting:
+    """A method and its parameters under a name."""
+
+    name: str
+    method: str
+    params: MradParams
+
+
+@dataclass
+class SettingResult:
+    """Pooled and per-station metrics of one setting."""
+
+    setting: NamedSetting
+    pooled: MetricsAccumulator = field(default_factory=MetricsAccumulator)
+    stations: dict[str, MetricsAccumulator] = field(default_factory=dict)
+    counts: list[np.ndarray] = field(default_factory=list)
+    scores: list[np.ndarray] = field(default_factory=list)
+    detect_ms: list[float] = field(default_factory=list)
+
+
+SETTINGS: dict[str, tuple[str, dict[str, object]]] = {
+    "default": ("MRAD", {}),
+    "no_transfer": ("MRAD", {"colour_transfer": "none"}),
+    "transfer_reference": ("MRAD", {"colour_transfer": "reference"}),
+    "no_transfer_affine_map": (
+        "MRAD",
+        {"colour_transfer": "none", "map_photometric": "cell_affine"},
+    ),
+    "PAD": ("PAD", {}),
+    "RXD": ("RXD", {}),
+}
+"""Named settings; ``KEY=VALUE`` pairs after a name (``default:transfer_bin=8``) override."""
+
+
+def parse_setting(text: str) -> NamedSetting:
+    """``name[:key=value[:key=value...]]`` -> a :class:`NamedSetting` over the defaults."""
+    name, *overrides = text.split(":")
+    if name not in SETTINGS:
+        raise ValueError(f"unknown setting {name!r}; choose from {', '.join(SETTINGS)}")
+    method, changes = SETTINGS[name]
+    changes = dict(changes)
+    for item in overrides:
+        key, _, value = item.partition("=")
+        if not key or not value:
+            raise ValueError(f"setting {text!r}: override {item!r} is not key=value")
+        default = getattr(MradParams(), key, None)
+        if default is None:
+            raise ValueError(f"setting {text!r}: unknown MRAD parameter {key!r}")
+        changes[key] = _typed(default, value)
+    return NamedSetting(text, method, profile("default", **changes))
+
+
+def _typed(default: object, text: str) -> object:
+    if isinstance(default, bool):
+        if text not in ("True", "False", "true", "false"):
+            raise ValueError(f"expected true or false, got {text!r}")
+        return text in ("True", "true")
+    return text if isinstance(default, str) else type(default)(text)
+
+
+def load_frames(root: Path, split: str, reference_scale: float) -> list[BenchFrame]:
+    """Read every station sequence of ``split`` and render each frame's reference once."""
+    frames = []
+    for station in BENCH_SPLITS[split]:
+        folder = root / split / station
+        if not (folder / "frames.csv").is_file():
+            raise FileNotFoundError(f"{folder}: station sequence missing (make bench-stations)")
+        sequence = read_sequence(folder)
+        provider = ReferenceProvider(
+            sequence.meta.mesh, sequence.meta.camera, RenderSettings(reference_scale)
+        )
+        try:
+            for frame in sequence.frames:
+                image = sequence.load_image(frame)
+                truth = sequence.load_mask(frame)
+                reference = provider.render(View.of_frame(frame))
+                frames.append(BenchFrame(station, frame.anomaly, image, truth, reference))
+        finally:
+            provider.close()
+    return frames
+
+
+def run_settings(
+    frames: Sequence[BenchFrame], settings: Sequence[NamedSetting]
+) -> list[SettingResult]:
+    """Run every setting on every frame (interleaved, so all see the same machine load)."""
+    results = [SettingResult(s) for s in settings]
+    for frame in frames:
+        for result in results:
+            s = result.setting
+            start = time.perf_counter()
+            detection = METHODS[s.method](frame.image, frame.reference, s.params)
+            result.detect_ms.append(1e3 * (time.perf_counter() - start))
+            result.pooled.update(detection.score, detection.image_score, frame.truth)
+            station = result.stations.setdefault(frame.station, MetricsAccumulator())
+            station.update(detection.score, detection.image_score, frame.truth)
+            result.counts.append(frame_counts(detection.score, frame.truth))
+            result.scores.append(detection.score)
+    return results
+
+
+def recall_per_type(frames: Sequence[BenchFrame], result: SettingResult, fpr: float = 0.05) -> dict:
+    """Share of each anomaly type's pixels above the threshold where the pooled FPR is ``fpr``."""
+    negatives = np.concatenate(
+        [s[f.truth != MASK_ANOMALY] for f, s in zip(frames, result.scores, strict=True)]
+    )
+    threshold = float(np.quantile(negatives, 1.0 - fpr))
+    found: dict[str, list[int]] = {}
+    for frame, score in zip(frames, result.scores, strict=True):
+        positive = frame.truth == MASK_ANOMALY
+        if not positive.any():
+            continue
+        hits = found.setdefault(frame.anomaly or "?", [0, 0])
+        hits[0] += int(np.count_nonzero(score[positive] > threshold))
+        hits[1] += int(np.count_nonzero(positive))
+    return {kind: round(100.0 * a / b, 1) for kind, (a, b) in sorted(found.items())}
+
+
+def summarise(result: SettingResult) -> dict:
+    """Metrics of one setting in percent: pooled, then P.AP per station."""
+    pooled = result.pooled.compute()
+    return {
+        "p_ap": round(100 * pooled.p_ap, 1),
+        "p_auroc": round(100 * pooled.p_auroc, 1),
+        "p_fpr95": round(100 * pooled.p_fpr95, 1),
+        "p_fpr95_interp": round(100 * pooled.p_fpr95_interp, 1),
+        "i_auroc": round(100 * pooled.i_auroc, 1),
+        "stations": {
+            name: round(100 * acc.compute().p_ap, 1) for name, acc in result.stations.items()
+        },
+        "detect_ms_median": round(float(np.median(result.detect_ms)), 2),
+    }
+
+
+def compare(a: SettingResult, b: SettingResult, resamples: int = 1000) -> dict:
+    """Paired frame bootstrap of P.AP(b) - P.AP(a), percentage points, with a 95 % interval."""
+    diffs = 100 * bootstrap_ap_difference(np.stack(a.counts), np.stack(b.counts), resamples)
+    point = 100 * (b.pooled.compute().p_ap - a.pooled.compute().p_ap)
+    low, high = np.percentile(diffs, [2.5, 97.5])
+    return {"difference": round(point, 1), "ci95": [round(low, 1), round(high, 1)]}
+
+
+def format_rows(summaries: Mapping[str, dict], stations: Sequence[str]) -> str:
+    """A plain-text table: setting, pooled metrics, P.AP per station."""
+    head = f"{'setting':<44} {'P.AP':>6} {'P.AUROC':>8} {'FPR95':>6} {'I.AUROC':>8} {'ms':>6}"
+    head += "".join(f" {name[:12]:>12}" for name in stations)
+    lines = [head]
+    for name, s in summaries.items():
+        line = (
+            f"{name[:44]:<44} {s['p_ap']:>6.1f} {s['p_auroc']:>8.1f} {s['p_fpr95']:>6.1f} "
+            f"{s['i_auroc']:>8.1f} {s['detect_ms_median']:>6.1f}"
+        )
+        line += "".join(f" {s['stations'].get(st, float('nan')):>12.1f}" for st in stations)
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the bench on one split and print and save its tables."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", type=Path, help="folder with <split>/<station> sequences")
+    parser.add_argument("--split", choices=tuple(BENCH_SPLITS), default="val")
+    parser.add_argument("--settings", default="default,no_transfer,PAD,RXD")
+    parser.add_argument("--compare", default="PAD,default", help="A,B: bootstrap P.AP(B)-P.AP(A)")
+    parser.add_argument("--reference-scale", type=float, default=RenderSettings().reference_scale)
+    parser.add_argument("--recall", action="store_true", help="recall per anomaly type")
+    parser.add_argument("--out", type=Path, help="JSON report")
+    args = parser.parse_args(argv)
+    try:
+        settings = [parse_setting(text) for text in args.settings.split(",")]
+    except ValueError as error:
+        print(f"stations_bench: {error}", file=sys.stderr)
+        return 2
+    frames = load_frames(args.root, args.split, args.reference_scale)
+    results = run_settings(frames, settings)
+    summaries = {r.setting.name: summarise(r) for r in results}
+    by_name = {r.setting.name: r for r in results}
+    print(
+        f"split {args.split}: {len(frames)} frames, stations {', '.join(BENCH_SPLITS[args.split])}"
+    )
+    print(format_rows(summaries, BENCH_SPLITS[args.split]))
+    report: dict = {"split": args.split, "frames": len(frames), "settings": summaries}
+    a_name, _, b_name = args.compare.partition(",")
+    if a_name in by_name and b_name in by_name:
+        report["compare"] = {"a": a_name, "b": b_name, **compare(by_name[a_name], by_name[b_name])}
+        c = report["compare"]
+        print(f"P.AP {b_name} - {a_name}: {c['difference']:+.1f} points, 95 % CI {c['ci95']}")
+    if args.recall:
+        report["recall_at_fpr5"] = {r.setting.name: recall_per_type(frames, r) for r in results}
+        for name, recall in report["recall_at_fpr5"].items():
+            print(f"recall at 5 % FPR, {name}: {recall}")
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        report["machine"] = machine_facts()
+        args.out.write_text(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
