@@ -146,6 +146,7 @@ class LiveTally:
         self.latencies: list[float] = []
         self.overlays: list[str] = []
         self.frames = 0
+        self.seen: set[int] = set()
 
     def add(self, recorded: RecordedOutputs) -> None:
         """Add the node's outputs for one frame (frames not in the sequence are ignored)."""
@@ -157,6 +158,7 @@ class LiveTally:
             return
         self.accumulator.update(recorded.score, recorded.image_score, truth)
         self.frames += 1
+        self.seen.add(recorded.stamp_ns)
         if recorded.latency_ms is not None:
             self.latencies.append(recorded.latency_ms)
         if frame.is_anomalous and len(self.overlays) < self.max_overlays:
@@ -169,6 +171,10 @@ class LiveTally:
         path = self.overlay_dir / f"{frame.name}.png"
         _save_rgb(path, outline(image, np.ascontiguousarray(mask), (255, 40, 40)))
         self.overlays.append(path.name)
+
+    def missing(self) -> list[str]:
+        """Names of the sequence's frames the node produced no outputs for."""
+        return [frame.name for stamp, frame in self.by_stamp.items() if stamp not in self.seen]
 
     def metrics(self) -> dict[str, float]:
         """The live MRAD metrics (``i_auroc``, ``p_auroc``, ``p_ap``, ``p_fpr95``, ...)."""
@@ -321,6 +327,7 @@ def write_report(paths: DemoPaths, tally: LiveTally, offline: dict) -> dict:
     report = {
         "frames_in_bag": len(tally.by_stamp),
         "frames_processed_live": tally.frames,
+        "frames_missing_live": tally.missing(),
         "live": {"MRAD": tally.metrics()},
         "latency_ms_p50": tally.latency_ms(50),
         "latency_ms_p95": tally.latency_ms(95),
@@ -351,9 +358,11 @@ def print_summary(paths: DemoPaths, report: dict) -> None:
         )
     print(line)
     if live_frames < report["frames_in_bag"]:
+        missing = report["frames_missing_live"]
+        shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
         print(
-            "(the node dropped frames it could not keep up with, so the live row covers fewer "
-            "frames than the offline rows)"
+            f"no outputs for {shown}: the live row covers fewer frames than the offline rows "
+            "(the node keeps the newest image and drops the ones it cannot keep up with)"
         )
     print(
         f"report: {paths.out}/demo.json, overlays (green: truth, red: detected) in "

@@ -46,7 +46,7 @@ def test_live_i_auroc_ranks_the_node_image_score_not_the_mask_area(tmp_path):
     tally = LiveTally(FakeSequence(), tmp_path, max_overlays=0)
     for recorded in FRAMES:
         tally.add(recorded)
-    assert tally.frames == 4
+    assert tally.frames == 4 and tally.missing() == []
     assert tally.metrics()["i_auroc"] == 1.0  # by mask area it would be 0.0
 
 
@@ -64,3 +64,4 @@ def test_outputs_of_frames_outside_the_sequence_are_ignored(tmp_path):
     tally = LiveTally(FakeSequence(), tmp_path)
     tally.add(_recorded(99, 1.0, 0))
     assert tally.frames == 0 and tally.overlays == []
+    assert tally.missing() == ["f0", "f1", "f2", "f3"]
