@@ -145,7 +145,7 @@ def _parser() -> argparse.ArgumentParser:
             "--array-backend",
             default="numpy",
             help="where the detectors' per-pixel work runs: numpy (default), torch, "
-            "torch:cuda or torch:cpu (README, 'GPU')",
+            "torch:cuda or torch:cpu (docs/detector.md)",
         )
         sub.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "evaluate":
