@@ -43,7 +43,7 @@ test: lint
 fuzz: $(STAMP)
 	ALLO_FUZZ=1 $(PY) -m pytest -q -p no:cacheprovider --timeout=300 test/fuzz
 
-# The bad-input sweep of issue 13: ~180 kinds of bad input against the node (over DDS on
+# The bad-input sweep: ~190 kinds of bad input against the node (over DDS on
 # loopback), allo-bag and allo-synth (real read-only mounts, tmpfs full disks, signals);
 # prints each case's verdict and the count per verdict, writes reports/sweep/sweep.{json,md},
 # exits 1 if any case is not clean. `make test` runs its quick cases (test/sweep).
@@ -57,7 +57,7 @@ flood: $(STAMP)
 
 # The distro route's Python side, without a ROS install: Python 3.10 and the NumPy 1.21 / SciPy
 # 1.8 / OpenCV 4.5 that Ubuntu 22.04 (Humble) ships, plus requirements-distro*.txt, then every
-# test that needs no rclpy (README, "On a ROS 2 distro"). Skipped where no python3.10 exists.
+# test that needs no rclpy (docs/distro.md). Skipped where no python3.10 exists.
 DISTRO_PYTHON ?= $(firstword $(foreach c,python3.10 $(wildcard $(HOME)/.pyenv/versions/3.10*/bin/python3.10) /usr/bin/python3.10,$(shell $(c) -c 'import sys; print(sys.executable)' 2>/dev/null)))
 DISTRO_VENV := .venv-distro
 DISTRO_STAMP := $(DISTRO_VENV)/.installed
@@ -86,7 +86,7 @@ bench-node: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 
-# Before/after of issue 15 in one run: per camera mode the one-thread node, then the pipelined.
+# Both workers in one run: per camera mode the one-thread node, then the pipelined one.
 bench-node-compare: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --compare-serial --out reports/bench_node_compare.json
 
@@ -100,7 +100,7 @@ bench-node-outputs: $(STAMP)
 
 # Speed against error: defaults chosen on data/bench_val, reported on data/bench's test split
 # (both generated first if missing: 510 + 330 frames, 37 + 22 min with 2 jobs at load 8-12
-# on 2 cores with the issue-11 generator; not measured idle).
+# on 2 cores; not measured idle).
 bench: $(STAMP) data/bench/frames.csv data/bench_val/frames.csv
 	$(PY) -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench --validation data/bench_val --out reports
 
@@ -120,7 +120,7 @@ synth-bench-val: $(STAMP)
 synth-demo: $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.entry generate --preset demo --seed 0 --out data/demo/sequence --overwrite
 
-# Path-traced queries (issue 11): the bench-cycles preset (test 16 normal + 32 anomalous at
+# Path-traced queries: the bench-cycles preset (test 16 normal + 32 anomalous at
 # 640x360) with queries rendered by Blender Cycles, references rasterised by the evaluator,
 # and its twin (the same plan with rasterised queries), each generated once (delete the
 # folder to regenerate); checks Cycles' silhouettes against the masks, evaluates both and

@@ -5,10 +5,14 @@ Steps (each reuses the package's own tools):
 1. ``allo-synth generate --preset demo`` writes an ALLO-like sequence (skipped if present);
 2. ``allo-bag write`` turns it into a rosbag2 (MCAP) bag;
 3. the ``mrad_detector`` node starts as its own process (``pose_source: topic``);
-4. ``allo-bag play`` publishes the bag; this process records the node's score and mask
-   for every frame and matches them to the ground truth by stamp;
+4. ``allo-bag play`` publishes the bag; this process records the node's score map, mask and
+   result (with the frame's image score) for every frame and matches them to the ground
+   truth by stamp;
 5. the live metrics and latency are printed next to an offline ``allo-bag evaluate`` of
    MRAD, PAD and RXD on the same bag, and the report (with overlay images) is written.
+
+The live row is computed as the offline one is (the node's score map and image score), so
+when the node processes all the frames the live and offline MRAD rows are equal.
 
 ROS traffic stays on this machine (``config/fastdds_loopback.xml``; ``make demo`` also uses a
 private network namespace where it can). ``--builtin`` runs the detectors on the built-in
@@ -23,7 +27,9 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -52,6 +58,11 @@ def _step(number: int, text: str) -> None:
     print(f"[{number}/5] {text}", flush=True)
 
 
+def _module(name: str, *arguments: str) -> list[str]:
+    """The command line that runs ``python -m name arguments...`` with this interpreter."""
+    return [sys.executable, "-m", name, *arguments]
+
+
 def _run(arguments: list[str], log: Path, what: str) -> None:
     with log.open("w") as stream:
         result = subprocess.run(arguments, stdout=stream, stderr=subprocess.STDOUT, check=False)
@@ -62,6 +73,164 @@ def _run(arguments: list[str], log: Path, what: str) -> None:
 def _metric_row(name: str, source: str, frames: int, metrics: dict) -> str:
     cells = "".join(f"{100 * metrics[k]:>9.1f}" for k in METRIC_KEYS)
     return f"{name:<8}{source:<16}{frames:>7}{cells}"
+
+
+@dataclass(frozen=True)
+class DemoPaths:
+    """Where the demo reads and writes: the sequence and bag under ``data``, the report under
+    ``out``."""
+
+    data: Path
+    out: Path
+
+    @property
+    def sequence(self) -> Path:
+        return self.data / "sequence"
+
+    @property
+    def bag(self) -> Path:
+        return self.data / "bag"
+
+    @property
+    def logs(self) -> Path:
+        return self.out / "logs"
+
+    @property
+    def overlays(self) -> Path:
+        return self.out / "overlays"
+
+    @property
+    def offline(self) -> Path:
+        return self.out / "offline"
+
+    def prepare(self) -> None:
+        """Create the report folders and remove the overlays of an earlier run."""
+        self.logs.mkdir(parents=True, exist_ok=True)
+        self.overlays.mkdir(exist_ok=True)
+        for old in self.overlays.glob("*.png"):
+            old.unlink()
+
+
+class RecordedOutputs(Protocol):
+    """What :class:`LiveTally` reads of a recorded frame (``ros.recorder.RecordedFrame``)."""
+
+    stamp_ns: int
+    score: np.ndarray
+    mask: np.ndarray
+    image_score: float
+    latency_ms: float | None
+
+
+class LiveTally:
+    """The live row: the node's outputs of each frame against the sequence's ground truth.
+
+    A frame enters the metrics exactly as ``allo-bag evaluate`` enters it: the node's pixel
+    score map (``~/score``) and its image score (``image_score`` of ``~/result``, the frame
+    score I.AUROC ranks), so when the node processes every frame the live MRAD row equals
+    the offline one. The mask only draws the overlays.
+
+    Parameters
+    ----------
+    sequence : Sequence
+        The played sequence (ground-truth masks, images for the overlays).
+    overlay_dir : Path
+        Where the overlays of the first ``max_overlays`` anomalous frames are written.
+    """
+
+    def __init__(self, sequence: object, overlay_dir: Path, max_overlays: int = 8) -> None:
+        self.sequence = sequence
+        self.by_stamp = {frame.stamp_ns: frame for frame in sequence.frames}
+        self.overlay_dir = overlay_dir
+        self.max_overlays = max_overlays
+        self.accumulator = MetricsAccumulator()
+        self.latencies: list[float] = []
+        self.overlays: list[str] = []
+        self.frames = 0
+        self.seen: set[int] = set()
+
+    def add(self, recorded: RecordedOutputs) -> None:
+        """Add the node's outputs for one frame (frames not in the sequence are ignored)."""
+        frame = self.by_stamp.get(recorded.stamp_ns)
+        if frame is None:
+            return
+        truth = self.sequence.load_mask(frame)
+        if truth is None:
+            return
+        self.accumulator.update(recorded.score, recorded.image_score, truth)
+        self.frames += 1
+        self.seen.add(recorded.stamp_ns)
+        if recorded.latency_ms is not None:
+            self.latencies.append(recorded.latency_ms)
+        if frame.is_anomalous and len(self.overlays) < self.max_overlays:
+            self._save_overlay(frame, truth, recorded.mask)
+
+    def _save_overlay(self, frame: object, truth: np.ndarray, mask: np.ndarray) -> None:
+        image = outline(
+            self.sequence.load_image(frame), (truth == 2).astype(np.uint8) * 255, (0, 255, 0)
+        )
+        path = self.overlay_dir / f"{frame.name}.png"
+        _save_rgb(path, outline(image, np.ascontiguousarray(mask), (255, 40, 40)))
+        self.overlays.append(path.name)
+
+    def missing(self) -> list[str]:
+        """Names of the sequence's frames the node produced no outputs for."""
+        return [frame.name for stamp, frame in self.by_stamp.items() if stamp not in self.seen]
+
+    def metrics(self) -> dict[str, float]:
+        """The live MRAD metrics (``i_auroc``, ``p_auroc``, ``p_ap``, ``p_fpr95``, ...)."""
+        return self.accumulator.compute().as_dict()
+
+    def latency_ms(self, percentile: float) -> float | None:
+        """A percentile of the input-published to outputs-received latency, if any."""
+        return float(np.percentile(self.latencies, percentile)) if self.latencies else None
+
+
+def generate_sequence(paths: DemoPaths, seed: int) -> None:
+    """Step 1: ``allo-synth generate --preset demo``, unless the sequence is already there."""
+    if (paths.sequence / "frames.csv").is_file():
+        _step(1, f"sequence already in {paths.sequence} (delete it to regenerate)")
+        return
+    _step(1, f"generating the demo sequence into {paths.sequence} (allo-synth, seed {seed})")
+    _run(
+        _module(
+            "allo_mrad_ros.synth.cli",
+            "generate",
+            "--preset",
+            "demo",
+            "--seed",
+            str(seed),
+            "--out",
+            str(paths.sequence),
+            "--overwrite",
+            "--quiet",
+        ),
+        paths.logs / "generate.log",
+        "allo-synth generate",
+    )
+
+
+def write_bag(paths: DemoPaths) -> None:
+    """Step 2: ``allo-bag write`` the sequence as an MCAP bag."""
+    _step(2, f"writing the bag {paths.bag} (allo-bag write, MCAP)")
+    _run(
+        _module(
+            "rosbag_tools", "write", str(paths.sequence), str(paths.bag), "--overwrite", "--quiet"
+        ),
+        paths.logs / "write.log",
+        "allo-bag write",
+    )
+
+
+def _wait_for_node(listener: object, node: subprocess.Popen, node_log: Path) -> None:
+    """Wait until the node subscribes to the image topic (the recorder is the other
+    subscriber)."""
+    import rclpy
+
+    deadline = time.monotonic() + 60
+    while listener.count_subscribers(interface.IMAGE_TOPIC) < 2:
+        if time.monotonic() > deadline or node.poll() is not None:
+            raise DemoError(f"the node did not start; see {node_log}")
+        rclpy.spin_once(listener, timeout_sec=0.1)
 
 
 def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None:
@@ -86,178 +255,136 @@ def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None
     node.destroy_publisher(publisher)
 
 
-def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
-    """The full demo; returns the process exit code."""
+def _play_bag(listener: object, paths: DemoPaths, rate: float) -> None:
+    """``allo-bag play`` the bag while the listener records, then give the node 5 s to
+    finish its last frames."""
     import rclpy
 
-    from allo_mrad_ros.ros.feed import start_node, stop_node
-    from allo_mrad_ros.ros.recorder import OutputRecorder, RecordedFrame
-    from allo_mrad_ros.sequence import read_sequence
-
-    os.environ.setdefault(
-        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
-    )
-    python = sys.executable
-    sequence_dir, bag_dir, logs = data / "sequence", data / "bag", out / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
-    (out / "overlays").mkdir(exist_ok=True)
-    for old in (out / "overlays").glob("*.png"):
-        old.unlink()
-
-    if (sequence_dir / "frames.csv").is_file():
-        _step(1, f"sequence already in {sequence_dir} (delete it to regenerate)")
-    else:
-        _step(1, f"generating the demo sequence into {sequence_dir} (allo-synth, seed {seed})")
-        _run(
-            [
-                python,
-                "-m",
-                "allo_mrad_ros.synth.cli",
-                "generate",
-                "--preset",
-                "demo",
-                "--seed",
-                str(seed),
-                "--out",
-                str(sequence_dir),
-                "--overwrite",
-                "--quiet",
-            ],
-            logs / "generate.log",
-            "allo-synth generate",
-        )
-    sequence = read_sequence(sequence_dir)
-    by_stamp = {frame.stamp_ns: frame for frame in sequence.frames}
-
-    _step(2, f"writing the bag {bag_dir} (allo-bag write, MCAP)")
-    _run(
-        [
-            python,
-            "-m",
-            "rosbag_tools",
-            "write",
-            str(sequence_dir),
-            str(bag_dir),
-            "--overwrite",
-            "--quiet",
-        ],
-        logs / "write.log",
-        "allo-bag write",
-    )
-
-    _step(3, "starting the mrad_detector node (pose_source: topic)")
-    accumulator = MetricsAccumulator()
-    latencies: list[float] = []
-    saved: list[str] = []
-
-    def on_frame(recorded: RecordedFrame) -> None:
-        frame = by_stamp.get(recorded.stamp_ns)
-        if frame is None:
-            return
-        truth = sequence.load_mask(frame)
-        if truth is None:
-            return
-        area = int(np.count_nonzero(recorded.mask))
-        accumulator.update(recorded.score, area, truth)
-        if recorded.latency_ms is not None:
-            latencies.append(recorded.latency_ms)
-        if frame.is_anomalous and len(saved) < 8:
-            image = outline(
-                sequence.load_image(frame), (truth == 2).astype(np.uint8) * 255, (0, 255, 0)
-            )
-            path = out / "overlays" / f"{frame.name}.png"
-            _save_rgb(path, outline(image, np.ascontiguousarray(recorded.mask), (255, 40, 40)))
-            saved.append(path.name)
-
-    rclpy.init()
-    listener = rclpy.create_node("mrad_demo_recorder")
-    recorder = OutputRecorder(listener, on_frame)
-    node = start_node(logs / "node.log", "publish_overlay:=false")
-    try:
-        deadline = time.monotonic() + 60
-        while listener.count_subscribers(interface.IMAGE_TOPIC) < 2:
-            if time.monotonic() > deadline or node.poll() is not None:
-                raise DemoError(f"the node did not start; see {logs / 'node.log'}")
-            rclpy.spin_once(listener, timeout_sec=0.1)
-        _prime_camera_info(listener, sequence.meta.camera, logs / "node.log")
-        _step(4, f"playing the bag at {rate:g}x into the node and recording its outputs")
+    log = paths.logs / "play.log"
+    with log.open("w") as stream:
         player = subprocess.Popen(
-            [
-                python,
-                "-m",
+            _module(
                 "rosbag_tools",
                 "play",
-                str(bag_dir),
+                str(paths.bag),
                 "--rate",
                 str(rate),
                 "--wait-for",
                 interface.IMAGE_TOPIC,
-            ],
-            stdout=(logs / "play.log").open("w"),
+            ),
+            stdout=stream,
             stderr=subprocess.STDOUT,
         )
         while player.poll() is None:
             rclpy.spin_once(listener, timeout_sec=0.05)
-        end = time.monotonic() + 5.0  # the last frames are still being processed
-        while time.monotonic() < end:
-            rclpy.spin_once(listener, timeout_sec=0.05)
-        if player.returncode != 0:
-            raise DemoError(f"allo-bag play failed; see {logs / 'play.log'}")
+    end = time.monotonic() + 5.0
+    while time.monotonic() < end:
+        rclpy.spin_once(listener, timeout_sec=0.05)
+    if player.returncode != 0:
+        raise DemoError(f"allo-bag play failed; see {log}")
+
+
+def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
+    """Steps 3 and 4: start the node, play the bag into it and feed its outputs to
+    ``tally``."""
+    import rclpy
+
+    from allo_mrad_ros.ros.feed import start_node, stop_node
+    from allo_mrad_ros.ros.recorder import OutputRecorder
+
+    _step(3, "starting the mrad_detector node (pose_source: topic)")
+    node_log = paths.logs / "node.log"
+    rclpy.init()
+    listener = rclpy.create_node("mrad_demo_recorder")
+    OutputRecorder(listener, tally.add)
+    node = start_node(node_log, "publish_overlay:=false")
+    try:
+        _wait_for_node(listener, node, node_log)
+        _prime_camera_info(listener, tally.sequence.meta.camera, node_log)
+        _step(4, f"playing the bag at {rate:g}x into the node and recording its outputs")
+        _play_bag(listener, paths, rate)
         if node.poll() is not None:
-            raise DemoError(f"the node exited during the demo; see {logs / 'node.log'}")
+            raise DemoError(f"the node exited during the demo; see {node_log}")
     finally:
         stop_node(node)
         listener.destroy_node()
         rclpy.shutdown()
 
+
+def evaluate_offline(paths: DemoPaths) -> dict:
+    """Step 5: ``allo-bag evaluate`` MRAD, PAD and RXD on the same bag; its metrics.json."""
     _step(5, "offline evaluation of MRAD, PAD and RXD on the same bag (allo-bag evaluate)")
-    offline_dir = out / "offline"
     _run(
-        [
-            python,
-            "-m",
-            "rosbag_tools",
-            "evaluate",
-            str(bag_dir),
-            "--out",
-            str(offline_dir),
-            "--quiet",
-        ],
-        logs / "evaluate.log",
+        _module("rosbag_tools", "evaluate", str(paths.bag), "--out", str(paths.offline), "--quiet"),
+        paths.logs / "evaluate.log",
         "allo-bag evaluate",
     )
-    offline = json.loads((offline_dir / "metrics.json").read_text())
+    return json.loads((paths.offline / "metrics.json").read_text())
 
-    live = accumulator.compute().as_dict()
+
+def write_report(paths: DemoPaths, tally: LiveTally, offline: dict) -> dict:
+    """Write ``demo.json``: the live and offline metrics, latency and overlay names."""
     report = {
-        "frames_in_bag": len(by_stamp),
-        "frames_processed_live": recorder.frames,
-        "live": {"MRAD": live},
-        "latency_ms_p50": float(np.median(latencies)) if latencies else None,
-        "latency_ms_p95": float(np.percentile(latencies, 95)) if latencies else None,
+        "frames_in_bag": len(tally.by_stamp),
+        "frames_processed_live": tally.frames,
+        "frames_missing_live": tally.missing(),
+        "live": {"MRAD": tally.metrics()},
+        "latency_ms_p50": tally.latency_ms(50),
+        "latency_ms_p95": tally.latency_ms(95),
         "offline": offline,
-        "overlays": saved,
+        "overlays": tally.overlays,
     }
-    (out / "demo.json").write_text(json.dumps(report, indent=2) + "\n")
+    (paths.out / "demo.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
 
+
+def print_summary(paths: DemoPaths, report: dict) -> None:
+    """The table of both rows, the live frame count and latency, and where the report is."""
+    offline = report["offline"]
     print()
     print(
         f"{'method':<8}{'run':<16}{'frames':>7}{'I.AUROC':>9}{'P.AUROC':>9}{'P.AP':>9}"
         f"{'P.FPR95':>9}   (percent)"
     )
-    print(_metric_row("MRAD", "live (node)", recorder.frames, live))
+    live_frames = report["frames_processed_live"]
+    print(_metric_row("MRAD", "live (node)", live_frames, report["live"]["MRAD"]))
     for name, metrics in offline["methods"].items():
         print(_metric_row(name, "offline", offline["frames"], metrics))
-    if latencies:
+    line = f"live: {live_frames} of {report['frames_in_bag']} frames processed"
+    if report["latency_ms_p50"] is not None:
+        line += (
+            f"; latency input published -> outputs received: p50 "
+            f"{report['latency_ms_p50']:.0f} ms, p95 {report['latency_ms_p95']:.0f} ms"
+        )
+    print(line)
+    if live_frames < report["frames_in_bag"]:
+        missing = report["frames_missing_live"]
+        shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
         print(
-            f"live: {recorder.frames} of {len(by_stamp)} frames processed; latency input "
-            f"published -> mask received: p50 {report['latency_ms_p50']:.0f} ms, "
-            f"p95 {report['latency_ms_p95']:.0f} ms"
+            f"no outputs for {shown}: the live row covers fewer frames than the offline rows "
+            "(the node keeps the newest image and drops the ones it cannot keep up with)"
         )
     print(
-        f"report: {out}/demo.json, overlays (green: truth, red: detected) in {out}/overlays/, "
-        f"offline report with curves in {offline_dir}/"
+        f"report: {paths.out}/demo.json, overlays (green: truth, red: detected) in "
+        f"{paths.overlays}/, offline report with curves in {paths.offline}/"
     )
+
+
+def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
+    """The full demo (steps 1-5 of the module's docstring); returns the exit status."""
+    from allo_mrad_ros.sequence import read_sequence
+
+    os.environ.setdefault(
+        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
+    )
+    paths = DemoPaths(data, out)
+    paths.prepare()
+    generate_sequence(paths, seed)
+    write_bag(paths)
+    tally = LiveTally(read_sequence(paths.sequence), paths.overlays)
+    run_node_on_bag(paths, tally, rate)
+    offline = evaluate_offline(paths)
+    print_summary(paths, write_report(paths, tally, offline))
     return 0
 
 

@@ -6,7 +6,9 @@ and a source checkout (editable install, tests), so the lookup tries them in tha
 
 from __future__ import annotations
 
+import re
 import sys
+from importlib import metadata
 from pathlib import Path
 
 from allo_mrad_ros.errors import InvalidInput
@@ -70,3 +72,24 @@ def share_path(*parts: str) -> Path:
     if not path.exists():
         raise ResourceError(f"package data file not found: {path}")
     return path
+
+
+def package_version() -> str:
+    """Return the installed package's version (``allo-bag --version``, ``allo-synth --version``).
+
+    Returns
+    -------
+    str
+        The version in the package metadata (pip, colcon), else the ``<version>`` of the
+        installed ``package.xml`` (the two are bumped together), else ``"unknown"``.
+    """
+    try:
+        return metadata.version(PACKAGE)
+    except metadata.PackageNotFoundError:
+        pass
+    try:
+        text = share_path("package.xml").read_text(encoding="utf-8")
+    except (ResourceError, OSError):
+        return "unknown"
+    found = re.search(r"<version>\s*([^<\s]+)\s*</version>", text)
+    return found.group(1) if found else "unknown"

@@ -19,6 +19,7 @@ from allo_mrad_ros.detector import PROFILES
 from allo_mrad_ros.errors import AlloError, InvalidInput
 from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
+from allo_mrad_ros.resources import package_version
 from allo_mrad_ros.staging import (
     refuse_overlap,
     signals_as_interrupt,
@@ -40,6 +41,7 @@ def _parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="ALLO sequences as rosbag2 bags: write, inspect, replay, evaluate, ablate.",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {package_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     write = commands.add_parser("write", help="write a sequence folder as a rosbag2 bag")
@@ -143,7 +145,7 @@ def _parser() -> argparse.ArgumentParser:
             "--array-backend",
             default="numpy",
             help="where the detectors' per-pixel work runs: numpy (default), torch, "
-            "torch:cuda or torch:cpu (README, 'GPU')",
+            "torch:cuda or torch:cpu (docs/detector.md)",
         )
         sub.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "evaluate":

@@ -7,7 +7,7 @@ decision) and the mean of the top fraction of the pixel ranking map, for several
 (one pixel: the map's maximum, anomalib's image score). The map-based candidates are taken
 on the full-resolution map (``detect`` takes them at the processing resolution: the same
 fraction of an upsampled map, within interpolation). This is the measurement behind the
-default ``image_score`` / ``image_top_fraction`` (README, "Detector parameters").
+default ``image_score`` / ``image_top_fraction`` (docs/detector.md, "Parameters").
 
     python -m allo_mrad_ros.benchmarks.image_score --sequence data/bench_val --split val
 """

@@ -3,7 +3,7 @@
 Scenes come from :mod:`allo_mrad_ros.example_scene`: a blanket of random size pasted at a
 random place (over sky or over structure) in half of the frames, sensor noise, a 2-pixel
 shift, the reference at 1/4 resolution. Prints P.AP, P.AUROC, I.AUROC and P.FPR95 per
-variant. It decides nothing by itself; the README records what was chosen from it, and
+variant. It decides nothing by itself; docs/detector.md records what was chosen from it, and
 the ALLO-like validation split (``make bench``) supersedes it.
 
 Usage: ``python -m allo_mrad_ros.benchmarks.param_study [--scenes 16] [--out FILE]``

@@ -4,7 +4,7 @@ Every query of a sequence split is perturbed by each of
 :data:`~allo_mrad_ros.benchmarks.perturbations.PERTURBATIONS` (the reference stays the
 clean render), and each detector variant is scored: the fraction of pixels its mask flags on
 normal frames (mean and worst frame), its image-level AUROC and its pixel step AP. This is
-the measurement behind the README's "Photometric robustness" record.
+the measurement behind docs/detector.md, "Photometric model".
 
     python -m allo_mrad_ros.benchmarks.photometric --sequence data/bench_val --split val
 """

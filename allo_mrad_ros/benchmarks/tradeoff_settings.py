@@ -75,7 +75,7 @@ def map_key(row: dict) -> tuple:
     return (row["reference_scale"], row["shadows"], row["cull_bodies"], model, *knobs)
 
 
-# The shipped defaults before issue 11 (README "Speed against error", first rerun).
+# The `previous` profile: a simpler configuration the sweep compares against (docs/evaluation.md).
 PREVIOUS_DEFAULT = profile("previous")
 
 

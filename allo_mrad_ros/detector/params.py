@@ -3,7 +3,7 @@
 Defaults keep the paper's tolerance 50, kernel 20 % of the cell and blur SD 5; grid 6x6,
 the per-cell noise rule and half-resolution processing were chosen on the validation split
 by the speed-against-error benchmark (``make bench``); the values the paper leaves open were
-decided by measurement (see the README's "Detector parameters").
+decided by measurement (see docs/detector.md, "Parameters").
 """
 
 from __future__ import annotations
@@ -344,7 +344,7 @@ _PAPER_OPTIMUM = MradParams(
 )
 
 PROFILES: dict[str, MradParams] = {
-    # Chosen on the validation split by `make bench` (README, "Speed against error").
+    # Chosen on the validation split by `make bench` (docs/evaluation.md, "Speed against error").
     "default": MradParams(),
     # The paper read literally: its optimum with per-image score scaling, full resolution.
     "paper": _PAPER_OPTIMUM.replace(score_scaling="per_image", pixel_score="regions"),
@@ -352,8 +352,8 @@ PROFILES: dict[str, MradParams] = {
     "baseline": _PAPER_OPTIMUM,
     # The most accurate mrad.md setting of the sweep on validation, at full resolution.
     "accurate": MradParams(process_scale=1.0),
-    # The shipped default before issue 11 (grid 6, per-cell noise rule, half resolution, the
-    # sparse map), kept to compare against and to reproduce earlier figures.
+    # A simpler configuration (grid 6, per-cell noise rule, half resolution, no photometric
+    # model, tolerance growth, the sparse map, area image score), kept to compare against.
     "previous": _PAPER_OPTIMUM.replace(
         grid=6,
         noise_removal="cell_spread",

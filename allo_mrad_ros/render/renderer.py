@@ -42,7 +42,7 @@ from allo_mrad_ros.render.values import (
     z_towards,
 )
 
-# Shipped defaults, chosen on the validation split by `make bench` (README, speed against error).
+# Shipped defaults, chosen on the validation split by `make bench` (docs/evaluation.md).
 DEFAULT_SCALE = 0.125
 DEFAULT_SHADOWS = True
 DEFAULT_ZNEAR = 0.05

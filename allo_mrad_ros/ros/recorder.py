@@ -1,8 +1,9 @@
 """Record the running node's outputs and pair them with their input frames by stamp.
 
-Used by ``make demo`` (live evaluation of a played bag): every time both the score and the
-mask of a stamp have arrived, ``on_frame`` gets them as arrays and the messages are dropped,
-so memory stays flat over long bags. The arrival of the input image on the same topic the
+Used by ``make demo`` (live evaluation of a played bag): every time the score, the mask and
+the result of a stamp have arrived, ``on_frame`` gets the two maps as arrays and the frame's
+image score from the result, and the messages are dropped, so memory stays flat over long
+bags. The arrival of the input image on the same topic the
 node reads gives the end-to-end latency (input published to output received).
 """
 
@@ -14,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -30,18 +32,45 @@ class RecordedFrame:
     stamp_ns: int
     score: np.ndarray
     mask: np.ndarray
+    image_score: float
     latency_ms: float | None
 
 
+class RecorderError(ValueError):
+    """A ``~/result`` message without a numeric ``image_score`` value."""
+
+
+def image_score_of(result: DiagnosticArray) -> float:
+    """The frame's image score, as the node's ``~/result`` reports it (the score I.AUROC ranks).
+
+    Raises
+    ------
+    RecorderError
+        If no status carries an ``image_score`` value that parses as a number.
+    """
+    for status in result.status:
+        for value in status.values:
+            if value.key == "image_score":
+                try:
+                    return float(value.value)
+                except ValueError:
+                    break
+    raise RecorderError("the ~/result message has no numeric image_score value")
+
+
+OUTPUTS = ("score", "mask", "result")
+
+
 class OutputRecorder:
-    """Subscribe to the node's ``score`` and ``mask`` (and the input image for latency).
+    """Subscribe to the node's ``score``, ``mask`` and ``result`` (and the input image for
+    latency).
 
     Parameters
     ----------
     node : rclpy.node.Node
         The node to create subscriptions on.
     on_frame : callable
-        Called with a :class:`RecordedFrame` once both outputs of a stamp have arrived.
+        Called with a :class:`RecordedFrame` once the three outputs of a stamp have arrived.
     node_name : str
         Fully qualified name of the detector node (its private topics are recorded).
     image_topic : str
@@ -63,13 +92,14 @@ class OutputRecorder:
         self._on_frame = on_frame
         self._capacity = capacity
         self.unmatched = 0
-        self._pending: dict[int, dict[str, Image]] = {}
+        self._pending: dict[int, dict[str, Image | DiagnosticArray]] = {}
         self._input_arrival: dict[int, float] = {}
         self._lock = threading.Lock()
         self.anomaly_flags = 0
         self.frames = 0
         node.create_subscription(Image, f"{node_name}/score", self._store("score"), 10)
         node.create_subscription(Image, f"{node_name}/mask", self._store("mask"), 10)
+        node.create_subscription(DiagnosticArray, f"{node_name}/result", self._store("result"), 10)
         node.create_subscription(Bool, f"{node_name}/anomaly", self._on_anomaly, 10)
         if image_topic:
             node.create_subscription(Image, image_topic, self._on_input, qos_profile_sensor_data)
@@ -82,13 +112,13 @@ class OutputRecorder:
     def _on_anomaly(self, msg: Bool) -> None:
         self.anomaly_flags += int(msg.data)
 
-    def _store(self, kind: str) -> Callable[[Image], None]:
-        def store(msg: Image) -> None:
+    def _store(self, kind: str) -> Callable[[Image | DiagnosticArray], None]:
+        def store(msg: Image | DiagnosticArray) -> None:
             stamp = stamp_to_ns(msg.header.stamp)
             with self._lock:
                 entry = self._pending.setdefault(stamp, {})
                 entry[kind] = msg
-                if len(entry) < 2:
+                if len(entry) < len(OUTPUTS):
                     self.unmatched += _forget_oldest(self._pending, self._capacity)
                     return
                 del self._pending[stamp]
@@ -101,6 +131,7 @@ class OutputRecorder:
                     stamp,
                     np.frombuffer(score.data, np.float32).reshape(score.height, score.width),
                     np.frombuffer(mask.data, np.uint8).reshape(mask.height, mask.width),
+                    image_score_of(entry["result"]),
                     latency,
                 )
             )

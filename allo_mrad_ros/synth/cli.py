@@ -22,6 +22,7 @@ from pathlib import Path
 
 from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
 from allo_mrad_ros.errors import AlloError
+from allo_mrad_ros.resources import package_version
 from allo_mrad_ros.staging import signals_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, QUERY_RENDERERS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
@@ -179,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="allo-synth", description="ALLO-like sequences: generate them, or import ALLO."
     )
+    parser.add_argument("--version", action="version", version=f"allo-synth {package_version()}")
     subparsers = parser.add_subparsers(dest="command", required=True)
     add_generate_parser(subparsers)
     add_import_parser(subparsers)

@@ -7,6 +7,7 @@ import types
 import numpy as np
 import pytest
 import rclpy  # noqa: F401 - the worker's diagnostics need rclpy (skipped on the distro route)
+from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics
@@ -14,8 +15,9 @@ from allo_mrad_ros.ros import worker as worker_module
 from allo_mrad_ros.ros.buffers import LatestSlot
 from allo_mrad_ros.ros.diagnostics import _MAX_LOGGED_KINDS, Diagnostics
 from allo_mrad_ros.ros.messages import MessageError, fill_image
+from allo_mrad_ros.ros.outputs import result_status
 from allo_mrad_ros.ros.parameters import node_parameters, validate
-from allo_mrad_ros.ros.recorder import OutputRecorder
+from allo_mrad_ros.ros.recorder import OutputRecorder, RecorderError, image_score_of
 from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
 
 CAMERA = CameraIntrinsics(8, 6, 8.0, 8.0, 4.0, 3.0)
@@ -119,6 +121,15 @@ class FakeNode:
         self.callbacks[topic] = callback
 
 
+def result_at(stamp_ns, image_score):
+    msg = DiagnosticArray(status=[result_status("/mrad_detector", False, 0, 4, [], 0.0)])
+    for value in msg.status[0].values:
+        if value.key == "image_score":
+            value.value = image_score
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+    return msg
+
+
 def image_at(stamp_ns, data=None, encoding="mono8"):
     data = np.zeros((2, 2), np.uint8) if data is None else data
     msg = fill_image(Image(), None, data, encoding)
@@ -137,8 +148,19 @@ def test_recorder_forgets_the_oldest_unmatched_outputs_and_inputs():
         score(image_at(stamp, np.zeros((2, 2), np.float32), "32FC1"))
     assert len(recorder._pending) == 50 and len(recorder._input_arrival) == 50
     assert recorder.unmatched == 950
-    mask(image_at(999))  # a recent stamp still pairs, with its latency
+    mask(image_at(999))
+    assert frames == []  # the result is still missing
+    node.callbacks["/mrad_detector/result"](result_at(999, "12.5"))
     assert len(frames) == 1 and frames[0].stamp_ns == 999 and frames[0].latency_ms is not None
+    assert frames[0].image_score == 12.5  # a recent stamp still pairs, with its latency
+
+
+def test_recorder_takes_the_image_score_from_the_node_result():
+    assert image_score_of(result_at(1, "87.125")) == 87.125
+    with pytest.raises(RecorderError, match="image_score"):
+        image_score_of(result_at(1, "n/a"))
+    with pytest.raises(RecorderError, match="image_score"):
+        image_score_of(DiagnosticArray())
 
 
 class LoggingNode:
