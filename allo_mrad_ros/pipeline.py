@@ -54,6 +54,11 @@ def coerce_value(name: str, spec: ParameterSpec, value: Any) -> Any:
             raise ProcessingError(
                 f"{name}: {value!r} is not a valid {spec.kind.__name__}"
             ) from None
+    if isinstance(value, str) and spec.kind is bool:
+        text = value.strip().lower()
+        if text not in ("true", "false"):
+            raise ProcessingError(f"{name}: {value!r} is not true or false")
+        value = text == "true"
     if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     try:

@@ -124,18 +124,29 @@ def load_frames(root: Path, split: str, reference_scale: float) -> list[BenchFra
         folder = root / split / station
         if not (folder / "frames.csv").is_file():
             raise FileNotFoundError(f"{folder}: station sequence missing (make bench-stations)")
-        sequence = read_sequence(folder)
-        provider = ReferenceProvider(
-            sequence.meta.mesh, sequence.meta.camera, RenderSettings(reference_scale)
-        )
-        try:
-            for frame in sequence.frames:
-                image = sequence.load_image(frame)
-                truth = sequence.load_mask(frame)
-                reference = provider.render(View.of_frame(frame))
-                frames.append(BenchFrame(station, frame.anomaly, image, truth, reference))
-        finally:
-            provider.close()
+        frames += sequence_frames(folder, station, None, reference_scale)
+    return frames
+
+
+def sequence_frames(
+    folder: Path, station: str, split: str | None, reference_scale: float
+) -> list[BenchFrame]:
+    """The frames of one sequence (one split of it, or all) with their references."""
+    frames = []
+    sequence = read_sequence(folder)
+    provider = ReferenceProvider(
+        sequence.meta.mesh, sequence.meta.camera, RenderSettings(reference_scale)
+    )
+    try:
+        for frame in sequence.frames:
+            if split is not None and frame.split != split:
+                continue
+            image = sequence.load_image(frame)
+            truth = sequence.load_mask(frame)
+            reference = provider.render(View.of_frame(frame))
+            frames.append(BenchFrame(station, frame.anomaly, image, truth, reference))
+    finally:
+        provider.close()
     return frames
 
 
@@ -218,7 +229,12 @@ def main(argv: list[str] | None = None) -> int:
     """Run the bench on one split and print and save its tables."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", type=Path, help="folder with <split>/<station> sequences")
-    parser.add_argument("--split", choices=tuple(BENCH_SPLITS), default="val")
+    parser.add_argument(
+        "--sequence",
+        action="store_true",
+        help="ROOT is one sequence (e.g. the rasterised data/bench): use its --split",
+    )
+    parser.add_argument("--split", choices=("train", "val", "test"), default="val")
     parser.add_argument("--settings", default="default,no_transfer,PAD,RXD")
     parser.add_argument("--compare", default="PAD,default", help="A,B: bootstrap P.AP(B)-P.AP(A)")
     parser.add_argument("--reference-scale", type=float, default=RenderSettings().reference_scale)
@@ -230,14 +246,17 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         print(f"stations_bench: {error}", file=sys.stderr)
         return 2
-    frames = load_frames(args.root, args.split, args.reference_scale)
+    if args.sequence:
+        frames = sequence_frames(args.root, args.root.name, args.split, args.reference_scale)
+        stations: tuple[str, ...] = (args.root.name,)
+    else:
+        frames = load_frames(args.root, args.split, args.reference_scale)
+        stations = BENCH_SPLITS[args.split]
     results = run_settings(frames, settings)
     summaries = {r.setting.name: summarise(r) for r in results}
     by_name = {r.setting.name: r for r in results}
-    print(
-        f"split {args.split}: {len(frames)} frames, stations {', '.join(BENCH_SPLITS[args.split])}"
-    )
-    print(format_rows(summaries, BENCH_SPLITS[args.split]))
+    print(f"split {args.split}: {len(frames)} frames, stations {', '.join(stations)}")
+    print(format_rows(summaries, stations))
     report: dict = {"split": args.split, "frames": len(frames), "settings": summaries}
     a_name, _, b_name = args.compare.partition(",")
     if a_name in by_name and b_name in by_name:

@@ -9,7 +9,9 @@ from sklearn.cluster import MeanShift
 
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
 from allo_mrad_ros.detector.postprocess import (
+    NEGATIVE_BAND,
     blur_scores,
+    continuous_scores,
     local_std,
     remove_noise,
     scale_scores,
@@ -198,3 +200,13 @@ def test_hysteresis_keeps_a_thin_line_whole_and_drops_weak_blobs():
     mask = grow_hysteresis(scores, 25.0, 50.0)
     assert mask[10, 5:35].all() and not mask[25:30, 25:30].any()
     assert np.count_nonzero(mask) == 30
+
+
+@pytest.mark.parametrize("scaling", ["fixed", "per_image"])
+def test_continuous_map_is_strictly_increasing_in_the_signed_score(scaling):
+    # Negative scores are ranked too: no tie at the bottom of the map.
+    raw = np.linspace(-3000.0, 3000.0, 6001, dtype=np.float32)[None, :]
+    mapped = continuous_scores(raw, scaling, 1000.0).astype(np.float64)
+    assert np.all(np.diff(mapped[0]) > 0)
+    assert mapped.min() > 0.0 and mapped.max() <= 255.0
+    assert mapped[0, raw[0] < 0].max() < NEGATIVE_BAND <= mapped[0, raw[0] >= 0].min()
