@@ -136,7 +136,7 @@ $(CYCLES_STAMP): requirements-cycles.txt $(STAMP)
 
 # The multi-station path-traced bench: three station models per split, none shared between
 # validation (the package's station, Skylab, TDRS) and test (Hubble, Apollo-Soyuz, Mir);
-# queries path-traced by Cycles under AgX, Filmic and Standard view transforms and +-0.7 EV,
+# queries path-traced by Cycles under AgX, Filmic and Standard view transforms, -1..+1.5 EV,
 # JPEG; defaults are chosen on val, reported on test. The public models are not in git: put
 # NASA-3D-Resources' skylab.glb, tdrs.glb, hubble_space_telescope.glb, apollo_soyuz.glb and
 # mir.glb into $(STATIONS_SRC) first (docs/evaluation.md, "Multi-station bench").

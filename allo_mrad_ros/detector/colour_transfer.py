@@ -50,6 +50,11 @@ _EDGE_LEVELS = 48.0
 _SPACE_LEVEL = 8.0
 # Pixels around clipped query pixels that count as glare too.
 _GLARE_MARGIN = 2
+MAX_PAIRS = 8192
+"""At most this many pixel pairs enter the fit: beyond it, every k-th kept pair, k the
+smallest stride that fits (medians need no more, and the fit's cost follows the count)."""
+# Offsets are whole 8-bit levels in -255..255: a bin's key is bin * 512 + offset + 255.
+_OFFSET_SPAN = 512
 
 
 class ColourTransferError(ValueError):
@@ -76,7 +81,7 @@ class ColourTransfer:
     pairs: int
 
     def offsets(self, reference: np.ndarray) -> np.ndarray:
-        """Per-pixel offsets (H x W x 3 float32) for an 8-bit-scale reference image."""
+        """Per-pixel offsets (H x W x 3 float32) of a uint8 reference image."""
         bins = _bin_index(reference, self.bin_width)
         n = 256 // self.bin_width
         flat = self.lut.reshape(n * n * n, 3)
@@ -96,7 +101,8 @@ def fit_colour_transfer(
     ----------
     query, reference : numpy.ndarray
         Validated H x W x 3 images with the same aspect ratio (any resolutions, any accepted
-        dtype); the larger is area-averaged to the smaller's size.
+        dtype); the larger is area-averaged to the smaller's size, both are taken to whole
+        8-bit levels.
     finest_bin : int
         Width of the finest colour bins, one of 4, 8, 16, 32, 64.
     min_count : int
@@ -128,7 +134,10 @@ def fit_colour_transfer(
     if not keep.any():
         keep[:] = True
     ref_pixels = reference8[keep]
-    offsets = query8[keep] - ref_pixels
+    offsets = query8[keep].astype(np.int32) - ref_pixels
+    stride = -(-ref_pixels.shape[0] // MAX_PAIRS)
+    if stride > 1:
+        ref_pixels, offsets = ref_pixels[::stride], offsets[::stride]
     lut = _nested_medians(ref_pixels, offsets, finest_bin, min_count)
     return ColourTransfer(lut=lut, bin_width=finest_bin, pairs=int(ref_pixels.shape[0]))
 
@@ -136,8 +145,7 @@ def fit_colour_transfer(
 def apply_to_reference(reference: np.ndarray, transfer: ColourTransfer) -> np.ndarray:
     """The reference in the query's colours: ``reference + offset(reference)``, uint8."""
     pixels = _eight_bit(reference)
-    mapped = pixels + transfer.offsets(pixels)
-    return _to_uint8(mapped)
+    return _to_uint8(pixels.astype(np.float32) + transfer.offsets(pixels))
 
 
 def clip_glare(query: np.ndarray, reference: np.ndarray, level: float) -> np.ndarray:
@@ -146,14 +154,12 @@ def clip_glare(query: np.ndarray, reference: np.ndarray, level: float) -> np.nda
     For the ``reference`` direction, where the reference already carries the query's
     colours. Returns a uint8 image of the query's size.
     """
-    height, width = query.shape[:2]
-    pixels = _eight_bit(reference)
-    if pixels.shape[:2] != (height, width):
-        pixels = cv2.resize(pixels, (width, height), interpolation=cv2.INTER_NEAREST)
     values = _eight_bit(query)
+    pixels = _resized(_eight_bit(reference), values.shape[:2])
     glare = _glare(values, pixels, level)
-    values[glare] = pixels[glare]
-    return _to_uint8(values)
+    out = values.copy()
+    out[glare] = pixels[glare]
+    return out
 
 
 def apply_to_query(
@@ -178,13 +184,15 @@ def apply_to_query(
         Validated images with the same aspect ratio.
     transfer : ColourTransfer
         The frame's fitted table.
+    glare_level : float
+        A query pixel whose every channel reaches this level (8-bit scale) over station
+        surface (a reference pixel that is not black) is glare: it says "brighter than
+        white", not which colour, and takes the reference's colour; so does a pixel within
+        two pixels of one that is brighter than its predicted colour on every channel (a
+        flare's border). 256 disables it.
     gain : numpy.ndarray, optional
         (G*G, 3) per-cell, per-channel contrast gain of the query over the reference (as
         :func:`~allo_mrad_ros.detector.photometric.fit_cell_affine` fits it); 1 if omitted.
-    glare_level : float
-        A query pixel whose every channel reaches this level (8-bit scale) over station
-        surface (a reference pixel that is not black) is clipped: it says "brighter than
-        white", not which colour, so it takes the reference's colour. 256 disables it.
 
     Returns
     -------
@@ -192,26 +200,36 @@ def apply_to_query(
         uint8 image of the query's size.
     """
     height, width = query.shape[:2]
-    pixels = _eight_bit(reference)
-    if pixels.shape[:2] != (height, width):
-        pixels = cv2.resize(pixels, (width, height), interpolation=cv2.INTER_NEAREST)
+    small = _eight_bit(reference)
+    # The prediction r + offset(r) depends on the reference pixel alone: made at the
+    # reference's size, then resized with it.
+    predicted = small.astype(np.float32) + transfer.offsets(small)
+    pixels = _resized(small, (height, width))
+    predicted = _resized(predicted, (height, width))
     values = _eight_bit(query)
-    departure = values - pixels - transfer.offsets(pixels)
+    departure = cv2.subtract(values.astype(np.float32), predicted)
     if gain is not None:
-        departure /= _per_pixel(gain, height, width)
-    mapped = pixels + departure
+        departure = cv2.divide(departure, _per_pixel(gain, height, width))
+    mapped = cv2.add(departure, pixels.astype(np.float32))
+    out = _to_uint8(mapped)
     if glare_level < 256.0:
         glare = _glare(values, pixels, glare_level, departure)
-        mapped[glare] = pixels[glare]
-    return _to_uint8(mapped)
+        out[glare] = pixels[glare]
+    return out
+
+
+def _resized(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    if image.shape[:2] == shape:
+        return image
+    return cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
 def _per_pixel(cells: np.ndarray, height: int, width: int) -> np.ndarray:
     grid = round(np.sqrt(cells.shape[0]))
-    rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
-    cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
+    rows = np.diff(cell_edges(height, grid))
+    cols = np.diff(cell_edges(width, grid))
     table = cells.reshape(grid, grid, 3).astype(np.float32)
-    return table[rows[:, None], cols[None, :]]
+    return np.repeat(np.repeat(table, rows, axis=0), cols, axis=1)
 
 
 def _glare(
@@ -221,46 +239,55 @@ def _glare(
     # _GLARE_MARGIN pixels wide, goes with it where it brightened every channel.
     darkest = np.minimum(np.minimum(query[..., 0], query[..., 1]), query[..., 2])
     clipped = darkest >= level
-    surface = reference.max(axis=2) > _SPACE_LEVEL
-    if clipped.any():
-        size = 2 * _GLARE_MARGIN + 1
-        near = cv2.dilate(clipped.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
-        if departure is not None:
-            brighter = (departure >= 0.0).all(axis=2)
-            clipped = clipped | (near & brighter)
-        else:
-            clipped = near
+    if not clipped.any():
+        return clipped
+    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
+    brightest = np.maximum(np.maximum(reference[..., 0], reference[..., 1]), reference[..., 2])
+    surface = brightest > _SPACE_LEVEL
+    size = 2 * _GLARE_MARGIN + 1
+    near = cv2.dilate(clipped.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+    if departure is not None:
+        lowest = np.minimum(np.minimum(departure[..., 0], departure[..., 1]), departure[..., 2])
+        clipped = clipped | (near & (lowest >= 0.0))
+    else:
+        clipped = near
     return clipped & surface
 
 
 def _paired(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    query, reference = _eight_bit(query), _eight_bit(reference)
     hq, wq = query.shape[:2]
     hr, wr = reference.shape[:2]
     if hq * wq > hr * wr:
         query = area_downscale(query, (wr, hr))
     elif hr * wr > hq * wq:
         reference = area_downscale(reference, (wq, hq))
-    return _eight_bit(query), _eight_bit(reference)
+    return query, reference
 
 
 def _eight_bit(image: np.ndarray) -> np.ndarray:
-    # float32 on the 0..255 scale whatever the input dtype (check_image's conventions).
-    return to_float32(image)
+    # uint8 on the 8-bit scale whatever the input dtype (check_image's conventions).
+    if image.dtype == np.uint8:
+        return image
+    return _to_uint8(to_float32(image))
 
 
 def _to_uint8(pixels: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(pixels), 0, 255).astype(np.uint8)
+    # Saturating, round-half-to-even: np.clip(np.rint(x), 0, 255) in one OpenCV call.
+    return cv2.convertScaleAbs(np.maximum(pixels, 0.0, dtype=np.float32))
 
 
 def _near_edges(reference: np.ndarray, margin: int) -> np.ndarray:
     kernel = np.ones((3 + 2 * margin, 3 + 2 * margin), np.uint8)
-    spread = cv2.dilate(reference, kernel) - cv2.erode(reference, kernel)
-    return spread.max(axis=2) > _EDGE_LEVELS
+    spread = cv2.subtract(cv2.dilate(reference, kernel), cv2.erode(reference, kernel))
+    widest = np.maximum(np.maximum(spread[..., 0], spread[..., 1]), spread[..., 2])
+    return widest > _EDGE_LEVELS
 
 
 def _bin_index(pixels: np.ndarray, width: int) -> np.ndarray:
     n = 256 // width
-    bins = np.clip(pixels, 0, 255).astype(np.int32) // width
+    shift = width.bit_length() - 1
+    bins = pixels.astype(np.int32) >> shift
     return (bins[..., 0] * n + bins[..., 1]) * n + bins[..., 2]
 
 
@@ -282,17 +309,18 @@ def _nested_medians(
 
 
 def _group_medians(
-    keys: np.ndarray, values: np.ndarray, groups: int
+    keys: np.ndarray, offsets: np.ndarray, groups: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    # Per-group median of each column: sort by (key, value), then each group's middle rows.
+    # Per-group median of each column of whole-level offsets: one sort of combined integer
+    # keys (group, offset) per column, then each group's middle entries.
     counts = np.bincount(keys, minlength=groups)
     starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
     present = np.flatnonzero(counts)
     low = starts[present] + (counts[present] - 1) // 2
     high = starts[present] + counts[present] // 2
-    medians = np.zeros((groups, values.shape[1]), np.float32)
-    for channel in range(values.shape[1]):
-        order = np.lexsort((values[:, channel], keys))
-        ordered = values[order, channel]
+    medians = np.zeros((groups, offsets.shape[1]), np.float32)
+    base = keys.astype(np.int64) * _OFFSET_SPAN + 255
+    for channel in range(offsets.shape[1]):
+        ordered = np.sort(base + offsets[:, channel]) % _OFFSET_SPAN - 255
         medians[present, channel] = 0.5 * (ordered[low] + ordered[high])
     return medians, counts

@@ -252,7 +252,10 @@ def transfer_colours(
     if params.colour_transfer == "query":
         gain = None
         if params.transfer_gain:
+            # Only a flatter query's contrast is restored: a steeper one (a gain a black
+            # shadow or a tone curve's toe inflated) would shrink an object's departure.
             gain, _ = fit_cell_affine(query, reference, params.grid, params.max_gain)
+            gain = np.minimum(gain, 1.0)
         return apply_to_query(query, reference, transfer, params.glare_level, gain), reference
     reference = apply_to_reference(reference, transfer)
     if params.glare_level < 256.0:

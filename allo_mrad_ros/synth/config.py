@@ -364,8 +364,9 @@ def _bench_cycles() -> SynthConfig:
 def _bench_stations() -> SynthConfig:
     # One station's share of the multi-station path-traced bench (``make bench-stations``
     # generates it once per station model): Cycles queries developed under several view
-    # transforms and exposures, JPEG as a camera streams it, 4:3 frames, a larger pose
-    # error than the rasterised bench; anomalies recoloured and scaled as ALLO does.
+    # transforms and exposures from -1 to +1.5 stops (bright parts clip: glare), JPEG as a
+    # camera streams it, 4:3 frames, a larger pose error than the rasterised bench;
+    # anomalies recoloured and scaled as ALLO does.
     return SynthConfig(
         name="bench-stations",
         splits={"test": SplitSpec(8, 16, 4)},
@@ -375,7 +376,7 @@ def _bench_stations() -> SynthConfig:
         camera_effects=False,
         cycles_samples=16,
         cycles_view_transforms=("AgX", "Filmic", "Standard"),
-        cycles_exposure_ev=(-0.7, 0.7),
+        cycles_exposure_ev=(-1.0, 1.5),
         jpeg_quality=85,
         pose_error_m=0.03,
         pose_error_rad=math.radians(0.3),
