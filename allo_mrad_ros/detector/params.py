@@ -116,8 +116,8 @@ class MradParams:
         Pixels around reference edges left out of the transfer's fit, 0..16.
     transfer_gain : bool
         With ``colour_transfer="query"``, divide what departs from the transferred colours by
-        each cell's contrast gain (the ``cell_affine`` fit), so an object keeps its contrast
-        in the reference's units under a darker or flatter query.
+        each cell's contrast gain (the ``cell_affine`` fit, capped at 1), so an object keeps
+        its contrast in the reference's units under a darker or flatter query.
     glare_level : float
         With a colour transfer, a query pixel whose every channel reaches this level over
         station surface is glare (it says "brighter than white", not which colour) and
