@@ -63,6 +63,7 @@ OVERLAY_OUTPUT = "~/overlay"
 REFERENCE_INFO_OUTPUT = "~/reference/camera_info"
 RESULT_OUTPUT = "~/result"
 REGIONS_OUTPUT = "~/regions"
+DETECTIONS_OUTPUT = "~/detections"
 DIAGNOSTICS_TOPIC = "/diagnostics"
 
 # Frame ids.

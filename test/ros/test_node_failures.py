@@ -243,7 +243,7 @@ def test_diagnostics_say_error_when_the_processing_thread_dies(live, capfd):
     node, feed = live
     assert wait_for_level(feed, DiagnosticStatus.OK, keep_publishing=True)
 
-    def die():
+    def die(*_args):
         raise SystemExit("injected fault: the processing thread ends")
 
     node._worker._snapshot = die
