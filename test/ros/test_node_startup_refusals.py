@@ -138,7 +138,7 @@ def test_mesh_load_is_checked_in_process_too(tmp_path: Path):
     mesh.write_bytes(b"")
     rclpy.init()
     try:
-        with pytest.raises(ParameterError, match="mesh .*is not a usable model"):
+        with pytest.raises(ParameterError, match=r"mesh .*is not a usable model"):
             _node(Parameter("mesh", value=str(mesh)))
     finally:
         rclpy.shutdown()
