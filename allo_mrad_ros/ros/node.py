@@ -127,9 +127,20 @@ class MradDetectorNode(Node):
         self,
         command_line: dict[str, Any] | None = None,
         params_files: dict[Path, list[str]] | None = None,
+        managed: bool = False,
         **kwargs: Any,
     ) -> None:
-        super().__init__(interface.NODE_NAME, **kwargs)
+        """Declare and validate the parameters; unless ``managed`` (the lifecycle variant,
+        which does the rest on configure and activate), build everything and start.
+
+        Raises
+        ------
+        ParameterError
+            For an invalid parameter, mesh or QoS override (the node is destroyed).
+        """
+        if not managed:
+            super().__init__(interface.NODE_NAME, **kwargs)
+        self._managed = managed
         self._command_line = command_line or {}
         self._declared = {**node_parameters(tf2_available()), **detector_parameters()}
         try:
@@ -143,7 +154,6 @@ class MradDetectorNode(Node):
         tuning = process_tuning.apply(config.keep_freed_memory_mb, config.opencv_threads)
         self.get_logger().info(tuning)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-
         self._lock = threading.Lock()
         self._image_slot: LatestSlot[tuple[Image, float]] = LatestSlot()
         self._intrinsics: CameraIntrinsics | None = None
@@ -155,6 +165,23 @@ class MradDetectorNode(Node):
         self._sun_from_topic = False
         self._sun_directions: StampedBuffer[np.ndarray] = StampedBuffer(512)
         self._bodies: tuple = ()
+        self._input_timer = None
+        self._worker: ProcessingWorker | None = None
+        if not managed:
+            self._build()
+            self._start_inputs()
+
+    def _build(self) -> None:
+        """Load the mesh, create the diagnostics, pose source, inputs, outputs and the
+        processing threads (whose render thread builds the renderer for the camera_info's
+        camera). Raises ParameterError (the node destroyed, unless managed)."""
+        config = self._config
+        try:
+            check_mesh(config.mesh)
+        except ParameterError:
+            if not self._managed:
+                super().destroy_node()
+            raise
 
         self._diagnostics = Diagnostics(
             self,
@@ -181,7 +208,8 @@ class MradDetectorNode(Node):
         try:
             self._check_qos_overrides()
         except ParameterError:
-            super().destroy_node()
+            if not self._managed:
+                super().destroy_node()
             raise
         self._diagnostics.idle = self._idle_reason
         self._worker = ProcessingWorker(
@@ -195,14 +223,26 @@ class MradDetectorNode(Node):
             lambda: self._outputs.score.get_subscription_count() > 0,
         )
         self._diagnostics.worker_alive = self._worker.is_alive
-        self._update_inputs()  # unsubscribes the inputs while no output is subscribed
-        self.create_timer(INPUT_POLL_S, self._update_inputs)
         self.get_logger().info(
             f"MRAD detector ready: pose from {self._pose_source.kind}, reference scale "
             f"{config.pipeline.render.reference_scale}, grid {config.pipeline.params.grid}, "
             f"{'pipelined' if config.pipelined else 'serial'} processing, "
             f"listening on {self._image_topic}"
         )
+
+    def _start_inputs(self) -> None:
+        """Subscribe to the inputs while an output has a subscriber, from now on."""
+        self._update_inputs()  # unsubscribes the inputs while no output is subscribed
+        self._input_timer = self.create_timer(INPUT_POLL_S, self._update_inputs)
+
+    def _stop_inputs(self) -> None:
+        """Stop watching the outputs and unsubscribe from the image and camera_info."""
+        if self._input_timer is not None:
+            self.destroy_timer(self._input_timer)
+            self._input_timer = None
+        for subscription in self._input_subscriptions:
+            self.destroy_subscription(subscription)
+        self._input_subscriptions = []
 
     # --- parameters ---------------------------------------------------------------------
 
@@ -246,7 +286,6 @@ class MradDetectorNode(Node):
         if not problems:
             try:
                 node_config_from(values)
-                check_mesh(values["mesh"])  # read-only: loaded once, here
             except ValueError as error:
                 problems.append(str(error))
         if problems:
