@@ -68,7 +68,8 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 
 # Frame ids.
 STATION_FRAME = "station"
-CAMERA_FRAME = "arm_camera_optical"
+# REP-103/105 naming: <camera>_optical_frame (z forward, x right, y down).
+CAMERA_FRAME = "arm_camera_optical_frame"
 HARDWARE_ID = "arm_camera"
 
 # Image encodings the package writes.

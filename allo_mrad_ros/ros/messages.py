@@ -36,7 +36,7 @@ _COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
 }
 # Raw sensor encodings a camera driver may send that need a debayering or colour
 # conversion node in front (image_proc's debayer node, as in ``image_proc`` launch files).
-_NEEDS_IMAGE_PROC = ("bayer_", "yuv422", "uyvy", "yuyv", "nv21", "nv24")
+_NEEDS_IMAGE_PROC = {"yuv422", "yuv422_yuy2", "uyvy", "yuyv", "nv21", "nv24"}
 
 
 class MessageError(InvalidInput):
@@ -50,7 +50,7 @@ class MessageError(InvalidInput):
 def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     """H x W x C pixels of a ``sensor_msgs/Image`` in RGB order, native byte order."""
     encoding = str(msg.encoding).lower()
-    if encoding.startswith(_NEEDS_IMAGE_PROC):
+    if encoding.startswith("bayer_") or encoding in _NEEDS_IMAGE_PROC:
         raise MessageError(
             "encoding",
             f"image encoding {msg.encoding!r} is a raw sensor format: put image_proc's debayer "

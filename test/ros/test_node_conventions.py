@@ -391,3 +391,9 @@ def test_inputs_are_subscribed_only_while_an_output_has_a_subscriber(ros):
         executor.shutdown()
         node.destroy_node()
         peer.destroy_node()
+
+
+def test_the_camera_frame_follows_the_optical_frame_convention():
+    from allo_mrad_ros import interface
+
+    assert f"{interface.HARDWARE_ID}_optical_frame" == interface.CAMERA_FRAME

@@ -115,7 +115,7 @@ def test_a_frame_is_processed_and_diagnostics_are_ok_with_the_images_frame(live)
     _node, feed = live
     assert process_one(feed) is not None
     assert wait_for_level(feed, DiagnosticStatus.OK, keep_publishing=True)
-    assert latest_status(feed).hardware_id == "arm_camera_optical"
+    assert latest_status(feed).hardware_id == "arm_camera_optical_frame"
 
 
 def test_sun_direction_set_over_the_parameter_service_is_applied(live):
