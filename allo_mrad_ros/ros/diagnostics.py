@@ -47,9 +47,13 @@ class Diagnostics:
     pose_source : str
         Reported as a value.
     input_timeout_s : float
-        No image for this long: level STALE.
+        No image for this long while an output is subscribed: level ERROR.
     hardware_id : str
         ``hardware_id`` of the status; empty: the frame id of the latest image.
+    expected_rate_hz, rate_tolerance : float
+        The input rate status' target (0: none) and its accepted relative deviation.
+    max_stamp_delay_s : float
+        The input stamp status' largest accepted stamp age on arrival.
     """
 
     def __init__(

@@ -151,8 +151,8 @@ class MradDetectorNode(Node):
         for warning in keys_for_other_nodes(params_files or {}, self.get_fully_qualified_name()):
             self.get_logger().warning(warning)
         config = self._config = node_config_from(self._values)
-        tuning = process_tuning.apply(config.keep_freed_memory_mb, config.opencv_threads)
-        self.get_logger().info(tuning)
+        # Logged once the node is built: a refusal before it is the only line printed.
+        self._tuning = process_tuning.apply(config.keep_freed_memory_mb, config.opencv_threads)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.Lock()
         self._image_slot: LatestSlot[tuple[Image, float]] = LatestSlot()
@@ -195,6 +195,13 @@ class MradDetectorNode(Node):
             config.max_stamp_delay_s,
         )
         state = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self._setup_io(state)
+        try:
+            self._check_qos_overrides()
+        except ParameterError:
+            if not self._managed:
+                super().destroy_node()
+            raise
         self._pose_source = PoseSource(
             self,
             config.pose_source,
@@ -204,13 +211,6 @@ class MradDetectorNode(Node):
             self._diagnostics.report,
         )
         self._diagnostics.pose_source = self._pose_source.kind
-        self._setup_io(state)
-        try:
-            self._check_qos_overrides()
-        except ParameterError:
-            if not self._managed:
-                super().destroy_node()
-            raise
         self._diagnostics.idle = self._idle_reason
         self._worker = ProcessingWorker(
             self._image_slot,
@@ -223,6 +223,7 @@ class MradDetectorNode(Node):
             lambda: self._outputs.score.get_subscription_count() > 0,
         )
         self._diagnostics.worker_alive = self._worker.is_alive
+        self.get_logger().info(self._tuning)
         self.get_logger().info(
             f"MRAD detector ready: pose from {self._pose_source.kind}, reference scale "
             f"{config.pipeline.render.reference_scale}, grid {config.pipeline.params.grid}, "
