@@ -61,6 +61,7 @@ class MradDetectorLifecycleNode(LifecycleNodeMixin, MradDetectorNode):
             self._remove_built(before)
             return TransitionCallbackReturn.FAILURE
         self._built = before
+        self._stop_inputs()  # inactive: no image is received until activate
         return super().on_configure(state)
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:

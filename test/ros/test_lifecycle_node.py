@@ -33,6 +33,7 @@ def test_configure_builds_activate_starts_and_cleanup_removes(ros):
         assert node._worker is not None and node._worker.is_alive()
         assert "/mrad_detector/mask" in _topics(node)
         assert node._input_timer is None  # inactive: no input is watched or subscribed
+        assert "/arm_camera/image_raw" not in _topics(node)
         assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
         assert node._input_timer is not None
         assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
