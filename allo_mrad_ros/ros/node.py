@@ -241,9 +241,7 @@ class MradDetectorNode(Node):
         if self._input_timer is not None:
             self.destroy_timer(self._input_timer)
             self._input_timer = None
-        for subscription in self._input_subscriptions:
-            self.destroy_subscription(subscription)
-        self._input_subscriptions = []
+        self._unsubscribe_inputs()
 
     # --- parameters ---------------------------------------------------------------------
 
@@ -332,7 +330,7 @@ class MradDetectorNode(Node):
         # image_transport's CameraSubscriber: camera_info is the sibling of the (remapped)
         # image topic, so remapping the image moves both.
         self._info_topic = camera_info_topic(base)
-        self.create_subscription(Vector3Stamped, interface.SUN_DIRECTION_INPUT, self._on_sun, state)
+        self._state_qos = state
         self.create_subscription(
             Float32, interface.SUN_STRENGTH_INPUT, self._on_sun_strength, state
         )
@@ -346,6 +344,11 @@ class MradDetectorNode(Node):
             return copy.copy(qos_profile_sensor_data)
 
         self._input_subscriptions = [
+            # The Sun direction is stamped per frame by its publisher; while idle the node
+            # keeps the last one it received.
+            self.create_subscription(
+                Vector3Stamped, interface.SUN_DIRECTION_INPUT, self._on_sun, self._state_qos
+            ),
             self.create_subscription(
                 self._image_type,
                 self._image_topic,
@@ -361,10 +364,22 @@ class MradDetectorNode(Node):
                 qos_overriding_options=qos_overriding(),
             ),
         ]
+        pose_source = getattr(self, "_pose_source", None)
+        if pose_source is not None:
+            pose_source.set_active(True)
+
+    def _unsubscribe_inputs(self) -> None:
+        for subscription in self._input_subscriptions:
+            self.destroy_subscription(subscription)
+        self._input_subscriptions = []
+        pose_source = getattr(self, "_pose_source", None)
+        if pose_source is not None:
+            pose_source.set_active(False)
 
     def _update_inputs(self) -> None:
-        """Subscribe to the image and its camera_info only while an output has a subscriber,
-        as image_pipeline nodes do: else every 6 MB frame crosses DDS for nothing."""
+        """Subscribe to the image, its camera_info, the pose topic and the Sun direction only
+        while an output has a subscriber, as image_pipeline nodes do: else every 6 MB frame
+        crosses DDS for nothing."""
         config = self._config
         wanted = self._outputs.wanted(config.publish_reference, config.publish_overlay)
         if wanted and not self._input_subscriptions:
@@ -374,9 +389,7 @@ class MradDetectorNode(Node):
                 f"{self._info_topic}"
             )
         elif not wanted and self._input_subscriptions:
-            for subscription in self._input_subscriptions:
-                self.destroy_subscription(subscription)
-            self._input_subscriptions = []
+            self._unsubscribe_inputs()
             self.get_logger().info(
                 f"no output has a subscriber: unsubscribed from {self._image_topic} and "
                 f"{self._info_topic}"

@@ -79,13 +79,27 @@ class PoseSource:
 
             self._tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, node)
-        if kind == "topic":
-            if not has_tf:
-                self._logger.info(
-                    f"tf2_ros is not installed: camera poses come from {pose_topic} "
-                    "(geometry_msgs/PoseStamped, pose_source 'topic')"
-                )
-            node.create_subscription(PoseStamped, interface.POSE_INPUT, self._on_pose, state_qos)
+        if kind == "topic" and not has_tf:
+            self._logger.info(
+                f"tf2_ros is not installed: camera poses come from {pose_topic} "
+                "(geometry_msgs/PoseStamped, pose_source 'topic')"
+            )
+        self._node, self._state_qos = node, state_qos
+        self._subscription = None
+        self.set_active(True)
+
+    def set_active(self, active: bool) -> None:
+        """Subscribe to the pose topic (``topic`` source) or not: the node drops it while no
+        output is subscribed. TF keeps listening (its buffer needs the history)."""
+        if self.kind != "topic":
+            return
+        if active and self._subscription is None:
+            self._subscription = self._node.create_subscription(
+                PoseStamped, interface.POSE_INPUT, self._on_pose, self._state_qos
+            )
+        elif not active and self._subscription is not None:
+            self._node.destroy_subscription(self._subscription)
+            self._subscription = None
 
     def station_from(self, header: Any, what: str) -> np.ndarray:
         """``T_station_frame`` for ``header.frame_id`` at its stamp (identity for the station).

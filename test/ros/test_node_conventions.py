@@ -348,6 +348,7 @@ def test_inputs_are_subscribed_only_while_an_output_has_a_subscriber(ros):
     import time
 
     from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped, Vector3Stamped
     from rclpy.executors import SingleThreadedExecutor
 
     node = MradDetectorNode(
@@ -370,6 +371,9 @@ def test_inputs_are_subscribed_only_while_an_output_has_a_subscriber(ros):
     )
     images = peer.create_publisher(Image, "/arm_camera/image_raw", 1)
     infos = peer.create_publisher(CameraInfo, "/arm_camera/camera_info", 1)
+    poses = peer.create_publisher(PoseStamped, "/arm_camera/pose", 1)
+    suns = peer.create_publisher(Vector3Stamped, "/allo/sun_direction", 1)
+    inputs = (images, infos, poses, suns)
 
     def wait_for(condition, timeout=60.0) -> bool:
         end = time.monotonic() + timeout
@@ -379,14 +383,13 @@ def test_inputs_are_subscribed_only_while_an_output_has_a_subscriber(ros):
 
     try:
         assert wait_for(lambda: statuses and statuses[-1].message.startswith("idle"))
-        assert images.get_subscription_count() == 0 and infos.get_subscription_count() == 0
+        assert wait_for(lambda: all(p.get_subscription_count() == 0 for p in inputs))
         assert statuses[-1].level == DiagnosticStatus.OK
         mask = peer.create_subscription(Image, "/mrad_detector/mask", lambda m: None, 1)
-        assert wait_for(lambda: images.get_subscription_count() == 1)
-        assert wait_for(lambda: infos.get_subscription_count() == 1)
+        assert wait_for(lambda: all(p.get_subscription_count() == 1 for p in inputs))
         assert wait_for(lambda: statuses and not statuses[-1].message.startswith("idle"))
         peer.destroy_subscription(mask)
-        assert wait_for(lambda: images.get_subscription_count() == 0)
+        assert wait_for(lambda: all(p.get_subscription_count() == 0 for p in inputs))
     finally:
         executor.shutdown()
         node.destroy_node()
