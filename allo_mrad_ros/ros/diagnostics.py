@@ -79,6 +79,8 @@ class Diagnostics:
         self.worker_alive: Callable[[], bool] = lambda: True
         # Why the node processes nothing on purpose ("" when it should be processing).
         self.idle: Callable[[], str] = lambda: ""
+        # Whether the node is subscribed to the image now.
+        self.inputs_subscribed: Callable[[], bool] = lambda: True
         self.expected_rate_hz = expected_rate_hz
         self.rate_tolerance = rate_tolerance
         self.max_stamp_delay_s = max_stamp_delay_s
@@ -160,7 +162,7 @@ class Diagnostics:
             "rate_hz": f"{self.stages.rate_hz(self.window_s):.2f}",
             "pose_source": self.pose_source,
             "window_s": f"{self.window_s:g}",
-            "inputs_subscribed": str(not idle).lower(),
+            "inputs_subscribed": str(self.inputs_subscribed()).lower(),
         }
         for stage, (p50, p95) in self.stages.percentiles().items():
             values[f"latency_{stage}_ms_p50"] = f"{p50:.1f}"

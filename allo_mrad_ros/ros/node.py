@@ -212,6 +212,7 @@ class MradDetectorNode(Node):
         )
         self._diagnostics.pose_source = self._pose_source.kind
         self._diagnostics.idle = self._idle_reason
+        self._diagnostics.inputs_subscribed = lambda: bool(self._input_subscriptions)
         self._worker = ProcessingWorker(
             self._image_slot,
             self._snapshot,
@@ -396,9 +397,12 @@ class MradDetectorNode(Node):
             )
 
     def _idle_reason(self) -> str:
-        """Why no frame is processed on purpose ("" when inputs are subscribed)."""
-        if self._input_subscriptions:
+        """Why no frame is processed on purpose ("" when an output is subscribed)."""
+        config = self._config
+        if self._outputs.wanted(config.publish_reference, config.publish_overlay):
             return ""
+        if self._input_subscriptions:
+            return "no subscriber to any output: unsubscribing the inputs"
         return "no subscriber to any output: inputs unsubscribed"
 
     def _check_qos_overrides(self) -> None:

@@ -304,6 +304,7 @@ def test_idle_with_nobody_subscribed_is_ok_with_its_reason_and_never_stale(ros):
         diagnostics = Diagnostics(node, 1.0, lambda: 10, "topic", input_timeout_s=0.1)
         diagnostics.input_seen("cam", 5, 5)
         diagnostics.idle = lambda: "no subscriber to any output: inputs unsubscribed"
+        diagnostics.inputs_subscribed = lambda: False
         status = diagnostics.status()
         assert status.level == DiagnosticStatus.OK and status.message.startswith("idle: ")
         assert {kv.key: kv.value for kv in status.values}["inputs_subscribed"] == "false"
