@@ -286,6 +286,8 @@ class Diagnostics:
 
     def publish(self) -> None:
         """Publish :meth:`statuses` on ``/diagnostics``."""
+        if not self._node.context.ok():
+            return  # shutting down
         array = DiagnosticArray(status=self.statuses())
         array.header.stamp = self._node.get_clock().now().to_msg()
         self._publisher.publish(array)

@@ -120,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INVALID_PARAMETER
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        if rclpy.ok():  # else a callback raced the shutdown a signal asked for
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -381,6 +381,8 @@ class MradDetectorNode(Node):
         """Subscribe to the image, its camera_info, the pose topic and the Sun direction only
         while an output has a subscriber, as image_pipeline nodes do: else every 6 MB frame
         crosses DDS for nothing."""
+        if not self.context.ok():
+            return  # shutting down: the graph cannot be asked any more
         config = self._config
         wanted = self._outputs.wanted(config.publish_reference, config.publish_overlay)
         if wanted and not self._input_subscriptions:
@@ -398,6 +400,8 @@ class MradDetectorNode(Node):
 
     def _idle_reason(self) -> str:
         """Why no frame is processed on purpose ("" when an output is subscribed)."""
+        if not self.context.ok():
+            return "shutting down"
         config = self._config
         if self._outputs.wanted(config.publish_reference, config.publish_overlay):
             return ""
@@ -610,6 +614,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INVALID_PARAMETER
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # A timer that fired while a signal shut the context down (rclpy's RCLError is a
+        # RuntimeError): that is the requested shutdown, not a failure.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
