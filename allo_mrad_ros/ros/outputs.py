@@ -60,7 +60,8 @@ def region_peaks(
     peaks = np.full(count, -np.inf)
     values = np.asarray(score, dtype=np.float64)
     if values.shape == labels.shape:
-        np.maximum.at(peaks, labels.ravel(), values.ravel())
+        inside = labels > 0  # the regions' pixels only: a few of a full-HD image's
+        np.maximum.at(peaks, labels[inside], values[inside])
     else:  # no score map of the image's size: the region's score is unknown
         peaks[:] = 0.0
     return [
