@@ -35,6 +35,7 @@ setup(
         "console_scripts": [
             "mrad_demo = allo_mrad_ros.demo:main",
             "mrad_detector = allo_mrad_ros.ros.node:main",
+            "mrad_detector_lifecycle = allo_mrad_ros.ros.lifecycle:main",
             "allo-synth = allo_mrad_ros.synth.entry:main",
             "allo-bag = rosbag_tools.entry:main",
         ],

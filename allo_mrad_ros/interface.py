@@ -63,11 +63,13 @@ OVERLAY_OUTPUT = "~/overlay"
 REFERENCE_INFO_OUTPUT = "~/reference/camera_info"
 RESULT_OUTPUT = "~/result"
 REGIONS_OUTPUT = "~/regions"
+DETECTIONS_OUTPUT = "~/detections"
 DIAGNOSTICS_TOPIC = "/diagnostics"
 
 # Frame ids.
 STATION_FRAME = "station"
-CAMERA_FRAME = "arm_camera_optical"
+# REP-103/105 naming: <camera>_optical_frame (z forward, x right, y down).
+CAMERA_FRAME = "arm_camera_optical_frame"
 HARDWARE_ID = "arm_camera"
 
 # Image encodings the package writes.

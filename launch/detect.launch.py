@@ -2,13 +2,13 @@
 
 ros2 launch allo_mrad_ros detect.launch.py [config:=/path/mrad.yaml] [namespace:=arm2]
     [mesh:=/path/station.glb] [pose_source:=topic] [image_transport:=compressed]
-    [use_sim_time:=true] [image_topic:=/cam/image_raw] [camera_info_topic:=...]
-    [pose_topic:=...] [sun_topic:=...] [sun_strength_topic:=...] [bodies_topic:=...]
-    [rviz:=true]
+    [use_sim_time:=true] [image_topic:=/cam/image_raw] [pose_topic:=...] [sun_topic:=...]
+    [sun_strength_topic:=...] [bodies_topic:=...] [log_level:=debug] [rviz:=true]
 
 Only the arguments given are forwarded: the parameter file's values hold for the rest
 (allo_mrad_ros.ros.launch_arguments). The node's inputs are relative names, so
-``namespace:=arm2`` moves inputs and outputs together.
+``namespace:=arm2`` moves inputs and outputs together; camera_info follows the image topic
+(its sibling ``camera_info``). RViz is optional: install ros-$ROS_DISTRO-rviz2 to use rviz:=true.
 """
 
 from launch import LaunchDescription
@@ -41,6 +41,7 @@ def _nodes(context: object) -> list:
         output="screen",
         parameters=[config, overrides] if overrides else [config],
         remappings=launch_arguments.remappings(values),
+        arguments=launch_arguments.ros_arguments(LaunchConfiguration("log_level").perform(context)),
     )
     sim_time = {k: v for k, v in overrides.items() if k == "use_sim_time"}
     rviz = Node(
@@ -64,7 +65,16 @@ def generate_launch_description() -> LaunchDescription:
             description="parameter file of the node",
         ),
         DeclareLaunchArgument(
-            "rviz", default_value="false", description="also start RViz with the package's view"
+            "rviz",
+            default_value="false",
+            description="also start RViz with the package's view (needs rviz2 installed)",
+            choices=["true", "false"],
+        ),
+        DeclareLaunchArgument(
+            "log_level",
+            default_value="info",
+            description="the node's log severity",
+            choices=list(launch_arguments.LOG_LEVELS),
         ),
     ]
     arguments += [
@@ -72,6 +82,7 @@ def generate_launch_description() -> LaunchDescription:
             argument.name,
             default_value=launch_arguments.NOT_GIVEN,
             description=argument.description,
+            **({"choices": launch_arguments.launch_choices(argument)} if argument.choices else {}),
         )
         for argument in launch_arguments.ARGUMENTS
     ]

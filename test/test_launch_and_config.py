@@ -188,9 +188,9 @@ def test_every_node_input_can_be_remapped_from_the_launch_file():
     from allo_mrad_ros.ros.launch_arguments import ARGUMENTS
 
     inputs = {a.input_topic for a in ARGUMENTS if a.input_topic}
+    # camera_info is not remapped on its own: it follows the image (image_transport's rule).
     assert inputs == {
         interface.IMAGE_INPUT,
-        interface.CAMERA_INFO_INPUT,
         interface.POSE_INPUT,
         interface.SUN_DIRECTION_INPUT,
         interface.SUN_STRENGTH_INPUT,
@@ -239,3 +239,26 @@ def test_relative_inputs_resolve_at_the_root_to_the_topics_allo_bag_plays():
     }
     for relative, played in pairs.items():
         assert not relative.startswith("/") and "/" + relative == played
+
+
+def test_enumerated_launch_arguments_declare_their_choices_and_log_level_is_forwarded(
+    monkeypatch,
+):
+    module = _launch_module(monkeypatch)
+    description = module.generate_launch_description()
+    declared = {
+        entity.args[0]: entity.kwargs
+        for entity in description.args[0]
+        if isinstance(entity, _Recorded) and entity.args
+    }
+    assert set(declared["pose_source"]["choices"]) == {"", "tf", "topic"}
+    assert set(declared["image_transport"]["choices"]) == {"", "raw", "compressed"}
+    assert set(declared["use_sim_time"]["choices"]) == {"", "true", "false"}
+    assert set(declared["rviz"]["choices"]) == {"true", "false"}
+    assert declared["log_level"]["default_value"] == "info"
+    assert {"debug", "info", "warn", "error", "fatal"} <= set(declared["log_level"]["choices"])
+    for name, kwargs in declared.items():
+        if "choices" in kwargs:
+            assert kwargs["default_value"] in kwargs["choices"], name
+    _, detector, _ = launched_nodes(monkeypatch, log_level="debug")
+    assert detector["arguments"] == ["--ros-args", "--log-level", "debug"]

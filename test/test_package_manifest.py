@@ -50,6 +50,10 @@ MODULE_PROVIDERS = {
     "spectral": "spectral",
 }
 
+# ROS Python modules whose package is named otherwise: the tf2_ros module comes from
+# tf2_ros_py (tf2_ros is the C++ package and does not pull it in).
+ROS_MODULE_PACKAGES = {"tf2_ros": "tf2_ros_py"}
+
 # Modules of optional extras, which neither the node nor `make test` needs: import name ->
 # the requirements file that installs them, and the only modules allowed to import them.
 OPTIONAL_PROVIDERS = {
@@ -146,6 +150,11 @@ def test_every_runtime_import_has_a_provider_on_a_distro():
     ros_packages = _allowed_names()["ros_packages"]
     missing = []
     for module, where in sorted(_third_party_imports(RUNTIME_TREES).items()):
+        if module in ROS_MODULE_PACKAGES:
+            package = ROS_MODULE_PACKAGES[module]
+            if package not in exec_keys or package not in ros_packages:
+                missing.append(f"{module} ({where}): add <exec_depend>{package}</exec_depend>")
+            continue
         if module in ros_packages:
             if module not in exec_keys:
                 missing.append(f"{module} ({where}): add <exec_depend>{module}</exec_depend>")
@@ -176,7 +185,7 @@ def test_every_test_import_has_a_provider():
     )
     missing = []
     for module, where in sorted(_third_party_imports(("test",)).items()):
-        provider = MODULE_PROVIDERS.get(module, module)
+        provider = MODULE_PROVIDERS.get(module, ROS_MODULE_PACKAGES.get(module, module))
         if provider not in keys and provider.lower() not in dev and module not in keys:
             missing.append(f"{module} ({where})")
     assert not missing, f"test imports without a key or requirement: {missing}"
@@ -194,3 +203,11 @@ def test_distro_requirements_use_ranges_and_no_ros_wheels(name):
         assert re.search(r"^numpy[^#\n]*<2", (ROOT / name).read_text(), re.MULTILINE), (
             "NumPy must stay below 2 on a distro: its message packages are built against 1.x"
         )
+
+
+def test_imported_ros_modules_are_declared_and_viewing_stays_optional():
+    exec_keys = _manifest_depends().get("exec_depend", set())
+    # The node imports tf2_ros (from tf2_ros_py) and vision_msgs where installed.
+    assert {"tf2_ros_py", "vision_msgs"} <= exec_keys
+    # rosdep must not put RViz on a headless robot computer.
+    assert "rviz2" not in set().union(*_manifest_depends().values())

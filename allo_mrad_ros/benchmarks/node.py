@@ -18,7 +18,10 @@ so both are measured under the same machine load.
 subscribed against every output subscribed (score, overlay, reference and its camera_info,
 result, regions, anomaly), in one run: blocks of frames alternate between the two, one
 frame at a time (the next is published when the mask of the last arrived), so both see the
-same machine load. CPU is the node process's user + system time over each block.
+same machine load. CPU is the node process's user + system time over each block. It also
+measures the node idle: every output unsubscribed while full-HD frames are published at 30 Hz
+for ``--idle-seconds``, reported as percent of one core (target under 2 %: the node then
+unsubscribes from the image, so no frame reaches it).
 """
 
 from __future__ import annotations
@@ -187,12 +190,45 @@ def _lock_step(feed: CameraFeed, pose: np.ndarray, images: list, frames: int) ->
     return done
 
 
-def compare_outputs(rounds: int, block: int, log_path: Path) -> dict:
-    """CPU seconds per frame of the node, mask only against every output, interleaved."""
+def idle_cpu_percent(
+    feed: CameraFeed,
+    node: psutil.Process,
+    pose: np.ndarray,
+    images: list,
+    seconds: float,
+    rate_hz: float = 30.0,
+) -> dict:
+    """The node's CPU (percent of one core) while frames are published at ``rate_hz`` for
+    ``seconds`` and nobody subscribes to any of its outputs."""
+    for topic in list(feed.subscriptions):
+        feed.unsubscribe(topic)
+    unsubscribed = feed.wait_for(lambda: feed.pub_image.get_subscription_count() == 0, 30.0)
+    feed.spin(1.0)
+    before, start = node.cpu_times(), time.monotonic()
+    published = 0
+    while time.monotonic() - start < seconds:
+        feed.publish_frame(time.time_ns(), images[published % 2], pose, SUN)
+        published += 1
+        feed.spin(max(0.0, start + published / rate_hz - time.monotonic()))
+    after, elapsed = node.cpu_times(), time.monotonic() - start
+    used = (after.user - before.user) + (after.system - before.system)
+    return {
+        "idle_seconds": elapsed,
+        "idle_frames_published": published,
+        "idle_rate_hz": published / elapsed,
+        "idle_node_unsubscribed_from_image": unsubscribed,
+        "idle_cpu_percent_of_one_core": 100.0 * used / elapsed,
+    }
+
+
+def compare_outputs(rounds: int, block: int, log_path: Path, idle_seconds: float = 20.0) -> dict:
+    """CPU seconds per frame of the node, mask only against every output, interleaved; then
+    the node's CPU with nobody subscribed (:func:`idle_cpu_percent`)."""
     pose, images = _frames()
     cpu = {"mask_only": [], "every_output": []}
     options = {"outputs": ("mask",)}
     extra = ("publish_reference:=true", "publish_overlay:=true")
+    idle: dict = {}
     with _node_session(log_path, options, *extra) as (feed, node):
         for index in range(2 * rounds):
             mode = "every_output" if index % 2 else "mask_only"
@@ -204,6 +240,8 @@ def compare_outputs(rounds: int, block: int, log_path: Path) -> dict:
             after = node.cpu_times()
             seconds = (after.user - before.user) + (after.system - before.system)
             cpu[mode].append(seconds / max(count, 1))
+        if idle_seconds > 0:
+            idle = idle_cpu_percent(feed, node, pose, images, idle_seconds)
     mask_only = float(np.median(cpu["mask_only"]))
     every = float(np.median(cpu["every_output"]))
     return {
@@ -215,6 +253,7 @@ def compare_outputs(rounds: int, block: int, log_path: Path) -> dict:
         "cpu_s_per_frame_mask_only": mask_only,
         "cpu_s_per_frame_every_output": every,
         "saving_percent": 100.0 * (1.0 - mask_only / every),
+        **idle,
     }
 
 
@@ -251,11 +290,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--rounds", type=int, default=5, help="blocks per mode (compare)")
     parser.add_argument("--block", type=int, default=8, help="frames per block (compare)")
+    parser.add_argument(
+        "--idle-seconds",
+        type=float,
+        default=20.0,
+        help="seconds of 30 Hz frames with no output subscribed (compare-outputs); 0: skip",
+    )
     args = parser.parse_args(argv)
     log_dir = Path(tempfile.mkdtemp(prefix="bench_node_"))
     if args.compare_outputs:
         log = log_dir / "node.log"
-        report = compare_outputs(args.rounds, args.block, log)
+        report = compare_outputs(args.rounds, args.block, log, args.idle_seconds)
+        if "idle_cpu_percent_of_one_core" in report:
+            print(
+                f"nobody subscribed, {report['idle_rate_hz']:.1f} Hz of full-HD frames for "
+                f"{report['idle_seconds']:.0f} s: node CPU "
+                f"{report['idle_cpu_percent_of_one_core']:.2f} % of one core"
+            )
         print(
             f"mrad_detector at {report['image']}, CPU seconds per frame (node process, "
             f"median of {args.rounds} interleaved blocks of {args.block} frames each)\n"

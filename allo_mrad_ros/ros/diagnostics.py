@@ -1,9 +1,11 @@
-"""The node's counters and its ``/diagnostics`` status (rate, per-stage latency, problems).
+"""The node's counters and its ``/diagnostics`` statuses.
 
-The level describes the recent past, not the whole run, as diagnostic_updater's frequency and
-timestamp tasks do: problems count towards WARN only while they are younger than a sliding
-window, the rate is measured over the window up to now, no image for ``input_timeout_s`` is
-STALE and a dead processing thread is ERROR. Totals since start stay in the values.
+Three statuses per message: ``<node>: pipeline`` (rate, per-stage latency, problems, counters),
+``<node>: input rate`` and ``<node>: input stamp``, the last two with the keys and levels of
+diagnostic_updater's FrequencyStatus and TimeStampStatus. Levels describe the recent past: a
+problem counts towards WARN only while younger than a sliding window; no image for
+``input_timeout_s`` while an output is subscribed is ERROR; with no output subscribed the node
+is idle on purpose, which is OK. STALE is the aggregator's call, never the node's.
 """
 
 from __future__ import annotations
@@ -45,9 +47,13 @@ class Diagnostics:
     pose_source : str
         Reported as a value.
     input_timeout_s : float
-        No image for this long: level STALE.
+        No image for this long while an output is subscribed: level ERROR.
     hardware_id : str
         ``hardware_id`` of the status; empty: the frame id of the latest image.
+    expected_rate_hz, rate_tolerance : float
+        The input rate status' target (0: none) and its accepted relative deviation.
+    max_stamp_delay_s : float
+        The input stamp status' largest accepted stamp age on arrival.
     """
 
     def __init__(
@@ -58,6 +64,9 @@ class Diagnostics:
         pose_source: str,
         input_timeout_s: float = 2.0,
         hardware_id: str = "",
+        expected_rate_hz: float = 0.0,
+        rate_tolerance: float = 0.1,
+        max_stamp_delay_s: float = 1.0,
     ) -> None:
         self._node = node
         self._received = received
@@ -68,6 +77,21 @@ class Diagnostics:
         self._frame_id = ""
         self._last_input: float | None = None
         self.worker_alive: Callable[[], bool] = lambda: True
+        # Why the node processes nothing on purpose ("" when it should be processing).
+        self.idle: Callable[[], str] = lambda: ""
+        # Whether the node is subscribed to the image now.
+        self.inputs_subscribed: Callable[[], bool] = lambda: True
+        self.expected_rate_hz = expected_rate_hz
+        self.rate_tolerance = rate_tolerance
+        self.max_stamp_delay_s = max_stamp_delay_s
+        self._arrivals: deque[float] = deque(maxlen=100_000)
+        self._arrivals_total = 0
+        # Stamp delays (s) of images since the last publication: TimeStampStatus' window.
+        self._delays: list[float] = []
+        self._zero_stamps = 0
+        self._late_updates = 0
+        self._early_updates = 0
+        self._zero_updates = 0
         self._counters: Counter[str] = Counter()
         self._recent: deque[tuple[float, str]] = deque(maxlen=10_000)
         self._logged_kinds: set[str] = set()
@@ -76,11 +100,18 @@ class Diagnostics:
         self._publisher = node.create_publisher(DiagnosticArray, interface.DIAGNOSTICS_TOPIC, 10)
         node.create_timer(period_s, self.publish)
 
-    def input_seen(self, frame_id: str) -> None:
-        """Note that an image arrived now (its frame names the hardware)."""
+    def input_seen(self, frame_id: str, stamp_ns: int = 0, now_ns: int = 0) -> None:
+        """Note that an image arrived now (its frame names the hardware); ``now_ns - stamp_ns``
+        is its stamp delay on the node's clock (stamp 0: counted as a zero stamp)."""
         with self._lock:
             self._last_input = time.monotonic()
+            self._arrivals.append(self._last_input)
+            self._arrivals_total += 1
             self._frame_id = frame_id
+            if stamp_ns == 0:
+                self._zero_stamps += 1
+            else:
+                self._delays.append((now_ns - stamp_ns) / 1e9)
 
     def count(self, name: str) -> None:
         """Add one to counter ``name`` (and to the recent window)."""
@@ -110,6 +141,10 @@ class Diagnostics:
             self._recent.popleft()
         return Counter(name for _, name in self._recent)
 
+    def _name(self, what: str) -> str:
+        # Fully qualified (less the root slash): two cameras' nodes stay apart.
+        return f"{self._node.get_fully_qualified_name().lstrip('/')}: {what}"
+
     def status(self) -> DiagnosticStatus:
         """The pipeline's current status."""
         now = time.monotonic()
@@ -118,15 +153,16 @@ class Diagnostics:
             recent = self._recent_counts(now)
             last_input, frame_id = self._last_input, self._frame_id
         counters["frames_received"] = self._received()
+        idle = self.idle()
         status = DiagnosticStatus(
-            # Fully qualified (less the root slash): two cameras' nodes stay apart.
-            name=f"{self._node.get_fully_qualified_name().lstrip('/')}: pipeline",
+            name=self._name("pipeline"),
             hardware_id=self._hardware_id or frame_id or interface.HARDWARE_ID,
         )
         values = {
             "rate_hz": f"{self.stages.rate_hz(self.window_s):.2f}",
             "pose_source": self.pose_source,
             "window_s": f"{self.window_s:g}",
+            "inputs_subscribed": str(self.inputs_subscribed()).lower(),
         }
         for stage, (p50, p95) in self.stages.percentiles().items():
             values[f"latency_{stage}_ms_p50"] = f"{p50:.1f}"
@@ -140,8 +176,11 @@ class Diagnostics:
         if not self.worker_alive():
             status.level = DiagnosticStatus.ERROR
             status.message = "processing thread stopped: no frames are processed"
+        elif idle:
+            status.level = DiagnosticStatus.OK
+            status.message = f"idle: {idle}"
         elif silent_s is None or silent_s > self.input_timeout_s:
-            status.level = DiagnosticStatus.STALE
+            status.level = DiagnosticStatus.ERROR
             status.message = (
                 f"no image on {interface.IMAGE_TOPIC} yet"
                 if silent_s is None
@@ -160,8 +199,95 @@ class Diagnostics:
             status.message = "running"
         return status
 
+    def frequency_status(self, idle: str = "") -> DiagnosticStatus:
+        """Image arrivals over the window, as diagnostic_updater's FrequencyStatus reports."""
+        now = time.monotonic()
+        with self._lock:
+            while self._arrivals and self._arrivals[0] < now - self.window_s:
+                self._arrivals.popleft()
+            events, total = len(self._arrivals), self._arrivals_total
+        frequency = events / self.window_s
+        status = DiagnosticStatus(
+            name=self._name("input rate"),
+            hardware_id=self._hardware_id or self._frame_id or interface.HARDWARE_ID,
+        )
+        values = {
+            "Events in window": str(events),
+            "Events since startup": str(total),
+            "Duration of window (s)": f"{self.window_s:g}",
+            "Actual frequency (Hz)": f"{frequency:.3f}",
+        }
+        expected = self.expected_rate_hz
+        low, high = expected * (1 - self.rate_tolerance), expected * (1 + self.rate_tolerance)
+        if expected > 0:
+            values["Target frequency (Hz)"] = f"{expected:g}"
+            values["Minimum acceptable frequency (Hz)"] = f"{low:g}"
+            values["Maximum acceptable frequency (Hz)"] = f"{high:g}"
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        status.level, status.message = DiagnosticStatus.OK, "Desired frequency met"
+        if idle:
+            status.message = f"idle: {idle}"
+        elif events == 0:
+            status.level, status.message = DiagnosticStatus.ERROR, "No events recorded."
+        elif expected > 0 and frequency < low:
+            status.level, status.message = DiagnosticStatus.WARN, "Frequency too low."
+        elif expected > 0 and frequency > high:
+            status.level, status.message = DiagnosticStatus.WARN, "Frequency too high."
+        elif expected == 0:
+            status.message = "no expected_rate_hz set"
+        return status
+
+    def timestamp_status(self, idle: str = "") -> DiagnosticStatus:
+        """Image stamp delays since the last publication, as diagnostic_updater's
+        TimeStampStatus reports (acceptable delays -1 s .. ``max_stamp_delay_s``)."""
+        with self._lock:
+            delays, self._delays = self._delays, []
+            zero, self._zero_stamps = self._zero_stamps, 0
+            if delays and max(delays) > self.max_stamp_delay_s:
+                self._late_updates += 1
+            if delays and min(delays) < -1.0:
+                self._early_updates += 1
+            if zero:
+                self._zero_updates += 1
+            late, early, zeros = self._late_updates, self._early_updates, self._zero_updates
+        status = DiagnosticStatus(
+            name=self._name("input stamp"),
+            hardware_id=self._hardware_id or self._frame_id or interface.HARDWARE_ID,
+        )
+        values = {
+            "Earliest timestamp delay:": f"{min(delays):.6f}" if delays else "No data",
+            "Latest timestamp delay:": f"{max(delays):.6f}" if delays else "No data",
+            "Earliest acceptable timestamp delay:": "-1.000000",
+            "Latest acceptable timestamp delay:": f"{self.max_stamp_delay_s:.6f}",
+            "Late diagnostic update count:": str(late),
+            "Early diagnostic update count:": str(early),
+            "Zero seen diagnostic update count:": str(zeros),
+        }
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        status.level, status.message = DiagnosticStatus.OK, "Timestamps are reasonable."
+        if idle and not delays and not zero:
+            status.message = f"idle: {idle}"
+        elif not delays and not zero:
+            status.level, status.message = DiagnosticStatus.WARN, "No data since last update."
+        elif zero:
+            status.level, status.message = DiagnosticStatus.ERROR, "Zero timestamp seen."
+        elif max(delays) > self.max_stamp_delay_s:
+            status.level = DiagnosticStatus.ERROR
+            status.message = "Timestamps too far in past seen."
+        elif min(delays) < -1.0:
+            status.level = DiagnosticStatus.ERROR
+            status.message = "Timestamps too far in future seen."
+        return status
+
+    def statuses(self) -> list[DiagnosticStatus]:
+        """The pipeline status first, then the input rate and input stamp statuses."""
+        idle = self.idle()
+        return [self.status(), self.frequency_status(idle), self.timestamp_status(idle)]
+
     def publish(self) -> None:
-        """Publish :meth:`status` on ``/diagnostics``."""
-        array = DiagnosticArray(status=[self.status()])
+        """Publish :meth:`statuses` on ``/diagnostics``."""
+        if not self._node.context.ok():
+            return  # shutting down
+        array = DiagnosticArray(status=self.statuses())
         array.header.stamp = self._node.get_clock().now().to_msg()
         self._publisher.publish(array)

@@ -30,6 +30,8 @@ class LaunchArgument:
     parameter: str = ""
     kind: type = str
     input_topic: str = ""
+    # The values a user may give (enumerated arguments); NOT_GIVEN is always allowed.
+    choices: tuple[str, ...] = ()
 
 
 ARGUMENTS: tuple[LaunchArgument, ...] = (
@@ -44,22 +46,26 @@ ARGUMENTS: tuple[LaunchArgument, ...] = (
         "pose_source",
         "camera pose from tf (tf2_ros) or topic (PoseStamped); not given: the parameter file's",
         parameter="pose_source",
+        choices=("tf", "topic"),
     ),
     LaunchArgument(
         "image_transport",
         "raw (sensor_msgs/Image) or compressed (CompressedImage on <image>/compressed); "
         "not given: the parameter file's",
         parameter="image_transport",
+        choices=interface.IMAGE_TRANSPORTS,
     ),
     LaunchArgument(
         "use_sim_time",
         "true: use /clock (replaying a bag with --clock); not given: the parameter file's",
         parameter="use_sim_time",
         kind=bool,
+        choices=("true", "false"),
     ),
-    LaunchArgument("image_topic", "camera image", input_topic=interface.IMAGE_INPUT),
     LaunchArgument(
-        "camera_info_topic", "camera intrinsics", input_topic=interface.CAMERA_INFO_INPUT
+        "image_topic",
+        "camera image; its camera_info is the sibling topic camera_info (image_transport's rule)",
+        input_topic=interface.IMAGE_INPUT,
     ),
     LaunchArgument(
         "pose_topic", "camera pose (pose_source topic)", input_topic=interface.POSE_INPUT
@@ -70,6 +76,24 @@ ARGUMENTS: tuple[LaunchArgument, ...] = (
         "bodies_topic", "celestial bodies (MarkerArray)", input_topic=interface.BODIES_INPUT
     ),
 )
+
+
+# Severities of ``--log-level`` (the launch argument ``log_level``).
+LOG_LEVELS = ("debug", "info", "warn", "error", "fatal")
+
+
+def launch_choices(argument: LaunchArgument) -> list[str] | None:
+    """The ``choices`` of the declared launch argument (NOT_GIVEN first), or None."""
+    if not argument.choices:
+        return None
+    return [NOT_GIVEN, *argument.choices]
+
+
+def ros_arguments(log_level: str) -> list[str]:
+    """The node's ``--ros-args`` for the launch argument ``log_level``."""
+    if log_level not in LOG_LEVELS:
+        raise LaunchArgumentError(f"launch argument log_level must be one of {list(LOG_LEVELS)}")
+    return ["--ros-args", "--log-level", log_level]
 
 
 def _typed(argument: LaunchArgument, text: str) -> Any:

@@ -29,8 +29,14 @@ _COLOUR_ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "bgra8": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2RGB),
     "mono8": (1, np.dtype(np.uint8), None),
     "rgb16": (3, np.dtype(">u2"), None),
+    "bgr16": (3, np.dtype(">u2"), cv2.COLOR_BGR2RGB),
+    "rgba16": (4, np.dtype(">u2"), cv2.COLOR_RGBA2RGB),
+    "bgra16": (4, np.dtype(">u2"), cv2.COLOR_BGRA2RGB),
     "mono16": (1, np.dtype(">u2"), None),
 }
+# Raw sensor encodings a camera driver may send that need a debayering or colour
+# conversion node in front (image_proc's debayer node, as in ``image_proc`` launch files).
+_NEEDS_IMAGE_PROC = {"yuv422", "yuv422_yuy2", "uyvy", "yuyv", "nv21", "nv24"}
 
 
 class MessageError(InvalidInput):
@@ -44,6 +50,13 @@ class MessageError(InvalidInput):
 def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     """H x W x C pixels of a ``sensor_msgs/Image`` in RGB order, native byte order."""
     encoding = str(msg.encoding).lower()
+    if encoding.startswith("bayer_") or encoding in _NEEDS_IMAGE_PROC:
+        raise MessageError(
+            "encoding",
+            f"image encoding {msg.encoding!r} is a raw sensor format: put image_proc's debayer "
+            "node (image_proc::DebayerNode, output image_color) in front and feed its "
+            "image_color",
+        )
     if encoding not in _COLOUR_ENCODINGS:
         raise MessageError(
             "encoding",
@@ -69,12 +82,14 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     if dtype.itemsize == 2 and not msg.is_bigendian:
         dtype = dtype.newbyteorder("<")
     rows = data.reshape(height, step)[:, :row_bytes]
-    if conversion is not None:
-        # 8-bit only: OpenCV reads the padded rows in place and writes one new image.
+    if conversion is not None and dtype.itemsize == 1:
+        # OpenCV reads the padded rows in place and writes one new image.
         return cv2.cvtColor(rows.reshape(height, width, channels), conversion)
     pixels = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
     if pixels.dtype.byteorder not in ("=", "|"):
         pixels = pixels.astype(pixels.dtype.newbyteorder("="))
+    if conversion is not None:
+        return cv2.cvtColor(pixels, conversion)
     return pixels
 
 
@@ -218,17 +233,67 @@ def camera_intrinsics(msg: Any, rectified: bool) -> CameraIntrinsics:
         Cause ``distortion`` for non-zero ``D`` on a raw image, ``camera_info`` for an
         unusable one.
     """
-    if rectified:
-        return _pinhole(msg, "p", 4)
     d = np.asarray(msg.d, dtype=np.float64)
-    if d.size and (not np.isfinite(d).all() or np.any(d != 0.0)):
+    distorted = bool(d.size and (not np.isfinite(d).all() or np.any(d != 0.0)))
+    if rectified:
+        return _binned(msg, _pinhole(msg, "p", 4), distorted)
+    if distorted:
         raise MessageError(
             "distortion",
             f"camera_info has distortion ({msg.distortion_model}, D={d.tolist()}) but the "
             "reference is an undistorted render: feed the rectified image (image_proc's "
             "image_rect, e.g. image_topic:=image_rect) and set rectified_input:=true",
         )
-    return intrinsics_from_camera_info(msg)
+    return _binned(msg, intrinsics_from_camera_info(msg), False)
+
+
+def _binned(msg: Any, full: CameraIntrinsics, distorted_rectified: bool) -> CameraIntrinsics:
+    """The camera of the image actually sent: ``full`` (the calibrated full resolution)
+    cropped to ``roi`` and divided by ``binning_x/y``, as image_geometry's
+    PinholeCameraModel does (binning 0 means 1; an all-zero ROI is the full image).
+
+    Raises
+    ------
+    MessageError
+        Cause ``camera_info`` for an ROI outside the image, and for an ROI on a rectified
+        image of a distorted camera (its rectified ROI is not the raw one: not supported).
+    """
+    binning_x = int(getattr(msg, "binning_x", 0) or 1)
+    binning_y = int(getattr(msg, "binning_y", 0) or 1)
+    roi = getattr(msg, "roi", None)
+    x, y, width, height = (
+        (0, 0, 0, 0)
+        if roi is None
+        else (int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height))
+    )
+    has_roi = (x, y, width, height) != (0, 0, 0, 0)
+    if not has_roi and binning_x == binning_y == 1:
+        return full
+    if has_roi and distorted_rectified:
+        raise MessageError(
+            "camera_info",
+            "camera_info has an ROI and distortion with rectified_input: the rectified ROI "
+            "differs from the raw one and is not supported; send the full image",
+        )
+    if not has_roi:
+        width, height = full.width, full.height
+    if width <= 0 or height <= 0 or x + width > full.width or y + height > full.height:
+        raise MessageError(
+            "camera_info",
+            f"camera_info ROI {width}x{height}+{x}+{y} lies outside the "
+            f"{full.width}x{full.height} image",
+        )
+    try:
+        return CameraIntrinsics(
+            width=width // binning_x,
+            height=height // binning_y,
+            fx=full.fx / binning_x,
+            fy=full.fy / binning_y,
+            cx=(full.cx - x) / binning_x,
+            cy=(full.cy - y) / binning_y,
+        )
+    except ValueError as error:
+        raise MessageError("camera_info", f"camera_info binning/ROI is unusable: {error}") from None
 
 
 def fill_camera_info(msg: Any, intrinsics: CameraIntrinsics, frame_id: str = "") -> Any:

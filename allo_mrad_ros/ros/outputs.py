@@ -5,9 +5,17 @@
 ``~/result`` (DiagnosticArray) and ``~/regions`` (ImageMarker boxes) carry the image's header,
 so a flag can be matched to its image; ``~/reference/camera_info`` describes the 1/8-size
 reference. Every publisher accepts QoS overrides (``qos_overrides.<topic>.publisher.*``).
+
+``~/detections`` (vision_msgs/Detection2DArray: one detection per region, its box and an
+``anomaly`` hypothesis scored with the region's peak score) exists where vision_msgs is
+installed (every ROS distro; no pip wheel). :func:`detection_array` builds it from any class
+with vision_msgs' fields, so it is tested with a stand-in of the message definitions.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -28,6 +36,65 @@ from allo_mrad_ros.visualise import outline
 OVERLAY_COLOUR = (255, 40, 40)
 REGION_COLOUR = ColorRGBA(r=1.0, g=0.16, b=0.16, a=1.0)
 REGION_LINE_WIDTH = 2.0
+# class_id of every detection hypothesis.
+ANOMALY_CLASS = "anomaly"
+
+
+def vision_msgs_module() -> Any | None:
+    """``vision_msgs.msg`` where installed (a ROS distro), else None."""
+    try:
+        from vision_msgs import msg
+    except ImportError:
+        return None
+    return msg
+
+
+def region_peaks(
+    mask: np.ndarray, score: np.ndarray
+) -> list[tuple[tuple[int, int, int, int], float]]:
+    """``((x, y, width, height), peak score)`` of each 8-connected region of a mask."""
+    foreground = mask if mask.dtype == np.uint8 else (mask > 0).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(foreground, connectivity=8)
+    if count <= 1:
+        return []
+    peaks = np.full(count, -np.inf)
+    values = np.asarray(score, dtype=np.float64)
+    if values.shape == labels.shape:
+        inside = labels > 0  # the regions' pixels only: a few of a full-HD image's
+        np.maximum.at(peaks, labels[inside], values[inside])
+    else:  # no score map of the image's size: the region's score is unknown
+        peaks[:] = 0.0
+    return [
+        (tuple(int(v) for v in stats[i, :4]), float(peaks[i]) if np.isfinite(peaks[i]) else 0.0)
+        for i in range(1, count)
+    ]
+
+
+def detection_array(
+    msg: Any, header: object, regions: list[tuple[tuple[int, int, int, int], float]]
+) -> Any:
+    """A vision_msgs/Detection2DArray of ``regions``: per region a Detection2D with the image
+    header, the box (centre and size in pixels) and one ObjectHypothesisWithPose
+    (class ``anomaly``, the region's score). ``msg`` is the module of the message classes."""
+    detections = []
+    for index, ((x, y, w, h), score) in enumerate(regions):
+        detection = msg.Detection2D()
+        detection.header = header
+        detection.id = str(index)
+        detection.bbox.center.position.x = x + w / 2.0
+        detection.bbox.center.position.y = y + h / 2.0
+        detection.bbox.center.theta = 0.0
+        detection.bbox.size_x = float(w)
+        detection.bbox.size_y = float(h)
+        hypothesis = msg.ObjectHypothesisWithPose()
+        hypothesis.hypothesis.class_id = ANOMALY_CLASS
+        hypothesis.hypothesis.score = float(score)
+        detection.results = [hypothesis]
+        detections.append(detection)
+    array = msg.Detection2DArray()
+    array.header = header
+    array.detections = detections
+    return array
 
 
 def connected_boxes(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -55,13 +122,19 @@ def region_marker(header: object, boxes: list[tuple[int, int, int, int]]) -> Ima
 
 
 def result_status(
-    node_name: str, anomalous: bool, area: int, pixels: int, boxes: list, image_score: float
+    node_name: str,
+    anomalous: bool,
+    area: int,
+    pixels: int,
+    boxes: list,
+    image_score: float,
+    hardware_id: str = "",
 ) -> DiagnosticStatus:
     """The frame's result as a status: WARN when anomalous; area, image score and boxes as
-    values."""
+    values. ``hardware_id`` empty: the package's default."""
     status = DiagnosticStatus(
         name=f"{node_name}: result",
-        hardware_id=interface.HARDWARE_ID,
+        hardware_id=hardware_id or interface.HARDWARE_ID,
         level=DiagnosticStatus.WARN if anomalous else DiagnosticStatus.OK,
         message="anomalous" if anomalous else "clean",
     )
@@ -80,12 +153,18 @@ def result_status(
 class Outputs:
     """The node's output publishers; each builds its message only for a subscriber."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(
+        self,
+        node: Node,
+        hardware_id: str = "",
+        overriding: Callable[[], QoSOverridingOptions] = QoSOverridingOptions.with_default_policies,
+    ) -> None:
         self._node = node
-        overrides = QoSOverridingOptions.with_default_policies()
+        # The parameter; empty: each result names the image's frame_id, as /diagnostics does.
+        self._hardware_id = hardware_id
 
         def publisher(kind: type, topic: str, depth: int):
-            return node.create_publisher(kind, topic, depth, qos_overriding_options=overrides)
+            return node.create_publisher(kind, topic, depth, qos_overriding_options=overriding())
 
         self.score = publisher(Image, interface.SCORE_OUTPUT, 5)
         self.mask = publisher(Image, interface.MASK_OUTPUT, 5)
@@ -95,10 +174,18 @@ class Outputs:
         self.reference = publisher(Image, interface.REFERENCE_OUTPUT, 5)
         self.reference_info = publisher(CameraInfo, interface.REFERENCE_INFO_OUTPUT, 5)
         self.overlay = publisher(Image, interface.OVERLAY_OUTPUT, 5)
+        self._vision = vision_msgs_module()
+        self.detections = (
+            None
+            if self._vision is None
+            else publisher(self._vision.Detection2DArray, interface.DETECTIONS_OUTPUT, 10)
+        )
 
     def wanted(self, publish_reference: bool, publish_overlay: bool) -> bool:
         """Whether any output has a subscriber (if not, a frame need not be processed)."""
-        always = (self.mask, self.score, self.anomaly, self.result, self.regions)
+        always = [self.mask, self.score, self.anomaly, self.result, self.regions]
+        if self.detections is not None:
+            always.append(self.detections)
         if any(p.get_subscription_count() for p in always):
             return True
         if publish_reference and (
@@ -131,6 +218,9 @@ class Outputs:
         self.anomaly.publish(Bool(data=bool(result.anomalous)))
         if score_map and self.score.get_subscription_count():
             self.score.publish(fill(Image(), header, result.score, interface.SCORE_ENCODING))
+        if self.detections is not None and self.detections.get_subscription_count():
+            regions = region_peaks(result.mask, result.score)
+            self.detections.publish(detection_array(self._vision, header, regions))
         if self.result.get_subscription_count() or self.regions.get_subscription_count():
             boxes = connected_boxes(result.mask)
             if self.regions.get_subscription_count():
@@ -143,6 +233,7 @@ class Outputs:
                     result.mask.size,
                     boxes,
                     result.image_score,
+                    self._hardware_id or getattr(header, "frame_id", ""),
                 )
                 self.result.publish(DiagnosticArray(header=header, status=[status]))
         if publish_reference:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import array
 import difflib
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -172,7 +173,47 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
             1.0, _number("period of /diagnostics messages", 0.1, 60.0), True
         ),
         "input_timeout_s": NodeParameter(
-            2.0, _number("no image for this long: /diagnostics says STALE", 0.1, 3600.0), True
+            2.0,
+            _number(
+                "no image for this long while an output is subscribed: /diagnostics says ERROR",
+                0.1,
+                3600.0,
+            ),
+            True,
+        ),
+        "camera_info_tolerance_s": NodeParameter(
+            0.0,
+            _number(
+                "largest |camera_info stamp - image stamp| paired; 0: the exact stamp, as "
+                "image_transport's CameraSubscriber",
+                0.0,
+                10.0,
+            ),
+        ),
+        "expected_rate_hz": NodeParameter(
+            0.0,
+            _number(
+                "image rate the camera should deliver, checked in /diagnostics' input rate "
+                "status; 0: not checked",
+                0.0,
+                1000.0,
+            ),
+            True,
+        ),
+        "rate_tolerance": NodeParameter(
+            0.1,
+            _number("accepted relative deviation from expected_rate_hz", 0.0, 1.0),
+            True,
+        ),
+        "max_stamp_delay_s": NodeParameter(
+            1.0,
+            _number(
+                "largest accepted age of an image stamp on arrival (/diagnostics' input stamp "
+                "status)",
+                0.0,
+                3600.0,
+            ),
+            True,
         ),
         "hardware_id": NodeParameter(
             "", _text("hardware_id in /diagnostics; empty: the image's frame_id"), True
@@ -268,8 +309,48 @@ def unknown_parameters(given: Iterable[str], declared: Iterable[str]) -> list[st
     return warnings
 
 
-def check_params_files(argv: Sequence[str]) -> None:
-    """Check the ``--params-file`` files of ``--ros-args`` before rcl parses them.
+def params_files(argv: Sequence[str]) -> list[Path]:
+    """The ``--params-file`` paths of ``argv`` in order."""
+    arguments = list(argv)
+    return [
+        Path(arguments[index + 1])
+        for index, argument in enumerate(arguments[:-1])
+        if argument == "--params-file"
+    ]
+
+
+def _node_entries(document: dict, path: Path, prefix: str = "") -> list[str]:
+    """The node keys of a params file (namespaces nested or joined), each checked to hold a
+    ``ros__parameters`` mapping as rcl requires.
+
+    Raises
+    ------
+    ParameterError
+        For an entry without ``ros__parameters`` or with one that is not a mapping.
+    """
+    keys: list[str] = []
+    for key, value in document.items():
+        name = f"{prefix}/{str(key).strip('/')}" if prefix else str(key)
+        if isinstance(value, dict) and "ros__parameters" in value:
+            if not isinstance(value["ros__parameters"], dict):
+                raise ParameterError(
+                    f"params file {path}: {name}: ros__parameters must map parameter names "
+                    f"to values, got {type(value['ros__parameters']).__name__}"
+                )
+            keys.append(name)
+        elif isinstance(value, dict) and value and all(isinstance(v, dict) for v in value.values()):
+            keys += _node_entries(value, path, name)  # a namespace level
+        else:
+            raise ParameterError(
+                f"params file {path}: node entry {name!r} has no ros__parameters (write "
+                f"'{name}:' then '  ros__parameters:' then the parameters)"
+            )
+    return keys
+
+
+def check_params_files(argv: Sequence[str]) -> dict[Path, list[str]]:
+    """Check the ``--params-file`` files of ``--ros-args`` before rcl parses them; return
+    each file's node keys.
 
     rcl reports a missing or malformed file with a log line of its own and an exception
     carrying C source positions; this says it in one line.
@@ -279,11 +360,8 @@ def check_params_files(argv: Sequence[str]) -> None:
     ParameterError
         Naming the file and the problem.
     """
-    arguments = list(argv)
-    for index, argument in enumerate(arguments[:-1]):
-        if argument != "--params-file":
-            continue
-        path = Path(arguments[index + 1])
+    found: dict[Path, list[str]] = {}
+    for path in params_files(argv):
         try:
             document = yaml.safe_load(path.read_text(encoding="utf-8"))
         except OSError as error:
@@ -295,6 +373,80 @@ def check_params_files(argv: Sequence[str]) -> None:
                 f"params file {path}: must map node names to ros__parameters, got "
                 f"{type(document).__name__}"
             )
+        found[path] = _node_entries(document, path)
+    return found
+
+
+def check_command_line(argv: Sequence[str]) -> None:
+    """Refuse ``-p name:=`` (no value) and ``-p name`` (no ``:=``) in ``--ros-args``, which rcl
+    rejects with a traceback.
+
+    Raises
+    ------
+    ParameterError
+        Naming the argument.
+    """
+    in_ros_args = False
+    arguments = list(argv)
+    for index, argument in enumerate(arguments):
+        if argument == "--ros-args":
+            in_ros_args = True
+        elif argument == "--":
+            in_ros_args = False
+        elif in_ros_args and argument in ("-p", "--param"):
+            given = arguments[index + 1] if index + 1 < len(arguments) else ""
+            name, separator, text = given.partition(":=")
+            if not separator or not name:
+                raise ParameterError(f"{argument} {given!r}: expected name:=value")
+            if not text.strip():
+                raise ParameterError(
+                    f"{argument} {name}:= has no value: give {name}:=<value> (an empty string: "
+                    f"{name}:=\"''\")"
+                )
+
+
+def _key_pattern(key: str) -> re.Pattern[str]:
+    """rcl's node-key wildcards: ``/**`` any namespaces, ``*`` one name token."""
+    key = key if key.startswith("/") else "/" + key
+    parts = []
+    for token in key.strip("/").split("/"):
+        parts.append(
+            "(/[^/]+)*" if token == "**" else "/" + re.escape(token).replace(r"\*", "[^/]*")
+        )
+    return re.compile("".join(parts) + "$")
+
+
+def keys_for_other_nodes(files: dict[Path, list[str]], node_name: str) -> list[str]:
+    """One warning per params file none of whose node keys matches the fully qualified
+    ``node_name``: rcl ignores its values without a word."""
+    warnings = []
+    for path, keys in files.items():
+        if keys and not any(_key_pattern(key).match(node_name) for key in keys):
+            warnings.append(
+                f"params file {path} sets parameters for {', '.join(keys)}, not for this node "
+                f"({node_name}): its values are ignored; use '{node_name}:' or '/**:'"
+            )
+    return warnings
+
+
+def check_mesh(path: str) -> None:
+    """Load the station model once at start (empty: the package's model, not checked).
+
+    Raises
+    ------
+    ParameterError
+        For a missing, empty or unreadable file, or one without triangles.
+    """
+    if not path:
+        return
+    if not Path(path).is_file():
+        raise ParameterError(f"mesh must be an existing model file, got {path!r}")
+    from allo_mrad_ros.render.model import load_model
+
+    try:
+        load_model(path)
+    except Exception as error:  # trimesh raises many kinds for garbage input
+        raise ParameterError(f"mesh {path!r} is not a usable model: {one_line(error)}") from None
 
 
 def detector_params_from(values: dict[str, Any]) -> MradParams:
@@ -334,6 +486,10 @@ class NodeConfig:
     input_timeout_s: float
     hardware_id: str
     pipeline: PipelineConfig
+    camera_info_tolerance_s: float = 0.0
+    expected_rate_hz: float = 0.0
+    rate_tolerance: float = 0.1
+    max_stamp_delay_s: float = 1.0
 
 
 def node_config_from(values: dict[str, Any]) -> NodeConfig:
@@ -371,4 +527,8 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         pipeline=PipelineConfig(
             render, detector_params_from(values), array_backend=values["array_backend"]
         ),
+        camera_info_tolerance_s=float(values["camera_info_tolerance_s"]),
+        expected_rate_hz=float(values["expected_rate_hz"]),
+        rate_tolerance=float(values["rate_tolerance"]),
+        max_stamp_delay_s=float(values["max_stamp_delay_s"]),
     )

@@ -79,13 +79,27 @@ class PoseSource:
 
             self._tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, node)
-        if kind == "topic":
-            if not has_tf:
-                self._logger.info(
-                    f"tf2_ros is not installed: camera poses come from {pose_topic} "
-                    "(geometry_msgs/PoseStamped, pose_source 'topic')"
-                )
-            node.create_subscription(PoseStamped, interface.POSE_INPUT, self._on_pose, state_qos)
+        if kind == "topic" and not has_tf:
+            self._logger.info(
+                f"tf2_ros is not installed: camera poses come from {pose_topic} "
+                "(geometry_msgs/PoseStamped, pose_source 'topic')"
+            )
+        self._node, self._state_qos = node, state_qos
+        self._subscription = None
+        self.set_active(True)
+
+    def set_active(self, active: bool) -> None:
+        """Subscribe to the pose topic (``topic`` source) or not: the node drops it while no
+        output is subscribed. TF keeps listening (its buffer needs the history)."""
+        if self.kind != "topic":
+            return
+        if active and self._subscription is None:
+            self._subscription = self._node.create_subscription(
+                PoseStamped, interface.POSE_INPUT, self._on_pose, self._state_qos
+            )
+        elif not active and self._subscription is not None:
+            self._node.destroy_subscription(self._subscription)
+            self._subscription = None
 
     def station_from(self, header: Any, what: str) -> np.ndarray:
         """``T_station_frame`` for ``header.frame_id`` at its stamp (identity for the station).
@@ -147,9 +161,15 @@ class PoseSource:
         arrive: on a loaded machine the pose callback can run well after the image's.
         """
         if self.kind == "tf":
-            return self._transform(
-                self._camera_frame or header.frame_id, header.stamp, tf_timeout_s
-            )
+            frame_id = self._camera_frame or str(header.frame_id)
+            if not frame_id or frame_id.startswith("/"):
+                why = "is empty" if not frame_id else "starts with '/', which tf2 refuses"
+                raise MessageError(
+                    "frame_id",
+                    f"image frame_id {frame_id!r} {why}: no camera pose from TF (fix the "
+                    "camera driver's frame_id or set camera_frame); frame skipped",
+                )
+            return self._transform(frame_id, header.stamp, tf_timeout_s)
         stamp_ns = messages.stamp_to_ns(header.stamp)
         # Topics arrive in no guaranteed order: give the pose of this stamp a moment,
         # as tf2's lookup with a timeout does.
@@ -166,6 +186,19 @@ class PoseSource:
         from rclpy.duration import Duration
         from rclpy.time import Time
 
+        # TransformException is the base of every tf2 lookup error (InvalidArgumentException
+        # for a '/'-prefixed or empty frame id included).
+        failures = tuple(
+            getattr(tf2_ros, name)
+            for name in (
+                "TransformException",
+                "LookupException",
+                "ConnectivityException",
+                "ExtrapolationException",
+                "InvalidArgumentException",
+            )
+            if hasattr(tf2_ros, name)
+        )
         try:
             transform = self._tf_buffer.lookup_transform(
                 self._station_frame,
@@ -173,11 +206,7 @@ class PoseSource:
                 Time.from_msg(stamp),
                 timeout=Duration(seconds=timeout_s),
             )
-        except (
-            tf2_ros.LookupException,
-            tf2_ros.ConnectivityException,
-            tf2_ros.ExtrapolationException,
-        ) as error:
+        except failures as error:
             self._logger.debug(f"TF lookup failed: {error}")
             return None
         return messages.transform_to_matrix(transform.transform)

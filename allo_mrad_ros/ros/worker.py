@@ -59,6 +59,8 @@ class Snapshot:
     sun_direction: np.ndarray
     sun_strength: float
     bodies: tuple
+    # Why the frame's camera is unknown (no camera_info of its stamp), else None.
+    camera_problem: MessageError | None = None
 
 
 @dataclass(frozen=True)
@@ -91,7 +93,8 @@ class ProcessingWorker:
     slot : LatestSlot
         Newest ``(Image, monotonic receive time)``; older unprocessed ones are dropped.
     snapshot : callable
-        Returns the current :class:`Snapshot` (taken under the node's lock).
+        ``(image message or None) -> Snapshot``: the node state for that image (its
+        camera_info paired by stamp) or, for None, the latest.
     view_of : callable
         ``(image message, snapshot) -> View or None``: pose and lighting at the image stamp
         (None when no pose is known; the callee counts and logs that).
@@ -112,7 +115,7 @@ class ProcessingWorker:
     def __init__(
         self,
         slot: LatestSlot,
-        snapshot: Callable[[], Snapshot],
+        snapshot: Callable[[Any], Snapshot],
         view_of: Callable[[Any, Snapshot], View | None],
         publish: Callable[[Any, np.ndarray, ProcessedFrame, bool], None],
         diagnostics: Diagnostics,
@@ -172,7 +175,7 @@ class ProcessingWorker:
                 if not self._running:
                     break
                 try:
-                    state = self._snapshot()
+                    state = self._snapshot(None if item is None else item[0])
                     pipeline, built_for = self._pipeline_for(state, pipeline, built_for)
                     rendered = None if item is None else self._render(item, state, pipeline)
                     if rendered is not None and self.pipelined:
@@ -265,6 +268,9 @@ class ProcessingWorker:
         stage_start = time.perf_counter()
         msg, received = item
         report = self._diagnostics.report
+        if state.camera_problem is not None:
+            report(state.camera_problem)
+            return None
         if pipeline is None:
             report(
                 MessageError(

@@ -77,10 +77,10 @@ def test_object_absent_from_the_model_is_masked_and_flagged(node_process, ros_pe
     hits = np.count_nonzero((mask > 0) & truth)
     # Hysteresis growth keeps the blur's rim around the object.
     assert hits >= 0.5 * np.count_nonzero(truth) and hits >= 0.7 * np.count_nonzero(mask)
-    assert mask_msg.header.frame_id == "arm_camera_optical"
+    assert mask_msg.header.frame_id == "arm_camera_optical_frame"
     assert mask_msg.encoding == "mono8" and set(np.unique(mask)) <= {0, 255}
     score_msg = ros_peer.received["score"][T0 + 1]
-    assert score_msg.encoding == "32FC1" and score_msg.header.frame_id == "arm_camera_optical"
+    assert score_msg.encoding == "32FC1" and score_msg.header.frame_id == "arm_camera_optical_frame"
     # ~/anomaly is its own topic: its message may arrive after the mask's and the score's.
     assert ros_peer.wait_for(lambda: bool(ros_peer.anomaly_flags), 5.0)
     assert ros_peer.anomaly_flags[-1] is True
@@ -117,7 +117,7 @@ def malformed_images(clean):
     unknown.encoding = "yuv422_weird"
     small = fill_image(Image(), None, clean[:180, :320], "rgb8")
     for msg in (wrong_step, unknown, small):
-        msg.header.frame_id = "arm_camera_optical"
+        msg.header.frame_id = "arm_camera_optical_frame"
     return {"step": wrong_step, "encoding": unknown, "size": small}
 
 

@@ -5,6 +5,7 @@ import rclpy
 from rclpy.parameter import Parameter
 
 from allo_mrad_ros.ros.node import MradDetectorNode
+from allo_mrad_ros.ros.parameters import ParameterError
 
 pytestmark = pytest.mark.ros
 
@@ -56,7 +57,7 @@ def test_valid_change_is_applied(node):
     assert node._config.pipeline.params.tolerance == 75.0
 
 
-def test_tf_requested_without_tf2_falls_back_to_topic():
+def test_tf_requested_without_tf2_refuses_to_start():
     pytest.importorskip("rclpy")
     try:
         import tf2_ros  # noqa: F401
@@ -66,9 +67,8 @@ def test_tf_requested_without_tf2_falls_back_to_topic():
         pass
     rclpy.init()
     try:
-        created = MradDetectorNode(parameter_overrides=[Parameter("pose_source", value="tf")])
-        assert created._pose_source.kind == "topic"
-        created.destroy_node()
+        with pytest.raises(ParameterError, match="pose_source is 'tf' but the tf2_ros"):
+            MradDetectorNode(parameter_overrides=[Parameter("pose_source", value="tf")])
     finally:
         rclpy.shutdown()
 
@@ -91,6 +91,10 @@ def test_qos_overrides_reach_subscriptions_and_publishers():
             ]
         )
         try:
+            # Inputs are subscribed only while an output has a subscriber; the overrides
+            # declared at start apply each time they are subscribed again.
+            assert not node._input_subscriptions
+            node._subscribe_inputs()
             image = next(s for s in node.subscriptions if s.topic_name == "/arm_camera/image_raw")
             assert image.qos_profile.reliability == ReliabilityPolicy.RELIABLE
             assert image.qos_profile.depth == 3

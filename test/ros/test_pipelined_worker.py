@@ -122,7 +122,7 @@ class Run:
         self.published = []  # (stamp ns, monotonic publish time)
         self.worker = ProcessingWorker(
             self.slot,
-            lambda: Snapshot(self.camera, CONFIG, np.ones(3), 1.0, ()),
+            lambda _msg=None: Snapshot(self.camera, CONFIG, np.ones(3), 1.0, ()),
             lambda msg, state: "view",
             lambda msg, image, frame, score_map: (
                 self.published.append((stamp_to_ns(msg.header.stamp), time.monotonic()))

@@ -44,7 +44,7 @@ class FakeTfModule(types.ModuleType):
         class Buffer:
             def lookup_transform(self, target, source, time, timeout):
                 module.calls.append((target, source, timeout.nanoseconds / 1e9))
-                if source not in ("world", "arm_camera_optical"):
+                if source not in ("world", "arm_camera_optical_frame"):
                     raise module.LookupException(f"no frame {source}")
                 msg = TransformStamped()
                 msg.transform.translation.x = 10.0
@@ -122,10 +122,10 @@ def test_tf_lookup_waits_tf_timeout_s_not_pose_tolerance_s(node, monkeypatch):
     tf = FakeTfModule()
     monkeypatch.setitem(sys.modules, "tf2_ros", tf)
     poses = source(node, "tf", [])
-    header = Header(frame_id="arm_camera_optical")
+    header = Header(frame_id="arm_camera_optical_frame")
     pose = poses.lookup(header, 0.05, 0.75)
     assert pose is not None and pose[0, 3] == 10.0
-    assert tf.calls[-1] == ("station", "arm_camera_optical", 0.75)
+    assert tf.calls[-1] == ("station", "arm_camera_optical_frame", 0.75)
 
 
 def test_a_topic_pose_arriving_after_the_image_is_waited_for_up_to_tf_timeout_s(node):

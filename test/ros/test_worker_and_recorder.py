@@ -59,7 +59,7 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monk
     state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
     worker = ProcessingWorker(
         slot,
-        lambda: state,
+        lambda _msg=None: state,
         lambda msg, s: "view",
         lambda *a: published.append(a),
         Counting(),
@@ -91,7 +91,9 @@ def test_the_worker_survives_an_unexpected_exception_and_reports_it(monkeypatch,
     diagnostics = Counting()
     slot = LatestSlot()
     state = Snapshot(CAMERA, None, np.ones(3), 1.0, ())
-    worker = ProcessingWorker(slot, lambda: state, None, None, diagnostics, Quiet(), pipelined)
+    worker = ProcessingWorker(
+        slot, lambda _msg=None: state, None, None, diagnostics, Quiet(), pipelined
+    )
     try:
         slot.put(("not a message", 0.0))
         slot.put(("another", 0.0))

@@ -142,13 +142,16 @@ def run_node(work: Path, quick: bool, only: str | None, jobs: int) -> list[Outco
     import rclpy
     from sweep_node import Live, run_case, run_param, run_start
     from sweep_node_cases import param_cases, run_cases, start_cases
+    from sweep_node_deploy_cases import deploy_run_cases, deploy_start_cases
 
     work.mkdir(parents=True, exist_ok=True)
     outcomes: list[Outcome] = []
-    starts = [c for c in selected(start_cases(work), quick, None) if _wanted(only, "node start", c)]
+    every_start = start_cases(work) + deploy_start_cases(work)
+    starts = [c for c in selected(every_start, quick, None) if _wanted(only, "node start", c)]
     with ThreadPoolExecutor(jobs) as pool:
         outcomes += list(pool.map(run_start, starts))
-    running = [c for c in selected(run_cases(), quick, None) if _wanted(only, "node running", c)]
+    every_run = run_cases() + deploy_run_cases()
+    running = [c for c in selected(every_run, quick, None) if _wanted(only, "node running", c)]
     params = [
         c for c in selected(param_cases(), quick, None) if _wanted(only, "node parameter change", c)
     ]

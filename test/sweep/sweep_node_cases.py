@@ -400,6 +400,8 @@ def _header(frame_id: str):
 
 
 def stamp_zero(live: Live, stamp: int) -> None:
+    live.feed.pub_info.publish(live.feed.camera_info())  # paired by stamp: its own, 0
+    live.feed.spin(0.1)
     msg = _image(live, 0)
     live.feed.pub_image.publish(msg)  # stamp 0: no pose was published near it
 

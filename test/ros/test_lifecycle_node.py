@@ -1,0 +1,63 @@
+"""The managed variant: configure builds, activate starts processing, cleanup removes."""
+
+from __future__ import annotations
+
+import pytest
+import rclpy
+from lifecycle_msgs.msg import State
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+
+from allo_mrad_ros.ros.lifecycle import MradDetectorLifecycleNode
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def ros():
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+def _topics(node) -> set[str]:
+    return {s.topic_name for s in node.subscriptions} | {p.topic_name for p in node.publishers}
+
+
+def test_configure_builds_activate_starts_and_cleanup_removes(ros):
+    node = MradDetectorLifecycleNode(parameter_overrides=[Parameter("pose_source", value="topic")])
+    try:
+        assert node._worker is None and "/mrad_detector/mask" not in _topics(node)
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node._state_machine.current_state[0] == State.PRIMARY_STATE_INACTIVE
+        assert node._worker is not None and node._worker.is_alive()
+        assert "/mrad_detector/mask" in _topics(node)
+        assert node._input_timer is None  # inactive: no input is watched or subscribed
+        assert "/arm_camera/image_raw" not in _topics(node)
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        assert node._input_timer is not None
+        assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
+        assert node._input_timer is None and not node._input_subscriptions
+        worker = node._worker
+        assert node.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
+        assert not worker.is_alive() and node._worker is None
+        assert "/mrad_detector/mask" not in _topics(node)
+    finally:
+        node.destroy_node()
+
+
+def test_a_bad_mesh_fails_configure_with_one_line(ros, tmp_path, capfd):
+    mesh = tmp_path / "station.glb"
+    mesh.write_bytes(b"")
+    node = MradDetectorLifecycleNode(
+        parameter_overrides=[
+            Parameter("pose_source", value="topic"),
+            Parameter("mesh", value=str(mesh)),
+        ]
+    )
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+        assert "configure failed: mesh" in capfd.readouterr().err
+        assert "/mrad_detector/mask" not in _topics(node)
+    finally:
+        node.destroy_node()
