@@ -221,6 +221,7 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
             str(bag_dir),
             "--out",
             str(offline_dir),
+            "--overwrite",
             "--quiet",
         ],
         logs / "evaluate.log",

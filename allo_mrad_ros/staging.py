@@ -52,30 +52,12 @@ def remove_stale(out: Path) -> list[Path]:
     for entry in out.parent.iterdir():
         match = _LEFTOVER.match(entry.name)
         if match and match["name"] == out.name and not _alive(int(match["pid"])):
-            shutil.rmtree(entry, ignore_errors=True)
+            try:
+                remove_path(entry)
+            except OSError:
+                continue
             removed.append(entry)
     return removed
-
-
-def refuse_overlap(out: str | PathLike[str], *inputs: str | PathLike[str] | None) -> None:
-    """Refuse an output folder that is, holds or lies inside one of the inputs: putting it in
-    place would delete the data it is made from.
-
-    Raises
-    ------
-    StagingError
-        Naming the output and the input.
-    """
-    target = Path(out).resolve()
-    for source in inputs:
-        if source is None:
-            continue
-        source = Path(source).resolve()
-        if target == source or source.is_relative_to(target) or target.is_relative_to(source):
-            raise StagingError(
-                f"{out}: the output would replace or sit inside the input {source}; "
-                "choose another output folder"
-            )
 
 
 def prepare_staging(out: Path) -> Path:
@@ -106,15 +88,29 @@ def put_in_place(built: Path, out: Path) -> None:
         If a rename fails; ``out`` is then either the old or the new complete folder.
     """
     try:
-        if out.exists():
+        if os.path.lexists(out):
             trash = out.parent / f".{out.name}.old-{os.getpid()}"
             out.rename(trash)
             built.rename(out)
-            shutil.rmtree(trash, ignore_errors=True)
+            remove_path(trash)
         else:
             built.rename(out)
     except OSError as error:
         raise StagingError(f"{out}: cannot put the output in place: {error}") from None
+
+
+def remove_path(path: Path) -> None:
+    """Remove a file, a symbolic link (not what it points to) or a folder tree.
+
+    Raises
+    ------
+    OSError
+        If it cannot be removed.
+    """
+    if path.is_symlink() or not path.is_dir():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path)
 
 
 @contextmanager

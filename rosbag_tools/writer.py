@@ -35,8 +35,8 @@ from allo_mrad_ros.staging import (
     interrupts_held,
     prepare_staging,
     put_in_place,
-    refuse_overlap,
 )
+from allo_mrad_ros.targets import BAG, check_target
 from rosbag_tools.bag_meta import (
     BAG_FORMAT,
     KEY_FORMAT,
@@ -242,7 +242,7 @@ def write_bag(
         Also write ``/tf_static`` with an identity transform from this frame to the station
         frame, once at the first stamp.
     overwrite : bool
-        Replace an existing ``out`` (only after the new bag is complete).
+        Replace an existing bag at ``out`` (only after the new bag is complete).
     progress : bool
         Show a progress bar on stderr.
 
@@ -253,17 +253,16 @@ def write_bag(
     Raises
     ------
     BagWriteError
-        For an invalid option, an existing output, or an invalid sequence (the message names
-        the file, row and column); no bag is left under ``out`` then.
+        For an invalid option or an invalid sequence (the message names the file, row and
+        column); no bag is left under ``out`` then.
+    TargetError
+        For an output the rule of :mod:`allo_mrad_ros.targets` refuses: an existing bag
+        without ``overwrite``, a folder of other files, a file, the working folder, ...
     """
     _check_options(storage, distro, static_parent)
+    root = sequence.root if isinstance(sequence, Sequence) else sequence
+    check_target(out, BAG, overwrite=overwrite, inputs=(root,))
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise BagWriteError(f"{out}: output exists already; pass --overwrite to replace it")
-    try:
-        refuse_overlap(out, sequence.root if isinstance(sequence, Sequence) else sequence)
-    except StagingError as error:
-        raise BagWriteError(str(error)) from None
     try:
         if not isinstance(sequence, Sequence):
             sequence = read_sequence(sequence, check_images=True)

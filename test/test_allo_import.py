@@ -313,7 +313,7 @@ def test_main_import(tmp_path: Path, split_dir: Path, capsys: pytest.CaptureFixt
     assert main_import([str(split_dir), "--out", str(out), "--quiet", "--validate"]) == 0
     assert "6 frames (4 normal, 2 anomalous)" in capsys.readouterr().out
     assert len(read_sequence(out)) == 6
-    assert main_import([str(split_dir), "--out", str(out), "--quiet"]) == 1
+    assert main_import([str(split_dir), "--out", str(out), "--quiet"]) == 2
     assert "already holds a sequence" in capsys.readouterr().err
     assert main_import([str(split_dir), "--out", str(out), "--overwrite", "--split", "test"]) == 0
 

@@ -21,6 +21,7 @@ from rosbags.highlevel import AnyReader
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence import FRAMES_FILE, SequenceMeta, SequenceWriter, read_sequence
+from allo_mrad_ros.targets import TargetError
 from rosbag_tools.bag_meta import decode_splits, encode_splits, file_sha256
 from rosbag_tools.cli import main
 from rosbag_tools.info import InfoError, bag_info, format_info
@@ -304,7 +305,7 @@ def test_existing_bag_is_kept_unless_overwritten_and_survives_a_failed_overwrite
     out = tmp_path / "bag"
     write_bag(sequence.root, out, splits=["test"])
     before = sorted(p.name for p in out.iterdir())
-    with pytest.raises(BagWriteError, match="exists already"):
+    with pytest.raises(TargetError, match="already holds a bag; use --overwrite"):
         write_bag(sequence.root, out)
     root, named = _corrupt_copy(sequence, tmp_path, "truncated png")
     with pytest.raises(BagWriteError, match=named):
