@@ -54,7 +54,7 @@ from .sequence import (
     read_sequence,
     validate_sequence,
 )
-from .staging import signals_as_interrupt, staged_folder, staging_path
+from .staging import hold_point, signals_as_interrupt, staged_folder, staging_path
 from .targets import SEQUENCE, TargetError, check_target, output_path
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
@@ -217,6 +217,7 @@ def import_allo(
                 )
             except SequenceError as error:
                 raise error.located(file=item.image) from None
+            hold_point("import-frame")
     return validate_sequence(out, decode_images=True) if validate else read_sequence(out)
 
 

@@ -32,6 +32,7 @@ from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
 from allo_mrad_ros.staging import (
     StagingError,
+    hold_point,
     interrupts_held,
     prepare_staging,
     put_in_place,
@@ -368,4 +369,5 @@ def _write(
                 writer.write(connections[topic], frame.stamp_ns, data)
                 digests.add(topic, data)
                 counts[topic] = counts.get(topic, 0) + 1
+            hold_point("bag-frame")
         writer.set_custom_data(KEY_MESSAGE_CRC32, digests.custom_data())
