@@ -50,6 +50,7 @@ from rosbag_tools.bag_meta import (
     add_file_digests,
     encode_splits,
     file_sha256,
+    set_metadata_version,
 )
 from rosbag_tools.integrity import KEY_MESSAGE_CRC32, MessageDigests, add_chunk_crcs
 from rosbag_tools.message_factory import MessageFactory
@@ -62,6 +63,7 @@ from rosbag_tools.topics import (
     IMAGE,
     MARKER_ARRAY,
     POSE_STAMPED,
+    RECORDER_VERSIONS,
     STRING,
     TF_MESSAGE,
     VECTOR3_STAMPED,
@@ -290,6 +292,8 @@ def write_bag(
             progress=progress,
             final=out,
         )
+        if RECORDER_VERSIONS[distro] < DISTROS[distro][1]:
+            set_metadata_version(staging / out.name, RECORDER_VERSIONS[distro])
         for storage_file in (staging / out.name).glob("*.mcap"):
             add_chunk_crcs(storage_file)
         add_file_digests(staging / out.name)
