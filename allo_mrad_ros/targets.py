@@ -64,8 +64,17 @@ def _holds_bag(folder: Path) -> bool:
     return _only(folder, allowed, "metadata.yaml")
 
 
+_SEQUENCE_FILES = frozenset({"sequence.yaml", "frames.csv", "generation.json"})
+_SEQUENCE_FOLDERS = frozenset({"train", "val", "test", "meshes"})
+
+
 def _holds_sequence(folder: Path) -> bool:
-    return (folder / "sequence.yaml").is_file() or (folder / "frames.csv").is_file()
+    def allowed(name: str) -> bool:
+        path = folder / name
+        kinds = _SEQUENCE_FOLDERS if path.is_dir() and not path.is_symlink() else _SEQUENCE_FILES
+        return name in kinds
+
+    return _only(folder, allowed, "frames.csv") or _only(folder, allowed, "sequence.yaml")
 
 
 EVALUATION_REPORT = OutputKind(

@@ -6,6 +6,7 @@ with one line naming the path, exit status 2, and nothing is touched or left beh
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -206,3 +207,12 @@ def test_staged_folder_replacing_a_file_or_link_leaves_nothing_behind(tmp_path, 
         (staging / "new.txt").write_text("new")
     assert (out / "new.txt").read_text() == "new"
     assert hidden(tmp_path) == []
+
+
+def test_a_sequence_with_other_files_beside_it_is_not_replaced(sources, tmp_path, capsys):
+    sequence = tmp_path / "seq"
+    shutil.copytree(sources["seq"], sequence)
+    (sequence / "notes.txt").write_text("mine")
+    status = exit_status(synth_main, [*SMOKE, "--out", str(sequence), "--overwrite"])
+    assert "not a sequence" in refused(capsys, status, str(sequence))
+    assert (sequence / "notes.txt").read_text() == "mine"
