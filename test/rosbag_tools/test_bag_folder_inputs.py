@@ -20,6 +20,8 @@ def bag(tmp_path_factory):
 
 @pytest.mark.parametrize("command", [["info"], ["play", "--delay", "0"], ["evaluate"]])
 def test_a_bag_folder_without_metadata_is_named_as_such(bag, tmp_path, capsys, command):
+    if command[0] == "play":
+        pytest.importorskip("rclpy", reason="allo-bag play needs rclpy")
     copy = shutil.copytree(bag, tmp_path / "bag")
     (copy / "metadata.yaml").unlink()
     argv = [command[0], str(copy), *command[1:]]
