@@ -46,17 +46,16 @@ from .camera import ALLO_INTRINSICS, CameraIntrinsics
 from .ephemeris import EPOCH_2030, EphemerisError
 from .errors import AlloError
 from .options import keyword_options
+from .sequence import Sequence as AlloSequence
 from .sequence import (
-    FRAMES_FILE,
-    META_FILE,
     SequenceError,
     SequenceMeta,
     SequenceWriter,
     read_sequence,
     validate_sequence,
 )
-from .sequence import Sequence as AlloSequence
-from .staging import signals_as_interrupt, staged_folder, staging_path
+from .staging import hold_point, signals_as_interrupt, staged_folder, staging_path
+from .targets import SEQUENCE, TargetError, check_target, output_path
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
 """ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
@@ -218,6 +217,7 @@ def import_allo(
                 )
             except SequenceError as error:
                 raise error.located(file=item.image) from None
+            hold_point("import-frame")
     return validate_sequence(out, decode_images=True) if validate else read_sequence(out)
 
 
@@ -245,7 +245,7 @@ def add_import_parser(subparsers: argparse._SubParsersAction) -> argparse.Argume
         "in place unless --copy is given.",
     )
     parser.add_argument("split_dir", type=Path, help="ALLO split folder, e.g. ALLO/test")
-    parser.add_argument("--out", type=Path, required=True, help="output sequence folder")
+    parser.add_argument("--out", type=output_path, required=True, help="output sequence folder")
     parser.add_argument(
         "--split",
         choices=ALLO_SPLITS,
@@ -268,28 +268,6 @@ def add_import_parser(subparsers: argparse._SubParsersAction) -> argparse.Argume
     return parser
 
 
-def refuse_existing(out: Path, overwrite: bool) -> None:
-    """Check that a command may build ``out`` aside and rename it into place.
-
-    Raises
-    ------
-    SequenceError
-        If ``out`` holds a sequence and ``overwrite`` is off, or holds anything else (which
-        replacing the folder would delete).
-    """
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise SequenceError(f"{out}: exists and is not a folder")
-    holds_sequence = (out / META_FILE).is_file() or (out / FRAMES_FILE).is_file()
-    if holds_sequence and not overwrite:
-        raise SequenceError(
-            f"{out}: folder already holds a sequence; use --overwrite to replace it"
-        )
-    if not holds_sequence and any(out.iterdir()):
-        raise SequenceError(f"{out}: folder holds files that are not a sequence; choose another")
-
-
 def _run_import(args: argparse.Namespace) -> int:
     try:
         options = keyword_options(args, "copy", "rate_hz", "name", "validate")
@@ -299,10 +277,13 @@ def _run_import(args: argparse.Namespace) -> int:
                 args.split_dir, args.out, args.split, overwrite=args.overwrite, **options
             )
         else:
-            refuse_existing(args.out, args.overwrite)
+            check_target(args.out, SEQUENCE, overwrite=args.overwrite)
             with staged_folder(args.out) as staging:
                 import_allo(args.split_dir, staging, args.split, overwrite=True, **options)
             sequence = read_sequence(args.out)
+    except TargetError as error:
+        print(f"import-allo: error: {error}", file=sys.stderr)
+        return 2
     except AlloError as error:
         # Name the folder asked for, not the hidden one it was built in.
         message = str(error).replace(str(staging_path(args.out)), str(args.out))

@@ -315,7 +315,15 @@ def evaluate_offline(paths: DemoPaths) -> dict:
     """Step 5: ``allo-bag evaluate`` MRAD, PAD and RXD on the same bag; its metrics.json."""
     _step(5, "offline evaluation of MRAD, PAD and RXD on the same bag (allo-bag evaluate)")
     _run(
-        _module("rosbag_tools", "evaluate", str(paths.bag), "--out", str(paths.offline), "--quiet"),
+        _module(
+            "rosbag_tools",
+            "evaluate",
+            str(paths.bag),
+            "--out",
+            str(paths.offline),
+            "--overwrite",
+            "--quiet",
+        ),
         paths.logs / "evaluate.log",
         "allo-bag evaluate",
     )

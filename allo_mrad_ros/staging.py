@@ -15,12 +15,19 @@ import shutil
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
 
 from allo_mrad_ros.errors import BackendError
+
+HOLD_AT = "ALLO_HOLD_AT"
+"""Environment variable: the name of the :func:`hold_point` at which to hold the process."""
+HOLD_MARKER = "ALLO_HOLD_MARKER"
+"""Environment variable: a file created when the process reaches the held point."""
+HOLD_SECONDS = 60.0
 
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)$")
 
@@ -52,30 +59,12 @@ def remove_stale(out: Path) -> list[Path]:
     for entry in out.parent.iterdir():
         match = _LEFTOVER.match(entry.name)
         if match and match["name"] == out.name and not _alive(int(match["pid"])):
-            shutil.rmtree(entry, ignore_errors=True)
+            try:
+                remove_path(entry)
+            except OSError:
+                continue
             removed.append(entry)
     return removed
-
-
-def refuse_overlap(out: str | PathLike[str], *inputs: str | PathLike[str] | None) -> None:
-    """Refuse an output folder that is, holds or lies inside one of the inputs: putting it in
-    place would delete the data it is made from.
-
-    Raises
-    ------
-    StagingError
-        Naming the output and the input.
-    """
-    target = Path(out).resolve()
-    for source in inputs:
-        if source is None:
-            continue
-        source = Path(source).resolve()
-        if target == source or source.is_relative_to(target) or target.is_relative_to(source):
-            raise StagingError(
-                f"{out}: the output would replace or sit inside the input {source}; "
-                "choose another output folder"
-            )
 
 
 def prepare_staging(out: Path) -> Path:
@@ -106,15 +95,29 @@ def put_in_place(built: Path, out: Path) -> None:
         If a rename fails; ``out`` is then either the old or the new complete folder.
     """
     try:
-        if out.exists():
+        if os.path.lexists(out):
             trash = out.parent / f".{out.name}.old-{os.getpid()}"
             out.rename(trash)
             built.rename(out)
-            shutil.rmtree(trash, ignore_errors=True)
+            remove_path(trash)
         else:
             built.rename(out)
     except OSError as error:
         raise StagingError(f"{out}: cannot put the output in place: {error}") from None
+
+
+def remove_path(path: Path) -> None:
+    """Remove a file, a symbolic link (not what it points to) or a folder tree.
+
+    Raises
+    ------
+    OSError
+        If it cannot be removed.
+    """
+    if path.is_symlink() or not path.is_dir():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path)
 
 
 @contextmanager
@@ -135,6 +138,22 @@ def staged_folder(out: str | PathLike[str]) -> Iterator[Path]:
         put_in_place(staging, out)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def hold_point(name: str) -> None:
+    """A point where a test holds the process, so a signal lands there whatever the speed of
+    the machine: with ``ALLO_HOLD_AT=<name>`` in the environment, create the file named by
+    ``ALLO_HOLD_MARKER`` (if set) and wait up to 60 s, where SIGINT or SIGTERM interrupts as
+    anywhere else. Without it (always, outside tests), return at once.
+    """
+    if os.environ.get(HOLD_AT) != name:
+        return
+    marker = os.environ.get(HOLD_MARKER)
+    if marker:
+        Path(marker).touch()
+    deadline = time.monotonic() + HOLD_SECONDS
+    while time.monotonic() < deadline:
+        time.sleep(0.01)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -196,17 +215,36 @@ def run_interruptible(prog: str, load: Callable[[], Callable[[], int]]) -> int:
     if one arrives where the command does not handle it itself. While ``load`` imports the
     command's modules they are held and arrive once it returns: an interrupt raised inside a
     library's import can be swallowed by its ``except:``, and the command would then run to
-    the end. An entry point calls this before its heavy imports; only the interpreter's own
-    start and end (before and after this call) keep the signals' default actions.
+    the end. Once the command has returned, both are ignored until the process ends, so a late
+    signal never ends it by the signal's default action (status -15) during the interpreter's
+    exit. An entry point calls this before its heavy imports; only the interpreter's own start
+    (before this call) keeps the signals' default actions.
     """
+    if threading.current_thread() is not threading.main_thread():
+        return load()()
+    chosen = [signal.SIGTERM]
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        chosen.append(signal.SIGINT)
     try:
-        with signals_as_interrupt():
-            held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-            try:
-                command = load()
-            finally:
-                signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a held signal raises here
-            return command()
+        for signum in chosen:
+            signal.signal(signum, _raise_interrupted)
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        try:
+            command = load()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a held signal raises here
+        status = command()
+        hold_point("command-done")
     except KeyboardInterrupt:
+        _ignore(chosen)
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    _ignore(chosen)
+    return status
+
+
+def _ignore(signums: list[int]) -> None:
+    """Ignore ``signums`` to the process's end: the command has finished and said so, and
+    their default action would end the process by the signal during the interpreter's exit."""
+    for signum in signums:
+        signal.signal(signum, signal.SIG_IGN)

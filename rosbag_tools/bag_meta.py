@@ -82,6 +82,36 @@ def add_file_digests(bag: Path) -> None:
     meta_path.write_text(yaml.safe_dump(document, sort_keys=False))
 
 
+_NEWER_KEYS = {"ros_distro": 8}  # top-level keys and the metadata version that added them
+_NEWER_TOPIC_KEYS = {"type_description_hash": 7}
+
+
+def set_metadata_version(bag: Path, version: int) -> None:
+    """Rewrite a closed bag's version-8 ``metadata.yaml`` as ``version`` (5 to 8): the keys
+    later versions added go, except ``custom_data``, which older readers ignore and this
+    package needs. Version 8's QoS profiles are already the string versions 4-8 use.
+
+    Raises
+    ------
+    ValueError
+        If the bag's metadata is not version 8 or ``version`` is outside 5-8.
+    """
+    meta_path = bag / _METADATA
+    document = yaml.safe_load(meta_path.read_text())
+    info = document[_INFO]
+    if info.get("version") != 8 or not 5 <= version <= 8:
+        raise ValueError(f"{meta_path}: cannot rewrite version {info.get('version')} as {version}")
+    info["version"] = version
+    for key, since in _NEWER_KEYS.items():
+        if version < since:
+            info.pop(key, None)
+    for entry in info.get("topics_with_message_count", []):
+        for key, since in _NEWER_TOPIC_KEYS.items():
+            if version < since:
+                entry["topic_metadata"].pop(key, None)
+    meta_path.write_text(yaml.safe_dump(document, sort_keys=False))
+
+
 def changed_files(bag: Path, custom: dict[str, str]) -> list[str]:
     """Storage files whose SHA-256 differs from the one recorded at writing (none recorded:
     nothing to compare, empty list)."""

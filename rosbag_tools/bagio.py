@@ -193,6 +193,8 @@ def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
         raise BagReadError(f"{path}: bag not found")
     if path.is_file() and path.suffix == ".bag":
         raise BagReadError(f"{path}: ROS 1 bags are not supported, only rosbag2")
+    if path.is_dir() and not (path / METADATA_FILE).is_file():
+        raise BagReadError(_no_metadata(path))
     digests_recorded = False
     if (path / "metadata.yaml").is_file():
         custom = custom_data(path)
@@ -221,6 +223,16 @@ def open_bag(path: str | PathLike[str]) -> Iterator[BagReader]:
         yield BagReader(reader, typestore)
     finally:
         reader.close()
+
+
+def _no_metadata(folder: Path) -> str:
+    """The error of a bag folder without ``metadata.yaml``, naming a storage file to read."""
+    entries = sorted(folder.iterdir())
+    if not entries:
+        return f"{folder}: empty folder, not a rosbag2 bag"
+    storage = [p for p in entries if p.suffix in (".mcap", ".db3")]
+    hint = f"; read a storage file on its own instead: {storage[0]}" if storage else ""
+    return f"{folder / METADATA_FILE}: not found: not a complete rosbag2 folder{hint}"
 
 
 def _damage(path: Path, changed: list[str], custom: dict[str, str]) -> str:

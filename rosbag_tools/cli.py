@@ -1,9 +1,10 @@
 """The ``allo-bag`` command: write, info, play, evaluate, ablate.
 
 Exit status 0 on success, 1 when the work fails (the message names the file, row, topic or
-frame), 2 for a usage error, 130 when interrupted (SIGINT or SIGTERM: nothing is left half
-written). Reports and bags are built in a hidden sibling folder and renamed into place at the
-end, so ``--out`` is either complete or untouched.
+frame), 2 for a usage error or a refused output folder (:mod:`allo_mrad_ros.targets`), 130
+when interrupted (SIGINT or SIGTERM: nothing is left half written). Reports and bags are
+built in a hidden sibling folder and renamed into place at the end, so ``--out`` is either
+complete or untouched.
 """
 
 from __future__ import annotations
@@ -21,10 +22,16 @@ from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.resources import package_version
 from allo_mrad_ros.staging import (
-    refuse_overlap,
     signals_as_interrupt,
     staged_folder,
     staging_path,
+)
+from allo_mrad_ros.targets import (
+    ABLATION_REPORT,
+    EVALUATION_REPORT,
+    TargetError,
+    check_target,
+    output_path,
 )
 from rosbag_tools.topics import DEFAULT_DISTRO, DISTROS, TopicError, TopicNames
 from rosbag_tools.writer import DEFAULT_STORAGE, STORAGES
@@ -46,7 +53,7 @@ def _parser() -> argparse.ArgumentParser:
 
     write = commands.add_parser("write", help="write a sequence folder as a rosbag2 bag")
     write.add_argument("sequence", type=Path, help="sequence folder (sequence.yaml, frames.csv)")
-    write.add_argument("out", type=Path, help="bag folder to create")
+    write.add_argument("out", type=output_path, help="bag folder to create")
     write.add_argument("--storage", choices=sorted(STORAGES), default=DEFAULT_STORAGE)
     write.add_argument(
         "--distro",
@@ -113,7 +120,10 @@ def _parser() -> argparse.ArgumentParser:
     ):
         sub = commands.add_parser(name, help=text)
         sub.add_argument("input", type=Path, help="sequence folder or bag")
-        sub.add_argument("--out", type=Path, required=True, help="report folder")
+        sub.add_argument("--out", type=output_path, required=True, help="report folder")
+        sub.add_argument(
+            "--overwrite", action="store_true", help=f"replace an existing {name} report"
+        )
         sub.add_argument("--split", choices=("train", "val", "test"), help="default: test, or all")
         sub.add_argument(
             "--limit", type=int, help="at most this many frames, evenly spread over the split"
@@ -237,7 +247,9 @@ def _evaluate(args: argparse.Namespace) -> str:
         overlays=args.overlays,
         progress=not args.quiet,
     )
-    refuse_overlap(args.out, args.input, args.mesh)
+    check_target(
+        args.out, EVALUATION_REPORT, overwrite=args.overwrite, inputs=(args.input, args.mesh)
+    )
     result = evaluate(_source(args), config)
     with staged_folder(args.out) as staging:
         write_evaluation_report(result, staging)
@@ -252,7 +264,9 @@ def _ablate(args: argparse.Namespace) -> str:
     from allo_mrad_ros.evaluation.ablate import ablate
     from allo_mrad_ros.evaluation.report import ablation_markdown, write_ablation_report
 
-    refuse_overlap(args.out, args.input, args.mesh)
+    check_target(
+        args.out, ABLATION_REPORT, overwrite=args.overwrite, inputs=(args.input, args.mesh)
+    )
     result = ablate(
         _source(args),
         config=pipeline_config(args),
@@ -293,6 +307,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(_COMMANDS[args.command](args))
     except (CliError, TopicError) as error:
         parser.error(str(error))
+    except TargetError as error:  # a refused output: a usage error, in one line
+        print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
+        return 2
     except AlloError as error:
         message = str(error)
         out = getattr(args, "out", None)

@@ -62,15 +62,16 @@ MARKER_ADD = interface.MARKER_ADD
 MARKER_DELETE = interface.MARKER_DELETE
 
 DISTROS: dict[str, tuple[Stores, int]] = {
-    # rosbag2 metadata version per distribution. rosbags writes versions 8 and 9 only, so
-    # Humble (whose recorder writes version 5) gets 8: its message definitions are Humble's,
-    # and Humble's `ros2 bag` reads such a bag after `ros2 bag reindex` if it balks at the
-    # metadata version.
+    # rosbag2 metadata version rosbags writes per distribution (it writes 8 and 9 only).
     "humble": (Stores.ROS2_HUMBLE, 8),
     "jazzy": (Stores.ROS2_JAZZY, 9),
     "kilted": (Stores.ROS2_KILTED, 9),
 }
-"""Supported distributions: name -> (rosbags typestore, rosbag2 metadata version)."""
+"""Supported distributions: name -> (rosbags typestore, rosbag2 metadata version written)."""
+
+RECORDER_VERSIONS: dict[str, int] = {"humble": 5, "jazzy": 9, "kilted": 9}
+"""The metadata version each distribution's own recorder writes: ``metadata.yaml`` is
+rewritten to it after writing where it is older than what rosbags wrote (Humble: 5)."""
 
 DEFAULT_DISTRO = "kilted"
 

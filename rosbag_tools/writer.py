@@ -32,11 +32,12 @@ from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
 from allo_mrad_ros.staging import (
     StagingError,
+    hold_point,
     interrupts_held,
     prepare_staging,
     put_in_place,
-    refuse_overlap,
 )
+from allo_mrad_ros.targets import BAG, check_target
 from rosbag_tools.bag_meta import (
     BAG_FORMAT,
     KEY_FORMAT,
@@ -49,6 +50,7 @@ from rosbag_tools.bag_meta import (
     add_file_digests,
     encode_splits,
     file_sha256,
+    set_metadata_version,
 )
 from rosbag_tools.integrity import KEY_MESSAGE_CRC32, MessageDigests, add_chunk_crcs
 from rosbag_tools.message_factory import MessageFactory
@@ -61,6 +63,7 @@ from rosbag_tools.topics import (
     IMAGE,
     MARKER_ARRAY,
     POSE_STAMPED,
+    RECORDER_VERSIONS,
     STRING,
     TF_MESSAGE,
     VECTOR3_STAMPED,
@@ -242,7 +245,7 @@ def write_bag(
         Also write ``/tf_static`` with an identity transform from this frame to the station
         frame, once at the first stamp.
     overwrite : bool
-        Replace an existing ``out`` (only after the new bag is complete).
+        Replace an existing bag at ``out`` (only after the new bag is complete).
     progress : bool
         Show a progress bar on stderr.
 
@@ -253,17 +256,16 @@ def write_bag(
     Raises
     ------
     BagWriteError
-        For an invalid option, an existing output, or an invalid sequence (the message names
-        the file, row and column); no bag is left under ``out`` then.
+        For an invalid option or an invalid sequence (the message names the file, row and
+        column); no bag is left under ``out`` then.
+    TargetError
+        For an output the rule of :mod:`allo_mrad_ros.targets` refuses: an existing bag
+        without ``overwrite``, a folder of other files, a file, the working folder, ...
     """
     _check_options(storage, distro, static_parent)
+    root = sequence.root if isinstance(sequence, Sequence) else sequence
+    check_target(out, BAG, overwrite=overwrite, inputs=(root,))
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise BagWriteError(f"{out}: output exists already; pass --overwrite to replace it")
-    try:
-        refuse_overlap(out, sequence.root if isinstance(sequence, Sequence) else sequence)
-    except StagingError as error:
-        raise BagWriteError(str(error)) from None
     try:
         if not isinstance(sequence, Sequence):
             sequence = read_sequence(sequence, check_images=True)
@@ -290,6 +292,8 @@ def write_bag(
             progress=progress,
             final=out,
         )
+        if RECORDER_VERSIONS[distro] < DISTROS[distro][1]:
+            set_metadata_version(staging / out.name, RECORDER_VERSIONS[distro])
         for storage_file in (staging / out.name).glob("*.mcap"):
             add_chunk_crcs(storage_file)
         add_file_digests(staging / out.name)
@@ -369,4 +373,5 @@ def _write(
                 writer.write(connections[topic], frame.stamp_ns, data)
                 digests.add(topic, data)
                 counts[topic] = counts.get(topic, 0) + 1
+            hold_point("bag-frame")
         writer.set_custom_data(KEY_MESSAGE_CRC32, digests.custom_data())

@@ -3,6 +3,7 @@ shows of itself in Linux /proc, and the checks of an interrupted run."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -33,11 +34,22 @@ def loaded_numpy(pid: int) -> bool:
     return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
 
 
-def start_command(argv: list[str], cwd: Path) -> subprocess.Popen:
-    """``python -m <argv>`` with a terminal's signal disposition, stdout/stderr as text."""
+def held_at(point: str, marker: Path) -> dict[str, str]:
+    """Environment that holds the command at its ``hold_point(point)`` (60 s at most, an
+    interrupt ends the hold) and creates ``marker`` when it gets there: the command cannot
+    finish before the signal however fast the machine is."""
+    return {"ALLO_HOLD_AT": point, "ALLO_HOLD_MARKER": str(marker)}
+
+
+def start_command(
+    argv: list[str], cwd: Path, env: dict[str, str] | None = None
+) -> subprocess.Popen:
+    """``python -m <argv>`` with a terminal's signal disposition, stdout/stderr as text;
+    ``env`` is added to this process's environment."""
     return subprocess.Popen(
         [sys.executable, "-m", *argv],
         cwd=cwd,
+        env={**os.environ, **(env or {})},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

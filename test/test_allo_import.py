@@ -205,9 +205,15 @@ def test_import_references_images_in_place(tmp_path: Path, split_dir: Path) -> N
     assert sequence[3].mask is None
     assert sequence[3].extra["allo_colour"] == ""
     rows = list(csv.DictReader(io.StringIO((out / FRAMES_FILE).read_text())))
-    assert rows[0]["image"] == "../../ALLO/test/Camera0/images/1_drill_5_-1_0_default.png"
-    assert rows[0]["mask"] == "../../ALLO/test/Camera0/masks/1_drill_5_-1_0_default.png"
-    assert not (out / "test").exists(), "nothing is copied by default"
+    # Referenced in place: links inside the sequence to the ALLO files, nothing copied.
+    name = "1_drill_5_-1_0_default.png"
+    assert rows[0]["image"] == f"test/Camera0/images/{name}"
+    assert rows[0]["mask"] == f"test/Camera0/masks/{name}"
+    for kind in ("images", "masks"):
+        link = out / "test" / "Camera0" / kind / name
+        assert (
+            link.is_symlink() and link.resolve() == (split_dir / "Camera0" / kind / name).resolve()
+        )
 
 
 def test_import_into_the_allo_folder_only_adds_metadata(tmp_path: Path, split_dir: Path) -> None:
@@ -313,7 +319,7 @@ def test_main_import(tmp_path: Path, split_dir: Path, capsys: pytest.CaptureFixt
     assert main_import([str(split_dir), "--out", str(out), "--quiet", "--validate"]) == 0
     assert "6 frames (4 normal, 2 anomalous)" in capsys.readouterr().out
     assert len(read_sequence(out)) == 6
-    assert main_import([str(split_dir), "--out", str(out), "--quiet"]) == 1
+    assert main_import([str(split_dir), "--out", str(out), "--quiet"]) == 2
     assert "already holds a sequence" in capsys.readouterr().err
     assert main_import([str(split_dir), "--out", str(out), "--overwrite", "--split", "test"]) == 0
 

@@ -16,6 +16,7 @@ LAYERS: dict[str, int] = {
     "interface": 0,
     "options": 0,
     "staging": 1,
+    "targets": 1,
     "camera": 1,
     "geometry": 1,
     "resources": 1,

@@ -49,6 +49,7 @@ from allo_mrad_ros.metrics import (
     MetricsAccumulator,
 )
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
+from allo_mrad_ros.staging import hold_point
 
 ALL_METHODS = ("MRAD", "PAD", "RXD")
 OVERLAY_WIDTH = 320
@@ -253,6 +254,7 @@ def evaluate(
     )
     try:
         for outcome in outcomes:
+            hold_point("evaluate-frame")
             frames_by_group[outcome.group] += 1
             for name, method in outcome.methods.items():
                 tallies[name][outcome.group].add(method, outcome.truth_anomalous)

@@ -130,9 +130,10 @@ class SequenceError(InvalidInput):
 
 
 def read_text(path: Path) -> str:
-    """A sequence file's UTF-8 text (raises SequenceError naming the file)."""
+    """A sequence file's UTF-8 text, without a byte-order mark that spreadsheets write
+    (raises SequenceError naming the file)."""
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise SequenceError("file not found", file=path) from None
     except (OSError, UnicodeDecodeError) as error:

@@ -5,6 +5,9 @@ from __future__ import annotations
 import csv
 import io
 import math
+import ntpath
+import posixpath
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
@@ -64,7 +67,33 @@ def _relative_path(text: str, column: str, root: Path, required: bool) -> Path |
         raise SequenceError(
             f"path must be relative to the sequence root, got {text!r}", column=column
         )
+    if leaves_root(text):
+        raise SequenceError(
+            f"path leaves the sequence folder, got {text!r}; keep files inside it",
+            column=column,
+        )
     return root / text
+
+
+def leaves_root(relative: str) -> bool:
+    """Whether a relative path climbs out of its root with ``..`` (POSIX or Windows
+    separators), e.g. ``../../x.png`` or ``a/../../x.png``."""
+    return any(
+        module.normpath(relative).split(module.sep)[0] == ".." for module in (posixpath, ntpath)
+    )
+
+
+_CAMERA_FOLDER = re.compile(r"^Camera(\d+)$")
+
+
+def _check_camera_folder(camera: int, image: str) -> None:
+    """A frame's camera is the ``Camera<N>`` folder its image lies in, where it has one."""
+    for part in PurePosixPath(posixpath.normpath(image)).parts[:-1]:
+        match = _CAMERA_FOLDER.match(part)
+        if match and int(match[1]) != camera:
+            raise SequenceError(
+                f"camera {camera} differs from the image's folder {part}", column="camera"
+            )
 
 
 def _unit_vector(values: list[float], columns: tuple[str, ...]) -> None:
@@ -106,6 +135,7 @@ def frame_from_record(
     split = _choice(record["split"], "split", SPLITS)
     camera = parse_int(record["camera"], "camera")
     image = _relative_path(record["image"], "image", root, required=True)
+    _check_camera_folder(camera, record["image"])
     mask = _relative_path(record["mask"], "mask", root, required=False)
     reference = _relative_path(record["reference"], "reference", root, required=False)
     label = _choice(record["label"], "label", LABELS)

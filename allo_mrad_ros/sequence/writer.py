@@ -8,6 +8,7 @@ is not a sequence, so a crash never leaves a valid-looking partial one.
 from __future__ import annotations
 
 import math
+import os
 import re
 from collections.abc import Mapping
 from os import PathLike
@@ -35,7 +36,7 @@ from .model import (
     SequenceMeta,
 )
 from .png import bad_mask_values, encode_png, read_png_header, write_atomic
-from .table import format_float, frame_from_record, write_frames_text
+from .table import format_float, frame_from_record, leaves_root, write_frames_text
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
 
@@ -162,7 +163,8 @@ class SequenceWriter:
     def _prepare(self, data: object, split: str, camera: int, name: str, kind: str) -> tuple:
         """Validate one image input without touching the disk.
 
-        Returns ``(relative path, array to write or None)``.
+        Returns ``(relative path, what to put there)``: an array to write as PNG, the path of
+        a file outside the sequence folder to link to, or None for a file already inside.
         """
         if isinstance(data, (str, PathLike)):
             path = Path(data)
@@ -177,7 +179,14 @@ class SequenceWriter:
             ok = header.is_grey8 if kind == "masks" else header.is_rgb8
             if not ok:
                 raise SequenceError(f"unexpected pixel layout {header.describe()}", file=path)
-            return relative_posix(path, self.root), None
+            relative = relative_posix(path, self.root)
+            if not leaves_root(relative):
+                return relative, None
+            # Paths in frames.csv stay inside the folder: a file outside is linked in.
+            relative = f"{split}/Camera{camera}/{kind}/{path.name}"
+            if relative in self._written:
+                raise SequenceError(f"duplicate file {relative}: file names must be unique")
+            return relative, path
         channels = 1 if kind == "masks" else 3
         array = self._check_array(data, kind[:-1], channels)
         if kind == "masks":
@@ -333,10 +342,14 @@ class SequenceWriter:
         frame = frame_from_record(
             {c: record.get(c, "") for c in (*COLUMNS, *extra_text)}, index, self.root, extra_text
         )
-        for relative, array in files.values():
-            if array is not None:
-                write_atomic(self.root / relative, encode_png(array, self._compression))
-                self._written.add(relative)
+        for relative, payload in files.values():
+            if isinstance(payload, np.ndarray):
+                write_atomic(self.root / relative, encode_png(payload, self._compression))
+            elif payload is not None:
+                _link(self.root / relative, payload)
+            else:
+                continue
+            self._written.add(relative)
         for key in extra_text:
             if key not in self._extra_columns:
                 self._extra_columns.append(key)
@@ -380,3 +393,11 @@ class SequenceWriter:
         """Stop without writing the metadata; images written so far stay on disk."""
         if self._state == "open":
             self._state = "aborted"
+
+
+def _link(link: Path, source: Path) -> None:
+    """A relative symbolic link at ``link`` to ``source`` (replacing an older link)."""
+    link.parent.mkdir(parents=True, exist_ok=True)
+    if link.is_symlink():
+        link.unlink()
+    link.symlink_to(os.path.relpath(source.absolute(), link.parent.absolute()))

@@ -20,12 +20,13 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from allo_mrad_ros.allo_import import add_import_parser, refuse_existing
+from allo_mrad_ros.allo_import import add_import_parser
 from allo_mrad_ros.errors import AlloError
 from allo_mrad_ros.resources import package_version
 from allo_mrad_ros.staging import signals_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, QUERY_RENDERERS, SynthError, preset
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES
+from allo_mrad_ros.targets import SEQUENCE, TargetError, check_target, output_path
 
 
 def _positive_int(text: str) -> int:
@@ -64,7 +65,7 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     )
     parser.add_argument("--preset", choices=tuple(PRESETS), default="demo", help="(default demo)")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed (default 0)")
-    parser.add_argument("--out", type=Path, help="output folder (default data/<preset>)")
+    parser.add_argument("--out", type=output_path, help="output folder (default data/<preset>)")
     parser.add_argument("--mesh", type=Path, help="station model (default the package's)")
     parser.add_argument(
         "--frames",
@@ -139,7 +140,7 @@ def _run_generate(args: argparse.Namespace) -> int:
         if args.clean:
             config = config.with_overrides(realism=replace(config.realism, enabled=False))
         out = args.out if args.out is not None else Path("data") / args.preset
-        refuse_existing(out, args.overwrite)
+        check_target(out, SEQUENCE, overwrite=args.overwrite, inputs=(args.mesh,))
         # Generated beside the target and renamed at the end: never a half-written folder.
         with staged_folder(out) as staging:
             report = generate(
@@ -152,6 +153,9 @@ def _run_generate(args: argparse.Namespace) -> int:
                 progress=not args.quiet,
             )
         report = replace(report, root=out)
+    except TargetError as error:
+        print(f"allo-synth generate: error: {error}", file=sys.stderr)
+        return 2
     except (AlloError, SynthError) as error:
         # Name the folder asked for, not the hidden one it was built in.
         message = str(error)

@@ -21,6 +21,7 @@ from pathlib import Path
 from allo_mrad_ros.ephemeris import EPOCH_2030
 from allo_mrad_ros.geometry import pose_components
 from allo_mrad_ros.sequence import SequenceMeta, SequenceWriter
+from allo_mrad_ros.staging import hold_point
 from allo_mrad_ros.synth.config import SynthConfig, SynthError
 from allo_mrad_ros.synth.frames import FrameOutput, FrameSynthesizer, camera_intrinsics
 from allo_mrad_ros.synth.planning import FramePlan, plan_frames
@@ -218,6 +219,7 @@ def generate(
     ) as writer:
         for output in outputs:
             _write(writer, output)
+            hold_point("generate-frame")
             written.append((output.plan, output.extra))
     composition = _composition(written, config)
     provenance = {

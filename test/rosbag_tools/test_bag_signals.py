@@ -4,6 +4,9 @@ line, no bag and no hidden ``.bag.partial-*`` left (issue 13 item 11).
 The command runs as ``python -m rosbag_tools``, as the sweep runs it: that is the path on
 which CPython ends a process by SIGINT (status -2) once a ``KeyboardInterrupt`` has left code
 run by ``exec`` of a string, even a caught one.
+
+The write is held after its first frame (``ALLO_HOLD_AT=bag-frame``), so on any machine it is
+still running when the signal is sent: the test controls its timing, not the machine's speed.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import pytest
 from signal_probes import (
     assert_interrupted,
     catches_sigterm,
+    held_at,
     loaded_numpy,
     start_command,
     wait_for,
@@ -66,7 +70,8 @@ def _leftovers(folder: Path) -> list[str]:
 def test_sigterm_at_any_point_exits_130_and_leaves_nothing(sequence, tmp_path, after, delay_s):
     out = tmp_path / "out"
     out.mkdir()
-    process = start_command(["rosbag_tools", "write", str(sequence), str(out / "bag")], tmp_path)
+    argv = ["rosbag_tools", "write", str(sequence), str(out / "bag")]
+    process = start_command(argv, tmp_path, held_at("bag-frame", tmp_path / "held"))
     try:
         if after == "handler":
             _wait(process, lambda: catches_sigterm(process.pid), "its SIGTERM handler")
@@ -79,7 +84,7 @@ def test_sigterm_at_any_point_exits_130_and_leaves_nothing(sequence, tmp_path, a
                 "the partial bag",
             )
         time.sleep(delay_s)
-        assert process.poll() is None, "the write ended before the signal: make it longer"
+        assert process.poll() is None, "the write ended before the signal"
         process.send_signal(signal.SIGTERM)
         _, stderr = process.communicate(timeout=TIME_LIMIT_S)
     finally:
@@ -123,3 +128,61 @@ def test_sigterm_raised_inside_exec_code_still_exits_130(sequence, tmp_path):
     assert process.returncode == 130, stderr
     assert stderr.strip().splitlines()[-1] == "allo-bag write: interrupted", stderr
     assert _leftovers(out) == []
+
+
+def test_sigterm_once_the_bag_is_in_place_exits_130(sequence, tmp_path):
+    """The command has written the bag and not yet returned: still 130 and one line."""
+    out = tmp_path / "out"
+    out.mkdir()
+    marker = tmp_path / "held"
+    argv = ["rosbag_tools", "write", str(sequence), str(out / "bag")]
+    process = start_command(argv, tmp_path, held_at("command-done", marker))
+    try:
+        _wait(process, marker.exists, "the end of the command")
+        process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=TIME_LIMIT_S)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert_interrupted(process, stderr)
+    assert _leftovers(out) == ["bag"] and (out / "bag" / "metadata.yaml").is_file()
+
+
+SIGNAL_AT_EXIT = """
+import atexit
+import sys
+import time
+from pathlib import Path
+
+
+def held_at_exit():
+    # Runs while the interpreter exits, after main() has returned its status.
+    Path(sys.argv.pop()).touch()
+    time.sleep(1.0)
+
+
+atexit.register(held_at_exit)
+from rosbag_tools.entry import main
+
+sys.exit(main(sys.argv[1:-1]))
+"""
+
+
+def test_sigterm_while_the_interpreter_exits_never_ends_it_by_the_signal(sequence, tmp_path):
+    """A signal after the command has returned (the bag written, the status given) cannot
+    end the process by SIGTERM's default action (status -15): it exits with its status."""
+    (tmp_path / "signal_at_exit.py").write_text(SIGNAL_AT_EXIT)
+    out = tmp_path / "out"
+    out.mkdir()
+    marker = tmp_path / "exiting"
+    argv = ["signal_at_exit", "write", str(sequence), str(out / "bag"), str(marker)]
+    process = start_command(argv, tmp_path)
+    try:
+        _wait(process, marker.exists, "the interpreter's exit")
+        process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=TIME_LIMIT_S)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 0, stderr
+    assert _leftovers(out) == ["bag"]

@@ -21,14 +21,15 @@ from rosbags.highlevel import AnyReader
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence import FRAMES_FILE, SequenceMeta, SequenceWriter, read_sequence
+from allo_mrad_ros.targets import TargetError
 from rosbag_tools.bag_meta import decode_splits, encode_splits, file_sha256
 from rosbag_tools.cli import main
 from rosbag_tools.info import InfoError, bag_info, format_info
 from rosbag_tools.topics import (
-    DISTROS,
     MARKER_ADD,
     MARKER_DELETE,
     MARKER_SPHERE,
+    RECORDER_VERSIONS,
     TopicError,
     TopicNames,
     typestore_for,
@@ -207,7 +208,7 @@ def test_bag_holds_every_frame_once_with_identical_pixels(tmp_path, sequence, st
     else:
         assert list(out.glob("*.db3")) and not list(out.glob("*.mcap"))
     metadata = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    assert metadata["version"] == DISTROS[distro][1]
+    assert metadata["version"] == RECORDER_VERSIONS[distro]  # what that distro records
     assert metadata["storage_identifier"] == storage
     custom = metadata["custom_data"]
     assert decode_splits(custom["allo.splits"]) == [f.split for f in sequence.frames]
@@ -217,7 +218,11 @@ def test_bag_holds_every_frame_once_with_identical_pixels(tmp_path, sequence, st
     typestore = typestore_for(distro)
     with AnyReader([out]) as reader:
         for connection in reader.connections:
-            assert connection.digest == typestore.hash_rihs01(connection.msgtype)
+            # Type hashes came after Humble: its metadata (version 5) has none.
+            hashed = distro != "humble"
+            assert connection.digest == (
+                typestore.hash_rihs01(connection.msgtype) if hashed else ""
+            )
             definition, _ = typestore.generate_msgdef(connection.msgtype, ros_version=2)
             assert connection.msgdef.data == definition
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
@@ -304,7 +309,7 @@ def test_existing_bag_is_kept_unless_overwritten_and_survives_a_failed_overwrite
     out = tmp_path / "bag"
     write_bag(sequence.root, out, splits=["test"])
     before = sorted(p.name for p in out.iterdir())
-    with pytest.raises(BagWriteError, match="exists already"):
+    with pytest.raises(TargetError, match="already holds a bag; use --overwrite"):
         write_bag(sequence.root, out)
     root, named = _corrupt_copy(sequence, tmp_path, "truncated png")
     with pytest.raises(BagWriteError, match=named):

@@ -230,7 +230,9 @@ def test_referenced_images_are_stored_relative(tmp_path: Path) -> None:
             sun_direction=[0, 1, 0],
         )
     rows = list(csv.DictReader(io.StringIO((root / FRAMES_FILE).read_text())))
-    assert rows[0]["image"] == "../elsewhere/img.png"
+    # Paths in frames.csv stay inside the folder: the file outside is linked in, relative.
+    assert rows[0]["image"] == "test/Camera0/images/img.png"
+    assert str((root / rows[0]["image"]).readlink()) == "../../../../elsewhere/img.png"
     sequence = read_sequence(root)
     np.testing.assert_array_equal(sequence.load_image(sequence[0]), _image(1)[..., ::-1])
 

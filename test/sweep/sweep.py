@@ -123,9 +123,10 @@ def selected(cases: list, quick: bool, only: str | None) -> list:
 
 def run_cli(work: Path, quick: bool, only: str | None, jobs: int) -> list[Outcome]:
     from sweep_cli_cases import cli_cases, same_metrics
+    from sweep_cli_output_cases import output_cases
     from sweep_run import can_mount, run_case
 
-    cases = selected(cli_cases(), quick, only)
+    cases = selected(cli_cases() + output_cases(), quick, only)
     if not cases:
         return []
     fixtures = build_fixtures(

@@ -241,7 +241,7 @@ def cli_cases() -> list[CliCase]:
             b,
             "output exists",
             (*WRITE, "{ws}/out"),
-            "--overwrite",
+            "not a bag",
             prepare=existing_out,
             quick=True,
         ),
@@ -271,6 +271,7 @@ def cli_cases() -> list[CliCase]:
             ("write", "{bigseq}", "{ws}/out"),
             "interrupted",
             signal=signal.SIGTERM,
+            hold="bag-frame",
             quick=True,
         ),
         CliCase(
@@ -280,6 +281,7 @@ def cli_cases() -> list[CliCase]:
             "interrupted",
             signal=signal.SIGTERM,
             signal_after_s=1.0,
+            hold="bag-frame",  # after 1 s it is starting or held: never finished
         ),
         CliCase(
             b,
@@ -287,6 +289,7 @@ def cli_cases() -> list[CliCase]:
             ("write", "{bigseq}", "{ws}/out"),
             "interrupted",
             signal=signal.SIGINT,
+            hold="bag-frame",
         ),
         CliCase(
             b,
@@ -505,7 +508,7 @@ def cli_cases() -> list[CliCase]:
             (*EVAL, "{bag}", *out),
             "interrupted",
             signal=signal.SIGTERM,
-            signal_after_s=8.0,
+            hold="evaluate-frame",
         ),
         CliCase(
             "allo-bag ablate",
@@ -583,13 +586,21 @@ def cli_cases() -> list[CliCase]:
             "--overwrite",
             prepare=copy_sequence,
         ),
-        CliCase(s, "SIGINT mid-generate", (*SMOKE, *o), "interrupted", signal=signal.SIGINT),
+        CliCase(
+            s,
+            "SIGINT mid-generate",
+            (*SMOKE, *o),
+            "interrupted",
+            signal=signal.SIGINT,
+            hold="generate-frame",
+        ),
         CliCase(
             s,
             "SIGTERM mid-generate",
             (*SMOKE, *o),
             "interrupted",
             signal=signal.SIGTERM,
+            hold="generate-frame",
             quick=True,
         ),
     ]
@@ -679,6 +690,7 @@ def cli_cases() -> list[CliCase]:
             (*IMPORT, "--out", "{ws}/seq", "--copy"),
             "interrupted",
             signal=signal.SIGTERM,
+            hold="import-frame",
         ),
         CliCase("allo-synth", "no command", (), "(?i)command"),
     ]

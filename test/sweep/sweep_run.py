@@ -4,7 +4,9 @@ Read-only folders and full disks are real, not simulated: where the machine allo
 mount namespace (``unshare -m``, root), the case's ``locked`` folder is a read-only bind mount
 and its ``disk`` folder a tiny tmpfs, so the command meets EROFS and ENOSPC from the kernel.
 Elsewhere those cases are skipped (and say so). Signals are sent to the real process once its
-hidden ``.partial-`` folder exists, in the middle of writing.
+hidden ``.partial-`` folder exists, in the middle of writing, or, for a case with ``hold``,
+once the command reaches that ``hold_point`` and waits there (``ALLO_HOLD_AT``): then it cannot
+finish before the signal however fast the machine is.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from sweep_verdicts import CRASH, UNCLEAR, Outcome, classify_exit
 
 COMMANDS = {
     "allo-bag": [sys.executable, "-m", "rosbag_tools"],
-    "allo-synth": [sys.executable, "-m", "allo_mrad_ros.synth.cli"],
+    "allo-synth": [sys.executable, "-m", "allo_mrad_ros.synth.entry"],
 }
 TIME_LIMIT_S = 300.0
 
@@ -43,7 +45,9 @@ class CliCase:
 
     ``argv`` is formatted with the fixture paths (``{seq}``, ``{bag}``, ...) and the case's
     folders: ``{ws}`` (its workspace), ``{locked}`` (read-only when ``mount`` is ``ro``) and
-    ``{disk}`` (a tmpfs of ``disk_kb`` KiB when ``mount`` is ``full``).
+    ``{disk}`` (a tmpfs of ``disk_kb`` KiB when ``mount`` is ``full``). ``hold`` names the
+    ``hold_point`` where the command waits for ``signal``; ``env`` adds variables (formatted
+    like ``argv``).
     """
 
     group: str
@@ -60,6 +64,8 @@ class CliCase:
     outputs: tuple[str, ...] = ()
     quick: bool = False
     tags: tuple[str, ...] = field(default=())
+    hold: str = ""
+    env: tuple[tuple[str, str], ...] = ()
 
 
 def _listing(root: Path) -> set[str]:
@@ -103,10 +109,15 @@ def run_case(case: CliCase, fixtures: dict, base: Path, mountable: bool) -> Outc
     if case.mount:
         argv = ["unshare", "-m", "sh", "-c", _mount_script(case, ws, listing), "sh", *argv]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
+    env.update({key: value.format(**names) for key, value in case.env})
+    marker = base / f"{ws.name}.held"
+    marker.unlink(missing_ok=True)
+    if case.hold:
+        env.update({"ALLO_HOLD_AT": case.hold, "ALLO_HOLD_MARKER": str(marker)})
     process = subprocess.Popen(
         argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ws
     )
-    signalled = _signal_midway(process, ws, case) if case.signal else True
+    signalled = _signal_midway(process, ws, case, marker) if case.signal else True
     try:
         _, stderr = process.communicate(timeout=TIME_LIMIT_S)
         returncode: int | None = process.returncode
@@ -132,14 +143,17 @@ def run_case(case: CliCase, fixtures: dict, base: Path, mountable: bool) -> Outc
     return Outcome(case.group, case.name, verdict, detail)
 
 
-def _signal_midway(process: subprocess.Popen, ws: Path, case: CliCase) -> bool:
-    """Send ``case.signal`` once the command is writing (a ``.partial-`` folder exists), or
-    after ``signal_after_s``."""
+def _signal_midway(process: subprocess.Popen, ws: Path, case: CliCase, marker: Path) -> bool:
+    """Send ``case.signal`` after ``signal_after_s``, else once the command holds at
+    ``case.hold`` (``marker`` exists), else once it is writing (a ``.partial-`` folder)."""
     start = time.monotonic()
     while process.poll() is None and time.monotonic() - start < TIME_LIMIT_S / 2:
         elapsed = time.monotonic() - start
         if case.signal_after_s is not None:
             if elapsed >= case.signal_after_s:
+                break
+        elif case.hold:
+            if marker.exists():
                 break
         elif any(".partial-" in p.name for p in ws.rglob(".*")):
             time.sleep(0.05)  # inside the write, not at its first mkdir

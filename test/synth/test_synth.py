@@ -184,7 +184,7 @@ def test_same_seed_same_files_and_cli_end_to_end(smoke, tmp_path, capsys):
     assert _hashes(out) == _hashes(smoke[0])
     validate_sequence(out, decode_images=True)
     # An existing sequence is kept unless asked.
-    assert main(["generate", "--preset", "smoke", "--out", str(out), "--quiet"]) == 1
+    assert main(["generate", "--preset", "smoke", "--out", str(out), "--quiet"]) == 2
     assert "overwrite" in capsys.readouterr().err
     other = tmp_path / "other"
     assert (

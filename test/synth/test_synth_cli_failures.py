@@ -83,7 +83,7 @@ def test_rerun_with_overwrite_keeps_no_stale_files(tmp_path, capsys):
     out = tmp_path / "seq"
     assert main([*SMOKE, "--out", str(out)]) == 0
     (out / "train" / "stale.png").write_bytes(b"old")
-    assert main([*SMOKE, "--out", str(out)]) == 1
+    assert main([*SMOKE, "--out", str(out)]) == 2
     one_line(capsys, "use --overwrite")
     assert main([*SMOKE, "--out", str(out), "--overwrite"]) == 0
     assert not (out / "train" / "stale.png").exists()
@@ -94,7 +94,7 @@ def test_generate_refuses_a_folder_of_other_files(tmp_path, capsys):
     out = tmp_path / "mine"
     out.mkdir()
     (out / "notes.txt").write_text("keep me")
-    assert main([*SMOKE, "--out", str(out), "--overwrite"]) == 1
+    assert main([*SMOKE, "--out", str(out), "--overwrite"]) == 2
     one_line(capsys, "not a sequence")
     assert (out / "notes.txt").read_text() == "keep me"
 

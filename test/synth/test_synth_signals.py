@@ -12,6 +12,7 @@ import pytest
 from signal_probes import (
     assert_interrupted,
     catches_sigterm,
+    held_at,
     loaded_numpy,
     start_command,
     wait_for,
@@ -27,7 +28,9 @@ def test_sigterm_while_importing_exits_130_and_leaves_nothing(tmp_path, delay_s)
     out.mkdir()
     argv = ["generate", "--preset", "smoke", "--frames", "4", "--width", "160"]
     argv += ["--height", "90", "--out", str(out / "seq")]
-    process = start_command(["allo_mrad_ros.synth.entry", *argv], tmp_path)
+    # Held after its first frame: still running at the signal however fast the machine is.
+    held = held_at("generate-frame", tmp_path / "held")
+    process = start_command(["allo_mrad_ros.synth.entry", *argv], tmp_path, held)
     try:
         wait_for(process, lambda: loaded_numpy(process.pid), "NumPy loaded", TIME_LIMIT_S)
         # NumPy comes with the command's own imports: by then the handler must be in place.
