@@ -206,7 +206,7 @@ def compare(a: SettingResult, b: SettingResult, resamples: int = 1000) -> dict:
     """Paired frame bootstrap of P.AP(b) - P.AP(a), percentage points, with a 95 % interval."""
     diffs = 100 * bootstrap_ap_difference(np.stack(a.counts), np.stack(b.counts), resamples)
     point = 100 * (b.pooled.compute().p_ap - a.pooled.compute().p_ap)
-    low, high = np.percentile(diffs, [2.5, 97.5])
+    low, high = (float(v) for v in np.percentile(diffs, [2.5, 97.5]))
     return {"difference": round(point, 1), "ci95": [round(low, 1), round(high, 1)]}
 
 
