@@ -129,8 +129,11 @@ def staged_folder(out: str | PathLike[str]) -> Iterator[Path]:
     ``out``.
     """
     out = Path(out)
-    staging = prepare_staging(out)
+    # Named before it exists, so a signal between its creation and the try cannot leave it
+    # behind: the finally removes it whatever point was reached.
+    staging = staging_path(out)
     try:
+        prepare_staging(out)
         try:
             yield staging
         except OSError as error:

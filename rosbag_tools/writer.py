@@ -36,6 +36,7 @@ from allo_mrad_ros.staging import (
     interrupts_held,
     prepare_staging,
     put_in_place,
+    staging_path,
 )
 from allo_mrad_ros.targets import BAG, check_target
 from rosbag_tools.bag_meta import (
@@ -273,12 +274,15 @@ def write_bag(
         factory = MessageFactory(typestore_for(distro))
     except (SequenceError, TopicError) as error:
         raise BagWriteError(str(error)) from error
-    try:
-        staging = prepare_staging(out)
-    except StagingError as error:
-        raise BagWriteError(str(error)) from None
+    # Named before it exists, so a signal between its creation and the try below cannot
+    # leave it behind: the finally removes it whatever point was reached.
+    staging = staging_path(out)
     counts: dict[str, int] = {}
     try:
+        try:
+            prepare_staging(out)
+        except StagingError as error:
+            raise BagWriteError(str(error)) from None
         _write(
             sequence,
             frames,
