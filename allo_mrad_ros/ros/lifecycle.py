@@ -20,18 +20,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 
 from allo_mrad_ros import interface
-from allo_mrad_ros.ros.node import EXIT_INVALID_PARAMETER, MradDetectorNode
+from allo_mrad_ros.ros.node import MradDetectorNode, run_node
 from allo_mrad_ros.ros.parameters import (
     ParameterError,
-    check_command_line,
-    check_params_files,
-    command_line_parameters,
 )
 
 
@@ -103,32 +98,7 @@ class MradDetectorLifecycleNode(LifecycleNodeMixin, MradDetectorNode):
 def main(argv: list[str] | None = None) -> int:
     """Run the managed node until shutdown (``ros2 run allo_mrad_ros mrad_detector_lifecycle``);
     it waits unconfigured for ``ros2 lifecycle set /mrad_detector configure``."""
-    arguments = argv if argv is not None else sys.argv
-    try:
-        files = check_params_files(arguments)
-        check_command_line(arguments)
-    except ParameterError as error:
-        print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
-        return EXIT_INVALID_PARAMETER
-    rclpy.init(args=arguments)
-    node = None
-    try:
-        node = MradDetectorLifecycleNode(command_line_parameters(arguments), files)
-        rclpy.spin(node)
-    except ParameterError as error:
-        print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
-        return EXIT_INVALID_PARAMETER
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        if rclpy.ok():  # else a callback raced the shutdown a signal asked for
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(MradDetectorLifecycleNode, argv)
 
 
 if __name__ == "__main__":

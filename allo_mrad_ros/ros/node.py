@@ -595,8 +595,11 @@ class MradDetectorNode(Node):
         super().destroy_node()
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the node until shutdown (``ros2 run allo_mrad_ros mrad_detector``)."""
+def run_node(node_class: type, argv: list[str] | None = None) -> int:
+    """Check the command line, then build ``node_class`` and spin it until shutdown.
+
+    Returns the exit status: 0, or 2 (one line on stderr) for an invalid parameter.
+    """
     arguments = argv if argv is not None else sys.argv
     try:
         files = check_params_files(arguments)
@@ -607,7 +610,7 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=arguments)
     node = None
     try:
-        node = MradDetectorNode(command_line_parameters(arguments), files)
+        node = node_class(command_line_parameters(arguments), files)
         rclpy.spin(node)
     except ParameterError as error:
         print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
@@ -625,6 +628,11 @@ def main(argv: list[str] | None = None) -> int:
         if rclpy.ok():
             rclpy.shutdown()
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until shutdown (``ros2 run allo_mrad_ros mrad_detector``)."""
+    return run_node(MradDetectorNode, argv)
 
 
 if __name__ == "__main__":
