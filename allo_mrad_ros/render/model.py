@@ -173,7 +173,8 @@ def load_model(
     Raises
     ------
     InvalidInput
-        If a file is missing or unreadable, or the model contains no triangles.
+        If a file is missing or unreadable, the model contains no triangles, or all its
+        vertices lie at one point (compressed geometry that did not decode).
     """
     if isinstance(sources, (str, PathLike, trimesh.Trimesh, trimesh.Scene)):
         sources = [sources]
@@ -202,6 +203,13 @@ def load_model(
         raise InvalidInput("station model contains no triangles")
     merged = [_merge(names[key], parts) for key, parts in groups.items()]
     extent = float(np.ptp(np.vstack([g.positions for g in merged]), axis=0).max())
+    if not extent > 0.0:
+        # trimesh leaves compressed geometry it cannot decode (glTF's Draco extension
+        # without DracoPy) as zeros, with a warning only.
+        raise InvalidInput(
+            "station model's vertices all lie at one point: its geometry did not decode "
+            "(a Draco-compressed glTF needs the DracoPy package, or export it uncompressed)"
+        )
     if extent > _SUSPICIOUS_EXTENT_M:
         _LOG.warning("station model spans %.0f m: the renderer expects metres", extent)
     return merged

@@ -347,6 +347,8 @@ def test_switching_backend_after_opengl_import_is_refused(box_renderer, monkeypa
         ("no/such/station.glb", "not found"),
         (trimesh.Trimesh(), "no triangles"),
         (trimesh.Scene(), "no triangles"),
+        # What trimesh makes of Draco-compressed glTF geometry it cannot decode.
+        (trimesh.Trimesh(np.zeros((3, 3)), [[0, 1, 2]], process=False), "did not decode"),
     ],
 )
 def test_bad_models_raise(model, message):
