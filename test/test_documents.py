@@ -64,7 +64,7 @@ def test_readme_is_at_most_400_lines():
         "the third session",
         "a second sitting",
         "the earlier tree",
-        "in /work/main/data",
+        "in /home/someone/ws/data",
     ],
 )
 def test_the_check_catches_history(text):
