@@ -3,8 +3,9 @@
 A rasteriser and a camera (or a path tracer) disagree on colour in ways a per-channel gain
 and offset cannot follow: a tone curve, a hue that shifts per material, black shadows where
 the render shows ambient grey. Every frame pairs the reference with the query, pixel for
-pixel at the reference's resolution (the query area-averaged down to it), and learns a 3-D
-look-up table from reference colour to query colour:
+pixel at the smaller of the two resolutions (usually the reference's; the other image
+area-averaged down to it), and learns a 3-D look-up table from reference colour to query
+colour:
 
 * the pairs near reference edges are left out (a pose error moves edges; there the pair
   holds two materials);
@@ -14,11 +15,13 @@ look-up table from reference colour to query colour:
   object that covers less than half of a bin's pairs does not move it; a bin with fewer than
   ``min_count`` pairs takes the offset of the finest enclosing bin that has enough.
 
-The table is applied to either image (``direction``): ``reference`` adds each reference
-pixel's offset to it, so the reference takes the query's colours; ``query`` subtracts from
-each query pixel the offset of the reference colour at the same place, so the query takes
-the reference's colours and the reference's own cell statistics stay what they were (they
-can be reused while the reference is).
+The table is applied to either image (:data:`DIRECTIONS`): ``reference`` adds each
+reference pixel's offset to it, so the reference takes the query's colours; ``query``
+(:func:`apply_to_query`) replaces each query pixel by the reference colour at the same place
+plus what the query departs from its predicted colour, so the query takes the reference's
+colours and the reference's own cell statistics stay what they were (they can be reused
+while the reference is). Glare, clipped query pixels over station surface, takes the
+reference's colour in either direction.
 """
 
 from __future__ import annotations
