@@ -241,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--recall", action="store_true", help="recall per anomaly type")
     parser.add_argument("--out", type=Path, help="JSON report")
     args = parser.parse_args(argv)
+    if not args.sequence and args.split not in BENCH_SPLITS:
+        parser.error(f"--split must be one of {', '.join(BENCH_SPLITS)} without --sequence")
     try:
         settings = [parse_setting(text) for text in args.settings.split(",")]
     except ValueError as error:
@@ -250,7 +252,11 @@ def main(argv: list[str] | None = None) -> int:
         frames = sequence_frames(args.root, args.root.name, args.split, args.reference_scale)
         stations: tuple[str, ...] = (args.root.name,)
     else:
-        frames = load_frames(args.root, args.split, args.reference_scale)
+        try:
+            frames = load_frames(args.root, args.split, args.reference_scale)
+        except FileNotFoundError as error:
+            print(f"stations_bench: {error}", file=sys.stderr)
+            return 2
         stations = BENCH_SPLITS[args.split]
     results = run_settings(frames, settings)
     summaries = {r.setting.name: summarise(r) for r in results}

@@ -99,3 +99,10 @@ def cv2_friendly(rng: np.random.Generator) -> np.ndarray:
     blocks = rng.integers(0, 256, (8, 8, 3)).astype(np.uint8)
     image = np.kron(blocks, np.ones((16, 16, 1), np.uint8))
     return np.clip(image.astype(int) + rng.integers(-5, 6, image.shape), 0, 255).astype(np.uint8)
+
+
+def test_the_bench_names_a_missing_station_sequence_in_one_line(tmp_path, capsys):
+    from allo_mrad_ros.benchmarks.stations_bench import main
+
+    assert main([str(tmp_path), "--split", "val"]) == 2
+    assert "station sequence missing" in capsys.readouterr().err
