@@ -11,7 +11,7 @@ from __future__ import annotations
 import array
 import difflib
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -278,20 +278,13 @@ def command_line_parameters(argv: Sequence[str]) -> dict[str, Any]:
     ``--params-file``; checking these too means no value the user typed is ignored silently.
     """
     found: dict[str, Any] = {}
-    in_ros_args = False
-    arguments = list(argv)
-    for index, argument in enumerate(arguments):
-        if argument == "--ros-args":
-            in_ros_args = True
-        elif argument == "--":
-            in_ros_args = False
-        elif in_ros_args and argument in ("-p", "--param") and index + 1 < len(arguments):
-            name, separator, text = arguments[index + 1].partition(":=")
-            if separator:
-                try:
-                    found[name] = yaml.safe_load(text)
-                except yaml.YAMLError:
-                    found[name] = text
+    for _, given in _parameter_arguments(argv):
+        name, separator, text = given.partition(":=")
+        if separator:
+            try:
+                found[name] = yaml.safe_load(text)
+            except yaml.YAMLError:
+                found[name] = text
     return found
 
 
@@ -386,6 +379,19 @@ def check_command_line(argv: Sequence[str]) -> None:
     ParameterError
         Naming the argument.
     """
+    for flag, given in _parameter_arguments(argv):
+        name, separator, text = given.partition(":=")
+        if not separator or not name:
+            raise ParameterError(f"{flag} {given!r}: expected name:=value")
+        if not text.strip():
+            raise ParameterError(
+                f"{flag} {name}:= has no value: give {name}:=<value> (an empty string: "
+                f"{name}:=\"''\")"
+            )
+
+
+def _parameter_arguments(argv: Sequence[str]) -> Iterator[tuple[str, str]]:
+    # (flag, the argument after it) of every -p/--param inside a --ros-args section.
     in_ros_args = False
     arguments = list(argv)
     for index, argument in enumerate(arguments):
@@ -394,15 +400,7 @@ def check_command_line(argv: Sequence[str]) -> None:
         elif argument == "--":
             in_ros_args = False
         elif in_ros_args and argument in ("-p", "--param"):
-            given = arguments[index + 1] if index + 1 < len(arguments) else ""
-            name, separator, text = given.partition(":=")
-            if not separator or not name:
-                raise ParameterError(f"{argument} {given!r}: expected name:=value")
-            if not text.strip():
-                raise ParameterError(
-                    f"{argument} {name}:= has no value: give {name}:=<value> (an empty string: "
-                    f"{name}:=\"''\")"
-                )
+            yield argument, arguments[index + 1] if index + 1 < len(arguments) else ""
 
 
 def _key_pattern(key: str) -> re.Pattern[str]:
