@@ -138,7 +138,8 @@ def generate_bench(
     """Generate each split's station sequences (``bench-stations`` preset) not yet there.
 
     The validation split uses seed 1, the test split seed 0, so no two share a frame plan.
-    The package's own station is ``station``. Needs the optional ``bpy``.
+    The package's own station is ``station``. Needs the optional ``bpy``. A station folder
+    without ``frames.csv`` is regenerated only when it holds nothing but a sequence's files.
 
     Returns
     -------
@@ -148,6 +149,7 @@ def generate_bench(
     from allo_mrad_ros.resources import share_path
     from allo_mrad_ros.synth.config import preset
     from allo_mrad_ros.synth.generator import generate
+    from allo_mrad_ros.targets import SEQUENCE, TargetError, check_target
 
     made = []
     for split, stations in splits.items():
@@ -162,6 +164,11 @@ def generate_bench(
             )
             if not mesh.is_file():
                 raise StationError(f"{mesh}: prepared model missing (run the prepare step)")
+            try:
+                # A partial sequence of ours is replaced; anything else there is refused.
+                check_target(folder, SEQUENCE, overwrite=True, inputs=(mesh,))
+            except TargetError as error:
+                raise StationError(str(error)) from None
             seed = 1 if split == "val" else 0
             generate(
                 preset("bench-stations"), folder, seed, mesh=mesh, overwrite=True, progress=False

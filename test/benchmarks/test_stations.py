@@ -106,3 +106,14 @@ def test_the_bench_names_a_missing_station_sequence_in_one_line(tmp_path, capsys
 
     assert main([str(tmp_path), "--split", "val"]) == 2
     assert "station sequence missing" in capsys.readouterr().err
+
+
+def test_generation_refuses_a_station_folder_holding_other_files(tmp_path):
+    from allo_mrad_ros.benchmarks.stations import generate_bench
+
+    folder = tmp_path / "bench" / "val" / "station"
+    folder.mkdir(parents=True)
+    (folder / "notes.txt").write_text("mine")
+    with pytest.raises(StationError, match="station"):
+        generate_bench(tmp_path, tmp_path / "bench", {"val": ("station",)})
+    assert (folder / "notes.txt").read_text() == "mine"
