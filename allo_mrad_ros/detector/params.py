@@ -12,6 +12,8 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Literal
 
+from allo_mrad_ros.detector.colour_transfer import DIRECTIONS as TRANSFER_DIRECTIONS
+
 ScoreScaling = Literal["fixed", "per_image"]
 NoiseRemoval = Literal["local_std", "cell_spread", "none"]
 PixelScore = Literal["continuous", "regions", "blurred"]
@@ -306,7 +308,7 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
     "colour_transfer": ParameterSpec(
         str,
         "per-frame colour table before the statistics: query (map the query), reference, none",
-        choices=("none", "reference", "query"),
+        choices=("none", *TRANSFER_DIRECTIONS),
     ),
     "transfer_bin": ParameterSpec(
         int,
