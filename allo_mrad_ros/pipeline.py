@@ -23,8 +23,10 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import METHODS, PROFILES, DetectionResult, MradParams, profile
 from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, BackendError, select_backend
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
+from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render.reuse import ReferenceReuse, ReuseBounds
 from allo_mrad_ros.view import View
 
 RENDER_BACKENDS = ("", "osmesa", "egl")
@@ -112,12 +114,17 @@ class RenderSettings:
         Draw celestial bodies only when in view (False exists to measure what culling saves).
     render_backend : str
         ``osmesa``, ``egl``, or empty to choose.
+    reuse : ReuseBounds or None
+        Warp the last rendered reference to a later view while these bounds allow
+        (:mod:`allo_mrad_ros.render.reuse`); None renders every view. Frames must then
+        come in their time order.
     """
 
     reference_scale: float = DEFAULT_SCALE
     shadows: bool = DEFAULT_SHADOWS
     cull_bodies: bool = True
     render_backend: str = ""
+    reuse: ReuseBounds | None = None
 
     def __post_init__(self) -> None:
         scale = self.reference_scale
@@ -130,6 +137,8 @@ class RenderSettings:
                 f"render_backend must be one of {list(RENDER_BACKENDS)}, "
                 f"got {self.render_backend!r}"
             )
+        if self.reuse is not None and not isinstance(self.reuse, ReuseBounds):
+            raise ProcessingError(f"reuse must be ReuseBounds or None, got {self.reuse!r}")
 
 
 @dataclass(frozen=True)
@@ -174,7 +183,9 @@ class PipelineConfig:
 class ReferenceProvider:
     """Renders the reference of a :class:`~allo_mrad_ros.view.View` for one camera.
 
-    Owns the OpenGL renderer: build, use and close it on one thread.
+    Owns the OpenGL renderer: build, use and close it on one thread. With
+    ``render.reuse`` set, a view close to the last rendered one gets that render warped
+    (:class:`~allo_mrad_ros.render.reuse.ReferenceReuse`); :attr:`reuse` counts both.
 
     Parameters
     ----------
@@ -183,7 +194,7 @@ class ReferenceProvider:
     camera : CameraIntrinsics
         Full-resolution intrinsics of the camera.
     render : RenderSettings
-        Scale, shadows, body culling, backend.
+        Scale, shadows, body culling, backend, reuse bounds.
     """
 
     def __init__(
@@ -193,10 +204,20 @@ class ReferenceProvider:
         render: RenderSettings,
     ) -> None:
         self.settings = render
+        self._camera = camera
+        self.reference_camera = camera.scaled(render.reference_scale)
+        self.reuse: ReferenceReuse | None = None
+        render_camera, scale = camera, render.reference_scale
+        if render.reuse is not None:
+            self.reuse = ReferenceReuse(
+                self.reference_camera, render.reuse, self.reference_camera.width / camera.width
+            )
+            # The keyframe is rendered at the reference's own size plus the reuse margin.
+            render_camera, scale = self.reuse.wide_camera, 1.0
         self.renderer = ReferenceRenderer(
             mesh,
-            camera,
-            scale=render.reference_scale,
+            render_camera,
+            scale=scale,
             backend=render.render_backend or None,
             shadows=render.shadows,
             cull_bodies=render.cull_bodies,
@@ -205,13 +226,28 @@ class ReferenceProvider:
     @property
     def camera(self) -> CameraIntrinsics:
         """Full-resolution intrinsics the references are rendered for."""
-        return self.renderer.intrinsics
+        return self._camera
 
-    def render(self, view: View) -> np.ndarray:
-        """The reference RGB image of ``view``, the Sun's disc included."""
-        return self.renderer.render(
-            view.T_station_camera, view.sun_direction, view.sun_strength, view.sky_bodies
-        ).rgb
+    def render(self, view: View, time_s: float | None = None) -> np.ndarray:
+        """The reference RGB image of ``view``, the Sun's disc included.
+
+        ``time_s`` is the frame's time (its stamp), which limits how long a render is
+        reused; None leaves age unchecked. With reuse the array is read-only (it may be the
+        last render's own).
+        """
+        if self.reuse is None:
+            return self._render(view)[0]
+        return self.reuse.reference(view, time_s, self._render)
+
+    def _render(self, view: View) -> tuple[np.ndarray, np.ndarray]:
+        result = self.renderer.render(
+            view.T_station_camera,
+            view.sun_direction,
+            view.sun_strength,
+            view.sky_bodies,
+            depth=self.reuse is not None,
+        )
+        return result.rgb, result.depth
 
     def close(self) -> None:
         """Release the GL context."""
@@ -253,7 +289,12 @@ class Pipeline:
         Parameters and methods (its render settings are the provider's).
     """
 
-    def __init__(self, provider: ReferenceProvider, config: PipelineConfig | None = None) -> None:
+    def __init__(
+        self,
+        provider: ReferenceProvider,
+        config: PipelineConfig | None = None,
+        cache: ReferenceCache | None = None,
+    ) -> None:
         config = config or PipelineConfig(render=provider.settings)
         if config.render != provider.settings:
             raise ProcessingError(
@@ -261,6 +302,9 @@ class Pipeline:
             )
         self._provider = provider
         self._config = config
+        # What the methods derive from a reused reference alone; shared with the pipelines
+        # with_config makes (its keys hold every parameter a value depends on).
+        self._cache = cache or ReferenceCache()
         try:
             self._backend = select_backend(config.array_backend)
         except BackendError as error:
@@ -287,7 +331,12 @@ class Pipeline:
 
     def with_config(self, config: PipelineConfig) -> Pipeline:
         """A pipeline with another configuration sharing this one's provider."""
-        return Pipeline(self._provider, config)
+        return Pipeline(self._provider, config, self._cache)
+
+    @property
+    def cache(self) -> ReferenceCache:
+        """What the methods derived from the reference in use (hits and misses counted)."""
+        return self._cache
 
     def detect(
         self, image: np.ndarray, reference: np.ndarray, score_map: bool = True
@@ -305,12 +354,18 @@ class Pipeline:
         results, timings = {}, {}
         for name in self._config.methods:
             start = time.perf_counter()
-            results[name] = METHODS[name](image, reference, params, backend=self._backend)
+            results[name] = METHODS[name](
+                image, reference, params, backend=self._backend, cache=self._cache
+            )
             timings[name] = 1e3 * (time.perf_counter() - start)
         return results, timings
 
     def process(
-        self, image: np.ndarray, view: View, reference: np.ndarray | None = None
+        self,
+        image: np.ndarray,
+        view: View,
+        reference: np.ndarray | None = None,
+        time_s: float | None = None,
     ) -> ProcessedFrame:
         """Detect anomalies in ``image`` seen from ``view``.
 
@@ -322,6 +377,8 @@ class Pipeline:
             Camera pose, lighting and celestial bodies.
         reference : numpy.ndarray, optional
             A pre-rendered reference to use instead of rendering one.
+        time_s : float, optional
+            The frame's time, for reference reuse (see :meth:`ReferenceProvider.render`).
 
         Returns
         -------
@@ -344,7 +401,7 @@ class Pipeline:
             )
         timings: dict[str, float] = {"render": 0.0}
         if reference is None:
-            reference = self._provider.render(view)
+            reference = self._provider.render(view, time_s)
             timings["render"] = 1e3 * (time.perf_counter() - start)
         results, detect_ms = self.detect(image, reference)
         timings.update(detect_ms)

@@ -33,6 +33,7 @@ import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_edges
 from allo_mrad_ros.detector.images import area_downscale, to_float32
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 
 __all__ = [
     "ColourTransfer",
@@ -83,9 +84,11 @@ class ColourTransfer:
     bin_width: int
     pairs: int
 
-    def offsets(self, reference: np.ndarray) -> np.ndarray:
-        """Per-pixel offsets (H x W x 3 float32) of a uint8 reference image."""
-        bins = _bin_index(reference, self.bin_width)
+    def offsets(self, reference: np.ndarray, bins: np.ndarray | None = None) -> np.ndarray:
+        """Per-pixel offsets (H x W x 3 float32) of a uint8 reference image (``bins``: its
+        bin indices at :attr:`bin_width`, when known)."""
+        if bins is None:
+            bins = _bin_index(reference, self.bin_width)
         n = 256 // self.bin_width
         flat = self.lut.reshape(n * n * n, 3)
         return flat[bins]
@@ -97,6 +100,7 @@ def fit_colour_transfer(
     finest_bin: int = 16,
     min_count: int = 16,
     edge_margin: int = 0,
+    cache: ReferenceCache | None = None,
 ) -> ColourTransfer:
     """Fit the reference-to-query colour table of one frame.
 
@@ -112,6 +116,8 @@ def fit_colour_transfer(
         Pairs a bin needs to have an offset of its own, >= 1.
     edge_margin : int
         Pixels around reference edges left out of the fit, 0..16.
+    cache : ReferenceCache, optional
+        Where the reference's samples and bins are kept while it is reused.
 
     Returns
     -------
@@ -133,16 +139,36 @@ def fit_colour_transfer(
     if not 0 <= edge_margin <= 16:
         raise ColourTransferError(f"transfer_edge_margin must be in [0, 16], got {edge_margin}")
     query8, reference8 = _paired(query, reference)
-    keep = ~_near_edges(reference8, edge_margin)
+    samples = derived(
+        cache,
+        reference8,
+        ("transfer_samples", edge_margin, finest_bin),
+        lambda: _reference_samples(reference8, edge_margin, finest_bin),
+    )
+    offsets = query8[samples.keep][:: samples.stride].astype(np.int32) - samples.pixels
+    lut = _nested_medians(samples.keys, offsets, finest_bin, min_count)
+    return ColourTransfer(lut=lut, bin_width=finest_bin, pairs=int(samples.pixels.shape[0]))
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """The reference side of the fit's pairs: which pixels, their colours, their bins."""
+
+    keep: np.ndarray  # H x W bool: away from edges
+    stride: int  # every stride-th kept pixel is a pair
+    pixels: np.ndarray  # (N, 3) uint8 reference colours of the pairs
+    keys: tuple[np.ndarray, ...]  # their bin index at each nested width, coarsest first
+
+
+def _reference_samples(reference: np.ndarray, edge_margin: int, finest_bin: int) -> _Samples:
+    keep = ~_near_edges(reference, edge_margin)
     if not keep.any():
         keep[:] = True
-    ref_pixels = reference8[keep]
-    offsets = query8[keep].astype(np.int32) - ref_pixels
-    stride = -(-ref_pixels.shape[0] // MAX_PAIRS)
-    if stride > 1:
-        ref_pixels, offsets = ref_pixels[::stride], offsets[::stride]
-    lut = _nested_medians(ref_pixels, offsets, finest_bin, min_count)
-    return ColourTransfer(lut=lut, bin_width=finest_bin, pairs=int(ref_pixels.shape[0]))
+    pixels = reference[keep]
+    stride = max(1, -(-pixels.shape[0] // MAX_PAIRS))
+    pixels = pixels[::stride]
+    widths = _WIDTHS[: _WIDTHS.index(finest_bin) + 1]
+    return _Samples(keep, stride, pixels, tuple(_bin_index(pixels, w) for w in widths))
 
 
 def apply_to_reference(reference: np.ndarray, transfer: ColourTransfer) -> np.ndarray:
@@ -171,6 +197,7 @@ def apply_to_query(
     transfer: ColourTransfer,
     glare_level: float = 256.0,
     gain: np.ndarray | None = None,
+    cache: ReferenceCache | None = None,
 ) -> np.ndarray:
     """The query in the reference's colours: ``r + (query - r - offset(r)) / gain``.
 
@@ -196,6 +223,8 @@ def apply_to_query(
     gain : numpy.ndarray, optional
         (G*G, 3) per-cell, per-channel contrast gain of the query over the reference (as
         :func:`~allo_mrad_ros.detector.photometric.fit_cell_affine` fits it); 1 if omitted.
+    cache : ReferenceCache, optional
+        Where the reference's bins and resized colours are kept while it is reused.
 
     Returns
     -------
@@ -206,8 +235,16 @@ def apply_to_query(
     small = _eight_bit(reference)
     # The prediction r + offset(r) depends on the reference pixel alone: made at the
     # reference's size, then resized with it.
-    predicted = small.astype(np.float32) + transfer.offsets(small)
-    pixels = _resized(small, (height, width))
+    bins = derived(
+        cache,
+        small,
+        ("bins", transfer.bin_width),
+        lambda: _bin_index(small, transfer.bin_width),
+    )
+    predicted = small.astype(np.float32) + transfer.offsets(small, bins)
+    pixels = derived(
+        cache, small, ("nearest", height, width), lambda: _resized(small, (height, width))
+    )
     predicted = _resized(predicted, (height, width))
     values = _eight_bit(query)
     departure = cv2.subtract(values.astype(np.float32), predicted)
@@ -295,14 +332,15 @@ def _bin_index(pixels: np.ndarray, width: int) -> np.ndarray:
 
 
 def _nested_medians(
-    ref_pixels: np.ndarray, offsets: np.ndarray, finest: int, min_count: int
+    keys_per_width: tuple[np.ndarray, ...], offsets: np.ndarray, finest: int, min_count: int
 ) -> np.ndarray:
+    # keys_per_width: each pair's bin index at each nested width, coarsest first.
     n_fine = 256 // finest
     fine = np.indices((n_fine, n_fine, n_fine)).reshape(3, -1).T  # finest bin coordinates
     lut = np.zeros((n_fine**3, 3), np.float32)
-    for width in _WIDTHS[: _WIDTHS.index(finest) + 1]:
+    widths = _WIDTHS[: _WIDTHS.index(finest) + 1]
+    for width, keys in zip(widths, keys_per_width, strict=True):
         n = 256 // width
-        keys = _bin_index(ref_pixels, width)
         medians, counts = _group_medians(keys, offsets, n**3)
         enclosing = fine * finest // width
         parent = (enclosing[:, 0] * n + enclosing[:, 1]) * n + enclosing[:, 2]

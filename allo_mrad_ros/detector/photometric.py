@@ -23,6 +23,7 @@ from scipy.ndimage import median_filter
 
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
 from allo_mrad_ros.detector.images import area_downscale, to_float32
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 
 QUANTILES = np.linspace(0.1, 0.9, 9)
 SATURATED = 250.0
@@ -105,6 +106,7 @@ def fit_cell_affine(
     grid: int,
     max_gain: float,
     quantiles: Callable[[np.ndarray, int], np.ndarray] | None = None,
+    cache: ReferenceCache | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``query ~ gain * reference + offset`` per cell and channel.
 
@@ -122,6 +124,8 @@ def fit_cell_affine(
     quantiles : callable, optional
         ``(image, grid) -> quantiles`` as :func:`cell_quantiles` (the default), e.g. an
         array backend's.
+    cache : ReferenceCache, optional
+        Where the reference's quantiles are kept while it is reused.
 
     Returns
     -------
@@ -133,7 +137,9 @@ def fit_cell_affine(
     query, reference = _same_size(query, reference)
     quantiles = quantiles or cell_quantiles
     q = quantiles(query, grid)
-    r = quantiles(reference, grid)
+    r = derived(
+        cache, reference, ("cell_quantiles", quantiles, grid), lambda: quantiles(reference, grid)
+    )
     i, j = np.triu_indices(QUANTILES.size, k=1)
     dq, dr = q[..., j] - q[..., i], r[..., j] - r[..., i]
     # Pairs with a flat reference carry no slope; they are left out of the median.

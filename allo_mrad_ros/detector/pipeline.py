@@ -36,6 +36,7 @@ from allo_mrad_ros.detector.postprocess import (
     scale_scores,
     threshold_scores,
 )
+from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.detector.regions import (
     find_seeds,
     grow_hysteresis,
@@ -78,7 +79,7 @@ class DetectionResult:
 
 
 Detector = Callable[..., DetectionResult]
-"""``(query, reference, params, *, backend=None) -> DetectionResult``."""
+"""``(query, reference, params, *, backend=None, cache=None) -> DetectionResult``."""
 
 
 class _StageTimer:
@@ -132,6 +133,7 @@ def detect(
     params: MradParams | None = None,
     *,
     backend: PixelBackend | str | None = None,
+    cache: ReferenceCache | None = None,
 ) -> DetectionResult:
     """Run MRAD on a query image against the rendered reference of the same view.
 
@@ -146,6 +148,10 @@ def detect(
     backend : PixelBackend or str, optional
         Array backend of the cross score's per-pixel work (see
         :func:`~allo_mrad_ros.detector.backends.select_backend`); NumPy when omitted.
+    cache : ReferenceCache, optional
+        Keeps what is derived from a read-only ``reference`` alone (cell statistics,
+        quantiles, colour bins) for the next call with the same array object; the result is
+        the same as without it.
 
     Returns
     -------
@@ -164,6 +170,8 @@ def detect(
     query = check_image(query, "query", params.bit_depth)
     reference = check_image(reference, "reference", params.bit_depth)
     check_aspect(query, reference)
+    if cache is not None:
+        cache.use(reference)
     full_shape = query.shape[:2]
     work = _resize_query(query, params.process_scale)
     if params.process_scale < 1.0 and min(work.shape[:2]) < params.grid:
@@ -174,7 +182,7 @@ def detect(
         )
     if params.colour_transfer != "none":
         with timer.stage("colour_transfer"):
-            work, reference = transfer_colours(work, reference, params)
+            work, reference = transfer_colours(work, reference, params, cache)
     # The ranking map may use another photometric model than the mask; both come from
     # one pass that shares the cell statistics.
     models = [params.photometric]
@@ -190,6 +198,7 @@ def detect(
             models,
             params.max_gain,
             backend,
+            cache,
         )
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(
@@ -231,9 +240,15 @@ def detect(
 
 
 def transfer_colours(
-    query: np.ndarray, reference: np.ndarray, params: MradParams
+    query: np.ndarray,
+    reference: np.ndarray,
+    params: MradParams,
+    cache: ReferenceCache | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Stage 0: bring query and reference to one set of colours (``params.colour_transfer``).
+
+    ``cache`` keeps the reference's share of the work while it is reused (see
+    :func:`detect`).
 
     Returns
     -------
@@ -248,15 +263,17 @@ def transfer_colours(
         params.transfer_bin,
         params.transfer_min_count,
         params.transfer_edge_margin,
+        cache,
     )
     if params.colour_transfer == "query":
         gain = None
         if params.transfer_gain:
             # Only a flatter query's contrast is restored: a steeper one (a gain a black
             # shadow or a tone curve's toe inflated) would shrink an object's departure.
-            gain, _ = fit_cell_affine(query, reference, params.grid, params.max_gain)
+            gain, _ = fit_cell_affine(query, reference, params.grid, params.max_gain, cache=cache)
             gain = np.minimum(gain, 1.0)
-        return apply_to_query(query, reference, transfer, params.glare_level, gain), reference
+        mapped = apply_to_query(query, reference, transfer, params.glare_level, gain, cache)
+        return mapped, reference
     reference = apply_to_reference(reference, transfer)
     if params.glare_level < 256.0:
         query = clip_glare(query, reference, params.glare_level)
@@ -282,11 +299,12 @@ def detect_pad(
     params: MradParams | None = None,
     *,
     backend: PixelBackend | str | None = None,
+    cache: ReferenceCache | None = None,
 ) -> DetectionResult:
     """PAD baseline: the cross score with one cell and only a threshold after scaling.
 
     The result's ``score`` is the scaled cross score; ``mask`` is where it reaches
-    ``params.min_score``.
+    ``params.min_score``. ``cache`` as for :func:`detect`.
     """
     params = params or MradParams()
     if reference is None:
@@ -294,9 +312,13 @@ def detect_pad(
     query = check_image(query, "query", params.bit_depth)
     reference = check_image(reference, "reference", params.bit_depth)
     check_aspect(query, reference)
+    if cache is not None:
+        cache.use(reference)
     timer = _StageTimer()
     with timer.stage("cross_score"):
-        raw = cross_score(query, reference, 1, params.abs_floor, params.rel_floor, backend=backend)
+        raw = cross_score(
+            query, reference, 1, params.abs_floor, params.rel_floor, backend=backend, cache=cache
+        )
     return _threshold_only(raw, params, timer)
 
 
@@ -306,11 +328,12 @@ def detect_rxd(
     params: MradParams | None = None,
     *,
     backend: PixelBackend | str | None = None,
+    cache: ReferenceCache | None = None,
 ) -> DetectionResult:
     """RXD baseline: each pixel against the whole query's mean and covariance.
 
-    ``reference`` is accepted for a uniform interface and ignored. Scores and mask as in
-    :func:`detect_pad`.
+    ``reference`` and ``cache`` are accepted for a uniform interface and ignored. Scores and
+    mask as in :func:`detect_pad`.
     """
     params = params or MradParams()
     query = check_image(query, "query", params.bit_depth)

@@ -18,6 +18,7 @@ import numpy as np
 from allo_mrad_ros.detector.backends import PixelBackend, resolve_backend
 from allo_mrad_ros.detector.photometric import fit_cell_affine, saturation_variance
 from allo_mrad_ros.detector.quadratic import CellModels, pixel_quadratic
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 from allo_mrad_ros.detector.statistics import CellStatistics, regularised_precision
 
 PHOTOMETRIC_MODELS = ("none", "cell_affine")
@@ -36,6 +37,7 @@ def cross_score(
     photometric: str = "none",
     max_gain: float = 2.0,
     backend: PixelBackend | str | None = None,
+    cache: ReferenceCache | None = None,
 ) -> np.ndarray:
     """Return the cross RXD score of every query pixel against its reference cell.
 
@@ -49,7 +51,7 @@ def cross_score(
         H x W float32 raw score of the query, finite.
     """
     return cross_scores(
-        query, reference, grid, abs_floor, rel_floor, (photometric,), max_gain, backend
+        query, reference, grid, abs_floor, rel_floor, (photometric,), max_gain, backend, cache
     )[0]
 
 
@@ -62,6 +64,7 @@ def cross_scores(
     photometrics: Sequence[str],
     max_gain: float = 2.0,
     backend: PixelBackend | str | None = None,
+    cache: ReferenceCache | None = None,
 ) -> list[np.ndarray]:
     """Return :func:`cross_score` under each photometric model, sharing the statistics.
 
@@ -80,6 +83,8 @@ def cross_scores(
     backend : PixelBackend or str, optional
         Where the per-pixel work runs (see :func:`~.backends.select_backend`); NumPy when
         omitted.
+    cache : ReferenceCache, optional
+        Where the reference's cell statistics and precisions are kept while it is reused.
 
     Returns
     -------
@@ -90,33 +95,52 @@ def cross_scores(
         if photometric not in PHOTOMETRIC_MODELS:
             raise ValueError(f"photometric must be 'none' or 'cell_affine', got {photometric!r}")
     backend = resolve_backend(backend)
-    ref_stats = backend.cell_statistics(reference, grid)
-    query_stats = backend.cell_statistics(query, grid)
+    statistics = backend.cell_statistics
+    ref_stats = derived(
+        cache, reference, ("cell_statistics", statistics, grid), lambda: statistics(reference, grid)
+    )
+    query_stats = statistics(query, grid)
     affine = None
     models = []
     for photometric in photometrics:
         if photometric == "none":
-            models.append(_plain_models(ref_stats, query_stats, abs_floor, rel_floor))
+            ref_precision = derived(
+                cache,
+                reference,
+                ("precision", statistics, grid, abs_floor, rel_floor),
+                lambda: regularised_precision(ref_stats.cov, abs_floor, rel_floor),
+            )
+            models.append(
+                CellModels(
+                    ref_mean=ref_stats.mean,
+                    ref_precision=ref_precision,
+                    query_mean=query_stats.mean,
+                    query_precision=regularised_precision(query_stats.cov, abs_floor, rel_floor),
+                )
+            )
             continue
         if affine is None:
             gain, offset = fit_cell_affine(
-                query, reference, grid, max_gain, quantiles=backend.cell_quantiles
+                query, reference, grid, max_gain, quantiles=backend.cell_quantiles, cache=cache
             )
-            affine = (gain, offset, saturation_variance(reference, grid, max_gain))
+            widening = derived(
+                cache,
+                reference,
+                ("saturation_variance", grid, max_gain),
+                lambda: saturation_variance(reference, grid, max_gain),
+            )
+            widened_precision = derived(
+                cache,
+                reference,
+                ("widened_precision", statistics, grid, max_gain, abs_floor, rel_floor),
+                lambda widening=widening: regularised_precision(
+                    ref_stats.cov + widening, abs_floor, rel_floor
+                ),
+            )
+            affine = (gain, offset, widening, widened_precision)
         models.append(_affine_models(ref_stats, query_stats, *affine, abs_floor, rel_floor))
     quadratics = [pixel_quadratic(model) for model in models]
     return backend.evaluate(query, grid, quadratics, check_finite=abs_floor < _BOUNDED_FLOOR)
-
-
-def _plain_models(
-    ref_stats: CellStatistics, query_stats: CellStatistics, abs_floor: float, rel_floor: float
-) -> CellModels:
-    return CellModels(
-        ref_mean=ref_stats.mean,
-        ref_precision=regularised_precision(ref_stats.cov, abs_floor, rel_floor),
-        query_mean=query_stats.mean,
-        query_precision=regularised_precision(query_stats.cov, abs_floor, rel_floor),
-    )
 
 
 def _affine_models(
@@ -125,6 +149,7 @@ def _affine_models(
     gain: np.ndarray,
     offset: np.ndarray,
     widening: np.ndarray,
+    widened_ref_precision: np.ndarray,
     abs_floor: float,
     rel_floor: float,
 ) -> CellModels:
@@ -132,13 +157,12 @@ def _affine_models(
     # regularisation floors mean the same whatever the query's exposure: a darker query
     # does not hide its anomalies under a floor sized for the render. Both models are
     # widened where the reference is saturated, so identical images still cancel exactly.
+    # widened_ref_precision is regularised_precision(ref_stats.cov + widening, ...).
     inverse = 1.0 / gain
     in_ref_units = query_stats.cov * inverse[:, :, None] * inverse[:, None, :]
     return CellModels(
         ref_mean=gain * ref_stats.mean + offset,
-        ref_precision=_to_query_units(
-            regularised_precision(ref_stats.cov + widening, abs_floor, rel_floor), inverse
-        ),
+        ref_precision=_to_query_units(widened_ref_precision, inverse),
         query_mean=query_stats.mean,
         query_precision=_to_query_units(
             regularised_precision(in_ref_units + widening, abs_floor, rel_floor), inverse

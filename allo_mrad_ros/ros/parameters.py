@@ -26,6 +26,9 @@ from allo_mrad_ros.errors import InvalidInput, one_line
 from allo_mrad_ros.geometry import unit_vector
 from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, coerce_value
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
+from allo_mrad_ros.render.reuse import ReuseBounds
+
+_REUSE = ReuseBounds()
 
 DETECTOR_PREFIX = "mrad."
 
@@ -129,6 +132,36 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
         ),
         "shadows": NodeParameter(
             DEFAULT_SHADOWS, _flag("render directional shadows from the Sun"), True
+        ),
+        "reuse_reference": NodeParameter(
+            True,
+            _flag(
+                "warp the last rendered reference to a nearby view instead of rendering "
+                "every frame, within the reuse_max_* bounds"
+            ),
+        ),
+        "reuse_max_error_px": NodeParameter(
+            _REUSE.max_error_px,
+            _number(
+                "largest image error of a warped reference in camera pixels (parallax bound "
+                "plus uncovered border); 0 renders every frame",
+                0.0,
+                256.0,
+            ),
+        ),
+        "reuse_max_rotation_deg": NodeParameter(
+            _REUSE.max_rotation_deg,
+            _number("largest camera rotation from the rendered view, degrees", 0.0, 20.0),
+        ),
+        "reuse_max_age_s": NodeParameter(
+            _REUSE.max_age_s,
+            _number(
+                "longest a render is reused, seconds of image stamps", 0.0, 3600.0, low_open=True
+            ),
+        ),
+        "reuse_max_sun_change_deg": NodeParameter(
+            _REUSE.max_sun_change_deg,
+            _number("largest change of the Sun's (or a body's) direction, degrees", 0.0, 10.0),
         ),
         "sun_direction": NodeParameter(
             [1.0, 0.0, 0.0],
@@ -462,7 +495,7 @@ class NodeConfig:
     """The node's validated settings, one immutable snapshot (replaced on a change).
 
     Every field is named as its parameter; ``pipeline`` gathers ``reference_scale``,
-    ``shadows``, ``render_backend`` and the ``mrad.*`` parameters.
+    ``shadows``, ``render_backend``, the ``reuse_*`` bounds and the ``mrad.*`` parameters.
     """
 
     pose_source: str
@@ -498,10 +531,19 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
     if values["mesh"] and not Path(values["mesh"]).is_file():
         # Checked here, at start: else the node would run and report it per camera_info.
         raise ParameterError(f"mesh must be an existing model file, got {values['mesh']!r}")
+    reuse = None
+    if values["reuse_reference"]:
+        reuse = ReuseBounds(
+            max_error_px=float(values["reuse_max_error_px"]),
+            max_rotation_deg=float(values["reuse_max_rotation_deg"]),
+            max_age_s=float(values["reuse_max_age_s"]),
+            max_sun_change_deg=float(values["reuse_max_sun_change_deg"]),
+        )
     render = RenderSettings(
         reference_scale=values["reference_scale"],
         shadows=values["shadows"],
         render_backend=values["render_backend"],
+        reuse=reuse,
     )
     return NodeConfig(
         pose_source=values["pose_source"],

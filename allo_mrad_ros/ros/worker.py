@@ -227,10 +227,10 @@ class ProcessingWorker:
 
     def _provider(self, intrinsics: CameraIntrinsics, config: NodeConfig) -> ReferenceProvider:
         provider = ReferenceProvider(config.mesh or None, intrinsics, config.pipeline.render)
-        renderer = provider.renderer
+        renderer, reference = provider.renderer, provider.reference_camera
         self._logger.info(
             f"renderer ready: {renderer.backend}, {renderer.triangle_count} triangles, reference "
-            f"{renderer.output_intrinsics.width}x{renderer.output_intrinsics.height}; detector "
+            f"{reference.width}x{reference.height}; detector "
             f"arrays on {select_backend(config.pipeline.array_backend).name}"
         )
         return provider
@@ -286,8 +286,11 @@ class ProcessingWorker:
             if view is None:
                 return None
             start = time.perf_counter()
-            reference = pipeline.provider.render(view)
+            provider = pipeline.provider
+            reference = provider.render(view, messages.stamp_to_ns(msg.header.stamp) / 1e9)
             render_ms = 1e3 * (time.perf_counter() - start)
+            reused = provider.reuse is not None and provider.reuse.last_decision.reuse
+            self._diagnostics.count("references_reused" if reused else "references_rendered")
         except MessageError as error:
             report(error)
             return None
