@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
 
 setup: $(STAMP)
 
@@ -84,6 +84,10 @@ bench-render: $(STAMP)
 bench-node: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
+
+# Accuracy cost of reference reuse on moving-arm trajectories (renders per frame, P.AP).
+bench-reuse: $(STAMP)
+	$(PY) -m allo_mrad_ros.benchmarks.reuse --out reports/bench_reuse.json
 
 # Both workers in one run: per camera mode the one-thread node, then the pipelined one.
 bench-node-compare: $(STAMP)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.backends import PixelBackend
+from allo_mrad_ros.detector.backends import PixelBackend, resolve_backend
 from allo_mrad_ros.detector.colour_transfer import (
     apply_to_query,
     apply_to_reference,
@@ -182,7 +182,7 @@ def detect(
         )
     if params.colour_transfer != "none":
         with timer.stage("colour_transfer"):
-            work, reference = transfer_colours(work, reference, params, cache)
+            work, reference = transfer_colours(work, reference, params, cache, backend)
     # The ranking map may use another photometric model than the mask; both come from
     # one pass that shares the cell statistics.
     models = [params.photometric]
@@ -244,11 +244,12 @@ def transfer_colours(
     reference: np.ndarray,
     params: MradParams,
     cache: ReferenceCache | None = None,
+    backend: PixelBackend | str | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Stage 0: bring query and reference to one set of colours (``params.colour_transfer``).
 
-    ``cache`` keeps the reference's share of the work while it is reused (see
-    :func:`detect`).
+    ``cache`` keeps the reference's share of the work while it is reused and ``backend``
+    computes the contrast gain's cell quantiles (see :func:`detect`).
 
     Returns
     -------
@@ -270,7 +271,10 @@ def transfer_colours(
         if params.transfer_gain:
             # Only a flatter query's contrast is restored: a steeper one (a gain a black
             # shadow or a tone curve's toe inflated) would shrink an object's departure.
-            gain, _ = fit_cell_affine(query, reference, params.grid, params.max_gain, cache=cache)
+            quantiles = resolve_backend(backend).cell_quantiles
+            gain, _ = fit_cell_affine(
+                query, reference, params.grid, params.max_gain, quantiles, cache
+            )
             gain = np.minimum(gain, 1.0)
         mapped = apply_to_query(query, reference, transfer, params.glare_level, gain, cache)
         return mapped, reference

@@ -39,6 +39,10 @@ from allo_mrad_ros.view import View
 # A warp that moves no pixel by more than this (reference pixels) is no warp: resampling
 # would only blur the keyframe.
 _STILL_PX = 0.02
+# Resampling of the warp.
+_INTERPOLATION = cv2.INTER_NEAREST
+# Rotation axes sampled for the margin.
+_MARGIN_AXES = 200
 # Relative change of the Sun's strength that needs a new render (it scales every lit pixel).
 _SUN_STRENGTH_TOLERANCE = 1e-3
 
@@ -91,11 +95,16 @@ class ReuseBounds:
         :attr:`max_rotation_deg` about any axis keeps the image covered."""
         if self.max_rotation_deg == 0:
             return 0
-        angle = math.radians(self.max_rotation_deg)
-        focal = max(camera.fx, camera.fy)
-        half_diagonal = math.hypot(camera.width, camera.height) / 2.0
-        # Pan and tilt move the border by f tan(angle); a roll moves a corner by r angle.
-        return math.ceil(max(focal * math.tan(angle), half_diagonal * angle)) + 1
+        # Where the image's corners come from in the keyframe after a rotation by the bound
+        # about axes spread over the sphere (an off-axis corner moves more than f tan(angle)).
+        inverse_k = np.linalg.inv(camera.matrix)
+        reach = 0.0
+        for axis in _sphere_points(_MARGIN_AXES):
+            rotation, _ = cv2.Rodrigues(axis * math.radians(self.max_rotation_deg))
+            source = camera.matrix @ rotation.T @ inverse_k
+            reach = max(reach, _beyond(_apply(source, _corners(camera)), camera))
+        # One pixel for the sampled axes' gaps, one for the resampling's footprint.
+        return math.ceil(reach) + 2
 
 
 def widened(camera: CameraIntrinsics, margin: int) -> CameraIntrinsics:
@@ -261,7 +270,7 @@ def warp(keyframe: Keyframe, decision: ReuseDecision, camera: CameraIntrinsics) 
         keyframe.wide,
         decision.homography,
         (camera.width, camera.height),
-        flags=cv2.INTER_LINEAR,
+        flags=_INTERPOLATION,
         borderMode=cv2.BORDER_REPLICATE,
     )
 
@@ -376,10 +385,23 @@ def _uncovered_px(
     homography: np.ndarray, camera: CameraIntrinsics, wide: CameraIntrinsics
 ) -> float:
     """How far (keyframe pixels) the view's image reaches beyond the keyframe's render."""
-    source = _apply(np.linalg.inv(homography), _corners(camera))
-    low = -0.5 - source
-    high = source - np.array([wide.width - 0.5, wide.height - 0.5])
+    return _beyond(_apply(np.linalg.inv(homography), _corners(camera)), wide)
+
+
+def _beyond(points: np.ndarray, camera: CameraIntrinsics) -> float:
+    """How far the farthest of ``points`` lies outside ``camera``'s image (0: inside)."""
+    low = -0.5 - points
+    high = points - np.array([camera.width - 0.5, camera.height - 0.5])
     return float(max(0.0, low.max(), high.max()))
+
+
+def _sphere_points(count: int) -> np.ndarray:
+    """``count`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    angle = math.pi * (3.0 - math.sqrt(5.0)) * index
+    radius = np.sqrt(1.0 - z * z)
+    return np.c_[radius * np.cos(angle), radius * np.sin(angle), z]
 
 
 def _largest_shift_px(homography: np.ndarray, camera: CameraIntrinsics, margin: int) -> float:

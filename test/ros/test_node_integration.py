@@ -96,6 +96,26 @@ def test_clean_frame_is_not_flagged(node_process, ros_peer, scenes):
     )
 
 
+def test_a_still_camera_reuses_its_reference_and_a_moved_one_renders(
+    node_process, ros_peer, scenes
+):
+    pose, clean, _, _ = scenes
+
+    def count(name):
+        return int(ros_peer.diagnostic_values().get(name, 0))
+
+    for offset in (3, 4):
+        assert publish_until_output(ros_peer, T0 + offset, clean, pose) is not None
+    assert ros_peer.wait_for(lambda: count("references_reused") >= 1, 5.0), (
+        ros_peer.diagnostic_values()
+    )
+    rendered = count("references_rendered")
+    assert rendered >= 1
+    moved = look_at([-26.0, -16.0, 8.0], [0.0, 0.0, 0.0])
+    assert publish_until_output(ros_peer, T0 + 5, clean, moved) is not None
+    assert ros_peer.wait_for(lambda: count("references_rendered") > rendered, 5.0)
+
+
 def test_missing_pose_gives_no_output_and_a_diagnostic(node_process, ros_peer, scenes):
     pose, clean, _, _ = scenes
     stamp = T0 + 3 * 10**9  # seconds away from any pose

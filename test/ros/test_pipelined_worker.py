@@ -68,11 +68,10 @@ class Stages:
                 stages.gl_threads.append(threading.get_ident())
                 stages.built.append(camera)
                 self.camera, self.settings = camera, settings
-                self.renderer = types.SimpleNamespace(
-                    backend="fake", triangle_count=0, output_intrinsics=camera
-                )
+                self.reference_camera, self.reuse = camera, None
+                self.renderer = types.SimpleNamespace(backend="fake", triangle_count=0)
 
-            def render(self, view):
+            def render(self, view, time_s=None):
                 stages.gl_threads.append(threading.get_ident())
                 time.sleep(seconds(stages.render_s))
                 return np.zeros((self.camera.height, self.camera.width, 3), np.uint8)
