@@ -53,6 +53,24 @@ def vision_msgs_module() -> Any | None:
     return msg
 
 
+def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, tuple[int, int]]:
+    """8-connected regions of ``mask`` inside the bounding box of its non-zero pixels:
+    ``(count with the background, labels of the box, stats in mask pixels, box origin)``.
+
+    Labelling only the box gives the same regions: labelling a whole 1080p mask costs about
+    20 ms on one core, its bounding box 0.3 ms, and an anomaly covers a small part of it.
+    """
+    foreground = mask if mask.dtype == np.uint8 else (mask > 0).astype(np.uint8)
+    x, y, width, height = cv2.boundingRect(foreground)
+    if width == 0 or height == 0:
+        return 1, np.zeros((0, 0), np.int32), np.zeros((1, 5), np.int32), (x, y)
+    box = foreground[y : y + height, x : x + width]
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(box, connectivity=8)
+    stats[:, 0] += x
+    stats[:, 1] += y
+    return count, labels, stats, (x, y)
+
+
 def region_peaks(
     mask: np.ndarray, score: np.ndarray
 ) -> list[tuple[tuple[int, int, int, int], float]]:
@@ -63,22 +81,22 @@ def region_peaks(
     (each mask pixel's centre scaled to the map), so no full-size map is needed. A score
     of neither size gives each region the peak 0.
     """
-    foreground = mask if mask.dtype == np.uint8 else (mask > 0).astype(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(foreground, connectivity=8)
+    count, labels, stats, (x, y) = _components(mask)
     if count <= 1:
         return []
     peaks = np.full(count, -np.inf)
     values = np.asarray(score)
-    if values.shape == labels.shape:
-        inside = labels > 0  # the regions' pixels only: a few of a full-HD image's
-        np.maximum.at(peaks, labels[inside], values[inside].astype(np.float64))
+    if values.shape == mask.shape[:2]:
+        inside = labels > 0  # the regions' pixels only
+        box = values[y : y + labels.shape[0], x : x + labels.shape[1]]
+        np.maximum.at(peaks, labels[inside], box[inside].astype(np.float64))
     elif values.ndim == 2 and all(
-        0 < s <= m for s, m in zip(values.shape, labels.shape, strict=True)
+        0 < s <= m for s, m in zip(values.shape, mask.shape[:2], strict=True)
     ):
         rows, columns = np.nonzero(labels)
         # The map pixel each mask pixel's centre lies in (OpenCV's resize geometry).
-        map_rows = _scaled_index(rows, values.shape[0] / labels.shape[0], values.shape[0])
-        map_columns = _scaled_index(columns, values.shape[1] / labels.shape[1], values.shape[1])
+        map_rows = _scaled_index(rows + y, values.shape[0] / mask.shape[0], values.shape[0])
+        map_columns = _scaled_index(columns + x, values.shape[1] / mask.shape[1], values.shape[1])
         np.maximum.at(
             peaks, labels[rows, columns], values[map_rows, map_columns].astype(np.float64)
         )
@@ -124,9 +142,7 @@ def detection_array(
 
 def connected_boxes(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
     """``(x, y, width, height)`` of each 8-connected region of a mask, in pixels."""
-    if mask.dtype != np.uint8:  # OpenCV takes any non-zero uint8 as foreground: no copy
-        mask = (mask > 0).astype(np.uint8)
-    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    count, _, stats, _ = _components(mask)
     return [tuple(int(v) for v in stats[i, :4]) for i in range(1, count)]
 
 

@@ -432,3 +432,20 @@ def test_region_peaks_on_a_map_of_another_ratio_take_the_pixel_each_centre_falls
         x = min(int((column + 0.5) * 13 / 48), 12)
         expected[labels[row, column]] = max(expected[labels[row, column]], float(small[y, x]))
     assert [peak for _, peak in region_peaks(mask, small)] == list(expected[1:])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_regions_labelled_in_the_mask_bounding_box_equal_the_whole_mask_labelling(seed):
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((90, 160), np.uint8)
+    for _ in range(rng.integers(1, 6)):
+        y, x = rng.integers(0, 90), rng.integers(0, 160)
+        mask[y : y + rng.integers(1, 20), x : x + rng.integers(1, 30)] = 255
+    score = rng.random((90, 160)).astype(np.float32)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    expected = []
+    for i in range(1, count):
+        peak = float(score[labels == i].max())
+        expected.append((tuple(int(v) for v in stats[i, :4]), peak))
+    assert sorted(region_peaks(mask, score)) == sorted(expected)
+    assert region_peaks(np.zeros_like(mask), score) == []
