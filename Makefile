@@ -97,7 +97,7 @@ bench-node-compare: $(STAMP)
 profile-node: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node_profile --frames 20 --out reports/profile_node.json
 
-# Only the lazy-output comparison of bench-node: CPU per frame, ~/mask alone vs every output.
+# Only the output comparison of bench-node: CPU per frame of ~/mask alone, plus each output, every output.
 bench-node-outputs: $(STAMP)
 	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 

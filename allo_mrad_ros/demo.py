@@ -297,7 +297,8 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
     rclpy.init()
     listener = rclpy.create_node("mrad_demo_recorder")
     OutputRecorder(listener, tally.add)
-    node = start_node(node_log, "publish_overlay:=false")
+    # The live metrics rank the full-resolution map, as the offline evaluation does.
+    node = start_node(node_log, "publish_overlay:=false", "score_full_resolution:=true")
     try:
         _wait_for_node(listener, node, node_log)
         _prime_camera_info(listener, tally.sequence.meta.camera, node_log)

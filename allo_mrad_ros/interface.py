@@ -18,10 +18,10 @@ celestial bodies       ``/allo/celestial_bodies``          visualization_msgs/Ma
 The node subscribes to these names *relative* (``arm_camera/image_raw``): at the root
 namespace they are the topics above, under ``namespace:=arm2`` they move with the node.
 
-Outputs are private to the node (``~/score`` 32FC1, ``~/mask`` mono8, ``~/anomaly`` Bool,
-``~/result`` DiagnosticArray and ``~/regions`` ImageMarker stamped with the image header,
-``~/reference`` rgb8 with ``~/reference/camera_info``, ``~/overlay`` rgb8) plus
-``/diagnostics``.
+Outputs are private to the node (``~/score`` 32FC1 with ``~/score/camera_info``, ``~/mask``
+mono8, ``~/anomaly`` Bool, ``~/result`` DiagnosticArray and ``~/regions`` ImageMarker stamped
+with the image header, ``~/reference`` rgb8 with ``~/reference/camera_info``, ``~/overlay``
+rgb8) plus ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ IMAGE_TRANSPORTS = ("raw", "compressed")
 
 # The node's outputs, relative to its private namespace.
 SCORE_OUTPUT = "~/score"
+SCORE_INFO_OUTPUT = "~/score/camera_info"
 MASK_OUTPUT = "~/mask"
 ANOMALY_OUTPUT = "~/anomaly"
 REFERENCE_OUTPUT = "~/reference"

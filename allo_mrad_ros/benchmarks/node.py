@@ -3,10 +3,16 @@
 The node runs as its own process with its default parameters; a camera feed in this process
 publishes rendered frames, poses and the sun with wall-clock stamps, subscribes to the
 default outputs (``~/mask``, ``~/score``, ``~/overlay``, ``~/anomaly``) and records when each
-mask arrives. For each camera mode (1920x1080 at 30 Hz, 1280x720 at 60 Hz) it reports the
-frames processed per second and dropped, the latency from image stamp to received mask
-(p50, p95, p99), the node's CPU seconds per processed frame and its resident memory after
-100 and after 1,000 processed frames. ROS traffic stays on loopback
+mask arrives. The camera moves as an arm moves it (``--trajectory moving``: a smooth sweep
+around the station at up to 0.3 m/s and 5 deg/s, :mod:`.trajectory`) or stays still
+(``still``); each published image is the render of the pose published with it, rendered
+ahead (3 s of path, played back and forth), and every other image has a pasted object. For
+each trajectory and camera mode (1920x1080 at 30 Hz, 1280x720 at 60 Hz) it reports the
+frames processed per second and dropped, the references the node rendered per processed
+frame (from the ``references_rendered`` and ``frames_processed`` counters of
+``/diagnostics``; n/a for a node without the first), the latency from image stamp to
+received mask (p50, p95, p99), the node's CPU seconds per processed frame and its resident
+memory after 100 and after 1,000 processed frames. ROS traffic stays on loopback
 (``config/fastdds_loopback.xml``).
 
 Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``;
@@ -14,11 +20,15 @@ Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/ben
 ``--compare-serial`` runs, per mode, the serial node and then the pipelined one back to back,
 so both are measured under the same machine load.
 
-``--compare-outputs`` measures instead the node's CPU seconds per frame with only ``~/mask``
-subscribed against every output subscribed (score, overlay, reference and its camera_info,
-result, regions, anomaly), in one run: blocks of frames alternate between the two, one
-frame at a time (the next is published when the mask of the last arrived), so both see the
-same machine load. CPU is the node process's user + system time over each block. It also
+``--compare-outputs`` measures instead what each output costs: the node's CPU seconds per
+frame with only ``~/mask`` subscribed (the base), with the base plus one output (``~/score``
+at the processing resolution with its camera_info; the same with ``score_full_resolution``;
+``~/overlay``; ``~/reference`` with its camera_info; ``~/result``, ``~/regions`` and, where
+vision_msgs is installed, ``~/detections``) and with every output, in one run: blocks of
+frames cycle through these subscriptions, one frame at a time (the next is published when
+the mask of the last arrived), so all see the same machine load. An output's cost is the
+median over rounds of its block's CPU per frame less the base block's of the same round.
+CPU is the node process's user + system time over each block. It also
 measures the node idle: every output unsubscribed while full-HD frames are published at 30 Hz
 for ``--idle-seconds``, reported as percent of one core (target under 2 %: the node then
 unsubscribes from the image, so no frame reaches it).
@@ -33,19 +43,33 @@ import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import psutil
 import rclpy
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 
+from allo_mrad_ros import interface
 from allo_mrad_ros.benchmarks import finish
+from allo_mrad_ros.benchmarks.trajectory import (
+    MAX_ANGULAR_DEG_S,
+    MAX_LINEAR_M_S,
+    SEGMENT_S,
+    TRAJECTORIES,
+    ping_pong,
+    segment_poses,
+    speeds,
+)
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.ros.feed import OUTPUT_TYPES, CameraFeed, start_node, stop_node
+from allo_mrad_ros.ros.outputs import vision_msgs_module
 from allo_mrad_ros.ros.process_tuning import keep_freed_memory
 
 SUN = (0.3, -0.5, 0.8)
@@ -95,6 +119,91 @@ def _node_session(
         rclpy.shutdown()
 
 
+@dataclass(frozen=True)
+class FeedPlan:
+    """What the feed publishes: the ``index``-th frame is ``images[frame(index)]`` with
+    ``poses[frame(index)]``, a render of that pose (odd frames with a pasted object)."""
+
+    trajectory: str
+    poses: list[np.ndarray]
+    images: list[np.ndarray]
+    rate_hz: float
+
+    def frame(self, index: int) -> int:
+        """The segment frame published as the ``index``-th: played back and forth when
+        moving; still, the clean and the object image in turn."""
+        if self.trajectory == "still":
+            return index % 2
+        return ping_pong(index, len(self.poses))
+
+    def motion(self) -> dict:
+        """The played path's largest and mean speeds (zero when still)."""
+        linear, angular = speeds(self.poses, self.rate_hz)
+        return {
+            "trajectory": self.trajectory,
+            "segment_frames": len(self.images),
+            "segment_s": (len(self.poses) - 1) / self.rate_hz,
+            "linear_m_s_max": float(linear.max()),
+            "linear_m_s_mean": float(linear.mean()),
+            "angular_deg_s_max": float(angular.max()),
+            "angular_deg_s_mean": float(angular.mean()),
+            "feed_images_mb": sum(image.nbytes for image in self.images) / 2**20,
+        }
+
+
+def plan_feed(trajectory: str, rate_hz: float, camera: CameraIntrinsics) -> FeedPlan:
+    """Render the frames of ``trajectory`` at ``rate_hz`` ahead: one segment of the moving
+    path (``SEGMENT_S`` seconds, about 0.55 GB at 1080p30 or 720p60), or the still pose's
+    clean and object images.
+
+    Rendered in this process before the node starts: rendering full-HD images at the
+    camera's rate as they are published would be too slow, and decoding compressed ones
+    would compete with the node for the two cores.
+    """
+    if trajectory == "still":
+        pose, images = _frames(camera)
+        return FeedPlan(trajectory, [pose, pose], images, rate_hz)
+    poses = segment_poses(trajectory, rate_hz, SEGMENT_S)
+    images = []
+    with ReferenceRenderer(None, camera, scale=1.0) as renderer:
+        for index, pose in enumerate(poses):
+            image = renderer.render(pose, SUN).rgb
+            if index % 2:  # every other frame, as the still feed: the object comes and goes
+                image, _ = paste_object(image, seed=1, centre=(0.5, 0.15), size=0.08)
+            images.append(image)
+    return FeedPlan(trajectory, poses, images, rate_hz)
+
+
+def _counters(feed: CameraFeed) -> dict[str, int]:
+    """The node's cumulative counters of the latest ``/diagnostics`` pipeline status."""
+    counters = {}
+    for key in ("frames_processed", "references_rendered", "references_reused"):
+        value = feed.diagnostic_values().get(key)
+        if value is not None and value.isdigit():
+            counters[key] = int(value)
+    return counters
+
+
+def _fresh_counters(feed: CameraFeed, seconds: float = 2.5) -> dict[str, int]:
+    """Counters from a ``/diagnostics`` message published after this call (the node
+    publishes one a second), so they include every frame it processed before."""
+    feed.diagnostics.clear()
+    feed.wait_for(lambda: len(feed.diagnostics) >= 2, seconds)
+    return _counters(feed)
+
+
+def renders_per_frame(before: dict[str, int], after: dict[str, int]) -> float | None:
+    """References rendered per processed frame between two counter readings (None when the
+    node does not count its renders or processed nothing)."""
+    keys = ("references_rendered", "frames_processed")
+    if not all(key in before and key in after for key in keys):
+        return None
+    processed = after["frames_processed"] - before["frames_processed"]
+    if processed <= 0:
+        return None
+    return (after["references_rendered"] - before["references_rendered"]) / processed
+
+
 def run(
     frames: int,
     rate_hz: float,
@@ -103,18 +212,23 @@ def run(
     camera: CameraIntrinsics = ALLO_INTRINSICS,
     pipelined: bool = True,
     node_parameters: tuple[str, ...] = (),
+    trajectory: str = "moving",
+    plan: FeedPlan | None = None,
 ) -> dict:
     """Drive the node at ``rate_hz`` until ``frames`` masks arrived; the report dictionary.
 
-    ``node_parameters`` are extra ``name:=value`` parameters of the node.
+    ``node_parameters`` are extra ``name:=value`` parameters of the node; ``trajectory``
+    one of :data:`~.trajectory.TRAJECTORIES` (``plan``: its frames, rendered already).
     """
-    pose, images = _frames(camera)
+    plan = plan or plan_feed(trajectory, rate_hz, camera)
     node_args = (f"pipelined:={str(pipelined).lower()}", *node_parameters)
+    load_before = list(os.getloadavg())
     with _node_session(log_path, {}, *node_args, camera=camera) as (feed, node):
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
-            feed.publish_frame(time.time_ns(), images[0], pose, SUN)
+            feed.publish_frame(time.time_ns(), plan.images[0], plan.poses[0], SUN)
             feed.spin(0.5)
+        counters_before = _fresh_counters(feed)
         feed.arrival["mask"].clear()
         published: list[int] = []
         rss_mb: dict[int, float] = {}
@@ -125,7 +239,8 @@ def run(
         while len(feed.arrival["mask"]) < frames and time.monotonic() - start < timeout_s:
             if time.monotonic() >= next_time:
                 stamp = time.time_ns()
-                feed.publish_frame(stamp, images[len(published) % 2], pose, SUN)
+                index = plan.frame(len(published))
+                feed.publish_frame(stamp, plan.images[index], plan.poses[index], SUN)
                 published.append(stamp)
                 next_time += period
             rclpy.spin_once(feed.node, timeout_sec=0.002)
@@ -135,6 +250,7 @@ def run(
                     rss_mb[mark] = node.memory_info().rss / 2**20
         cpu_after = node.cpu_times()
         feed.spin(1.0)
+        counters_after = _fresh_counters(feed)
     arrivals = feed.arrival["mask"]
     stamps = sorted(arrivals)
     latencies = np.array([1e3 * (arrivals[s] - s / 1e9) for s in stamps])
@@ -142,15 +258,21 @@ def run(
     fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
     cpu_s = (cpu_after.user - cpu_before.user) + (cpu_after.system - cpu_before.system)
     before, after = rss_mb.get(100), rss_mb.get(frames)
+    reused = [c.get("references_reused") for c in (counters_before, counters_after)]
     return {
         "image": f"{camera.width}x{camera.height}",
         "input_rate_hz": rate_hz,
         "pipelined": pipelined,
         "node_parameters": list(node_parameters),
+        **plan.motion(),
         "frames_published": len(published),
         "frames_processed": len(stamps),
         "frames_dropped": len(published) - len(stamps),
         "fps": fps,
+        "renders_per_frame": renders_per_frame(counters_before, counters_after),
+        "references_reused": None if None in reused else reused[1] - reused[0],
+        "node_counters_before": counters_before,
+        "node_counters_after": counters_after,
         "latency_ms_p50": float(np.median(latencies)),
         "latency_ms_p95": float(np.percentile(latencies, 95)),
         "latency_ms_p99": float(np.percentile(latencies, 99)),
@@ -160,20 +282,30 @@ def run(
         "rss_mb_after_1000": after,
         "rss_frames_mark": frames,
         "rss_growth_percent": 100 * (after / before - 1) if before and after else None,
+        "load_average_before": load_before,
         "load_average_after": list(os.getloadavg()),
     }
 
 
+SUMMARY_HEADER = (
+    f"{'mode':8} {'path':6} {'worker':9} {'fps':>6} {'dropped':>10} {'rend/f':>6} "
+    f"{'p50':>6} {'p95':>6} {'p99':>6} {'cpu s/f':>7} {'RSS MB':>7} {'growth':>7} {'load':>9}"
+)
+
+
 def _summary_line(name: str, report: dict) -> str:
     growth = report["rss_growth_percent"]
+    renders = report.get("renders_per_frame")
     return (
-        f"{name:8} {'pipelined' if report['pipelined'] else 'serial':9} "
+        f"{name:8} {report.get('trajectory', 'still'):6} "
+        f"{'pipelined' if report['pipelined'] else 'serial':9} "
         f"{report['fps']:6.2f} {report['frames_dropped']:4d}/{report['frames_published']:<5d} "
+        f"{'n/a' if renders is None else f'{renders:.2f}':>6} "
         f"{report['latency_ms_p50']:6.0f} {report['latency_ms_p95']:6.0f} "
         f"{report['latency_ms_p99']:6.0f} {report['cpu_s_per_frame']:7.3f} "
         f"{report['rss_mb_after_1000'] or float('nan'):7.0f} "
         f"{float('nan') if growth is None else growth:+6.1f}% "
-        f"{report['load_average_after'][0]:5.2f}"
+        f"{report['load_average_before'][0]:4.2f}-{report['load_average_after'][0]:4.2f}"
     )
 
 
@@ -221,40 +353,127 @@ def idle_cpu_percent(
     }
 
 
+# The subscriptions --compare-outputs cycles through: name -> (outputs besides ~/mask,
+# score_full_resolution). The base first; an output's cost is its block's CPU less the base's.
+OUTPUT_SETS: dict[str, tuple[tuple[str, ...], bool]] = {
+    "mask_only": ((), False),
+    "score": (("score", "score/camera_info"), False),
+    "score_full_resolution": (("score", "score/camera_info"), True),
+    "overlay": (("overlay",), False),
+    "reference": (("reference", "reference/camera_info"), False),
+    "result_regions_detections": (("result", "regions", "detections"), False),
+    "every_output": ((*OUTPUT_TYPES, "detections"), False),
+}
+
+
+def _set_score_full_resolution(feed: CameraFeed, value: bool) -> bool:
+    """Set the node's ``score_full_resolution`` through its parameter service; whether the
+    node accepted it."""
+    client = feed.node.create_client(SetParameters, f"/{interface.NODE_NAME}/set_parameters")
+    try:
+        if not client.wait_for_service(timeout_sec=10.0):
+            return False
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(
+                name="score_full_resolution",
+                value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value),
+            )
+        ]
+        future = client.call_async(request)
+        rclpy.spin_until_future_complete(feed.node, future, timeout_sec=10.0)
+        response = future.result()
+        return bool(response and response.results and response.results[0].successful)
+    finally:
+        feed.node.destroy_client(client)
+
+
+def _subscribe_set(feed: CameraFeed, outputs: tuple[str, ...]) -> None:
+    """Subscribe to ``~/mask`` and ``outputs`` only (``detections`` where vision_msgs is)."""
+    vision = vision_msgs_module()
+    wanted = {"mask", *(name for name in outputs if name != "detections")}
+    for topic in list(feed.subscriptions):
+        if topic not in wanted and topic != "detections":
+            feed.unsubscribe(topic)
+    for topic in sorted(wanted):
+        feed.subscribe(topic, OUTPUT_TYPES[topic])
+    if vision is not None and "detections" in outputs:
+        feed.subscribe("detections", vision.Detection2DArray)
+    elif "detections" in feed.subscriptions:
+        feed.unsubscribe("detections")
+
+
 def compare_outputs(rounds: int, block: int, log_path: Path, idle_seconds: float = 20.0) -> dict:
-    """CPU seconds per frame of the node, mask only against every output, interleaved; then
+    """CPU seconds per frame of the node for each of :data:`OUTPUT_SETS`, interleaved; then
     the node's CPU with nobody subscribed (:func:`idle_cpu_percent`)."""
     pose, images = _frames()
-    cpu = {"mask_only": [], "every_output": []}
+    cpu: dict[str, list[float]] = {name: [] for name in OUTPUT_SETS}
     options = {"outputs": ("mask",)}
     extra = ("publish_reference:=true", "publish_overlay:=true")
     idle: dict = {}
+    full_resolution = False
     with _node_session(log_path, options, *extra) as (feed, node):
-        for index in range(2 * rounds):
-            mode = "every_output" if index % 2 else "mask_only"
-            feed.set_outputs(OUTPUT_TYPES if mode == "every_output" else ())
-            feed.spin(2.0)  # discovery of the (un)subscriptions
-            _lock_step(feed, pose, images, 2)  # settle
-            before = node.cpu_times()
-            count = _lock_step(feed, pose, images, block)
-            after = node.cpu_times()
-            seconds = (after.user - before.user) + (after.system - before.system)
-            cpu[mode].append(seconds / max(count, 1))
+        for _ in range(rounds):
+            for name, (outputs, full) in OUTPUT_SETS.items():
+                if full != full_resolution:
+                    if not _set_score_full_resolution(feed, full):
+                        raise RuntimeError(f"the node refused score_full_resolution:={full}")
+                    full_resolution = full
+                _subscribe_set(feed, outputs)
+                feed.spin(2.0)  # discovery of the (un)subscriptions
+                _lock_step(feed, pose, images, 2)  # settle
+                before = node.cpu_times()
+                count = _lock_step(feed, pose, images, block)
+                after = node.cpu_times()
+                seconds = (after.user - before.user) + (after.system - before.system)
+                cpu[name].append(seconds / max(count, 1))
         if idle_seconds > 0:
             idle = idle_cpu_percent(feed, node, pose, images, idle_seconds)
-    mask_only = float(np.median(cpu["mask_only"]))
-    every = float(np.median(cpu["every_output"]))
+    median = {name: float(np.median(values)) for name, values in cpu.items()}
+    added = {
+        name: float(np.median(np.subtract(values, cpu["mask_only"])))
+        for name, values in cpu.items()
+        if name != "mask_only"
+    }
     return {
         "image": f"{ALLO_INTRINSICS.width}x{ALLO_INTRINSICS.height}",
         "rounds": rounds,
         "frames_per_block": block,
-        "cpu_s_per_frame_mask_only_blocks": cpu["mask_only"],
-        "cpu_s_per_frame_every_output_blocks": cpu["every_output"],
-        "cpu_s_per_frame_mask_only": mask_only,
-        "cpu_s_per_frame_every_output": every,
-        "saving_percent": 100.0 * (1.0 - mask_only / every),
+        "detections_measured": vision_msgs_module() is not None,
+        "cpu_s_per_frame_blocks": cpu,
+        "cpu_s_per_frame": median,
+        "cpu_s_per_frame_added": added,
+        # The keys of earlier reports.
+        "cpu_s_per_frame_mask_only": median["mask_only"],
+        "cpu_s_per_frame_every_output": median["every_output"],
+        "saving_percent": 100.0 * (1.0 - median["mask_only"] / median["every_output"]),
+        "load_average_after": list(os.getloadavg()),
         **idle,
     }
+
+
+OUTPUT_LABELS = {
+    "mask_only": "~/mask, ~/anomaly (the base)",
+    "score": "+ ~/score, processing resolution, + camera_info",
+    "score_full_resolution": "+ ~/score, full resolution, + camera_info",
+    "overlay": "+ ~/overlay",
+    "reference": "+ ~/reference + camera_info",
+    "result_regions_detections": "+ ~/result, ~/regions, ~/detections",
+    "every_output": "every output (score at processing resolution)",
+}
+
+
+def _outputs_table(report: dict) -> str:
+    lines = [f"{'outputs subscribed':50} {'cpu s/f':>8} {'added':>8}"]
+    for name, label in OUTPUT_LABELS.items():
+        if name == "result_regions_detections" and not report["detections_measured"]:
+            label = "+ ~/result, ~/regions (no vision_msgs here)"
+        added = report["cpu_s_per_frame_added"].get(name)
+        lines.append(
+            f"{label:50} {report['cpu_s_per_frame'][name]:8.4f} "
+            f"{'' if added is None else f'{added:+8.4f}':>8}"
+        )
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -266,7 +485,13 @@ def main(argv: list[str] | None = None) -> int:
         default=",".join(MODES),
         help=f"comma-separated camera modes of {list(MODES)}; the first goes to the top level",
     )
-    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per mode")
+    parser.add_argument(
+        "--trajectory",
+        default=",".join(TRAJECTORIES),
+        help=f"comma-separated camera paths of {list(TRAJECTORIES)} (moving: up to "
+        f"{MAX_LINEAR_M_S} m/s and {MAX_ANGULAR_DEG_S} deg/s); the first goes to the top level",
+    )
+    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per run")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_node.json"))
     parser.add_argument(
         "--serial", action="store_true", help="run the node with pipelined:=false only"
@@ -279,7 +504,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--compare-outputs",
         action="store_true",
-        help="CPU per frame with only ~/mask subscribed against every output, interleaved",
+        help="CPU per frame of ~/mask alone, plus each output, and every output, interleaved",
     )
     parser.add_argument(
         "--node-param",
@@ -288,8 +513,8 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME:=VALUE",
         help="a node parameter for the runs (repeatable), e.g. opencv_threads:=0",
     )
-    parser.add_argument("--rounds", type=int, default=5, help="blocks per mode (compare)")
-    parser.add_argument("--block", type=int, default=8, help="frames per block (compare)")
+    parser.add_argument("--rounds", type=int, default=5, help="blocks per output set (compare)")
+    parser.add_argument("--block", type=int, default=16, help="frames per block (compare)")
     parser.add_argument(
         "--idle-seconds",
         type=float,
@@ -300,7 +525,9 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = Path(tempfile.mkdtemp(prefix="bench_node_"))
     if args.compare_outputs:
         log = log_dir / "node.log"
+        load = os.getloadavg()[0]
         report = compare_outputs(args.rounds, args.block, log, args.idle_seconds)
+        report["load_average_before"] = load
         if "idle_cpu_percent_of_one_core" in report:
             print(
                 f"nobody subscribed, {report['idle_rate_hz']:.1f} Hz of full-HD frames for "
@@ -309,43 +536,62 @@ def main(argv: list[str] | None = None) -> int:
             )
         print(
             f"mrad_detector at {report['image']}, CPU seconds per frame (node process, "
-            f"median of {args.rounds} interleaved blocks of {args.block} frames each)\n"
-            f"only ~/mask subscribed: {report['cpu_s_per_frame_mask_only']:.3f} s\n"
-            f"every output subscribed: {report['cpu_s_per_frame_every_output']:.3f} s\n"
-            f"saving: {report['saving_percent']:.1f} %\nnode log: {log}"
+            f"median of {args.rounds} interleaved blocks of {args.block} frames each; added: "
+            f"median over rounds of the block less the base block of its round); load "
+            f"{load:.2f}-{report['load_average_after'][0]:.2f}\n"
+            f"{_outputs_table(report)}\n"
+            f"every output against the base: {report['saving_percent']:.1f} % saved\n"
+            f"node log: {log}"
         )
         return finish(args.out, report)
     modes = [name.strip() for name in args.modes.split(",") if name.strip()]
     unknown = sorted(set(modes) - set(MODES))
     if unknown or not modes:
         parser.error(f"unknown mode(s) {unknown or modes}; choose from {list(MODES)}")
+    paths = [name.strip() for name in args.trajectory.split(",") if name.strip()]
+    unknown = sorted(set(paths) - set(TRAJECTORIES))
+    if unknown or not paths:
+        parser.error(f"unknown trajectory {unknown or paths}; choose from {list(TRAJECTORIES)}")
     bad = [text for text in args.node_param if ":=" not in text]
     if bad:
         parser.error(f"--node-param needs NAME:=VALUE, got {bad}")
     variants = [False, True] if args.compare_serial else [not args.serial]
-    results: dict[tuple[str, bool], dict] = {}
+    results: dict[tuple[str, str, bool], dict] = {}
     print(
         f"mrad_detector, {' '.join(args.node_param) or 'default parameters'}; outputs mask, "
-        f"score, overlay; "
-        f"{args.frames} frames per run, {os.cpu_count()} CPUs\n"
-        f"{'mode':8} {'worker':9} {'fps':>6} {'dropped':>10} {'p50':>6} {'p95':>6} {'p99':>6} "
-        f"{'cpu s/f':>7} {'RSS MB':>7} {'growth':>7} {'load':>5}"
+        f"score, overlay; {args.frames} frames per run, {os.cpu_count()} CPUs; rend/f: "
+        f"references rendered per processed frame (/diagnostics)\n{SUMMARY_HEADER}",
+        flush=True,
     )
-    for name in modes:
-        width, height, rate = MODES[name]
-        for pipelined in variants:
-            log = log_dir / f"node_{name}_{'pipelined' if pipelined else 'serial'}.log"
+    for trajectory in paths:
+        for name in modes:
+            width, height, rate = MODES[name]
             camera = camera_of(width, height)
-            parameters = tuple(args.node_param)
-            report = run(args.frames, rate, log, args.timeout, camera, pipelined, parameters)
-            results[name, pipelined] = report
-            print(_summary_line(name, report), flush=True)
+            plan = plan_feed(trajectory, rate, camera)  # rendered once for both workers
+            for pipelined in variants:
+                log = (
+                    log_dir
+                    / f"node_{name}_{trajectory}_{'pipelined' if pipelined else 'serial'}.log"
+                )
+                parameters = tuple(args.node_param)
+                report = run(
+                    args.frames, rate, log, args.timeout, camera, pipelined, parameters, plan=plan
+                )
+                results[name, trajectory, pipelined] = report
+                print(_summary_line(name, report), flush=True)
+            del plan
     first, main_variant = modes[0], variants[-1]
-    combined = dict(results[first, main_variant])
+    main_path = paths[0]
+    combined = dict(results[first, main_path, main_variant])
     for name in modes[1:]:
-        combined[name] = results[name, main_variant]
+        combined[name] = results[name, main_path, main_variant]
+    combined["trajectories"] = {
+        path: {name: results[name, path, main_variant] for name in modes} for path in paths
+    }
     if args.compare_serial:
-        combined["serial"] = {name: results[name, False] for name in modes}
+        combined["serial"] = {
+            path: {name: results[name, path, False] for name in modes} for path in paths
+        }
     print(f"node logs: {log_dir}")
     return finish(args.out, combined)
 

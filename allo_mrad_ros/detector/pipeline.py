@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -52,12 +53,13 @@ class DetectionResult:
 
     Attributes
     ----------
-    score : numpy.ndarray
-        H x W float32 in 0..255: the pixel anomaly score that pixel metrics rank.
+    work_score : numpy.ndarray
+        h x w float32 in 0..255: the pixel anomaly score at the processing resolution
+        (``process_scale`` of the query; the query's own size for the baselines).
     raw_score : numpy.ndarray
-        H x W float32 raw score before scaling (at the processing resolution).
+        h x w float32 raw score before scaling (at the processing resolution).
     mask : numpy.ndarray
-        H x W uint8, 0 or 255.
+        H x W uint8, 0 or 255, at the query's resolution.
     area : int
         Number of anomalous pixels in ``mask``.
     anomalous : bool
@@ -67,15 +69,30 @@ class DetectionResult:
         :attr:`MradParams.image_score`).
     timings_ms : dict
         Milliseconds per stage, in pipeline order, plus ``total``.
+    masked_score : bool
+        The score is zero outside the mask (``pixel_score="regions"``): :attr:`score` is
+        masked again after its upscaling.
     """
 
-    score: np.ndarray
+    work_score: np.ndarray
     raw_score: np.ndarray
     mask: np.ndarray
     area: int
     anomalous: bool
     image_score: float
     timings_ms: dict[str, float] = field(default_factory=dict)
+    masked_score: bool = False
+
+    @cached_property
+    def score(self) -> np.ndarray:
+        """H x W float32 in 0..255: the pixel anomaly score that pixel metrics rank, at the
+        query's resolution.
+
+        Made from :attr:`work_score` on first use (a 1080p float32 resize), not by the
+        detector: a consumer of the mask or of the processing-resolution map never pays for
+        it. Computed once per result; the same values as the detector used to return.
+        """
+        return _restore_score(self.work_score, self.mask, self.masked_score)
 
 
 Detector = Callable[..., DetectionResult]
@@ -232,11 +249,12 @@ def detect(
     with timer.stage("pixel_score"):
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
     with timer.stage("decision"):
-        work_score = score
-        score, mask = _restore_resolution(score, mask, full_shape, params.pixel_score)
+        # The full-resolution score is made only when read (DetectionResult.score).
+        mask = _restore_resolution(mask, full_shape)
         area, anomalous = decide(mask, params.area_threshold)
-        frame_score = image_score(work_score, area, params)
-    return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish())
+        frame_score = image_score(score, area, params)
+    masked = params.pixel_score == "regions"
+    return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish(), masked)
 
 
 def transfer_colours(
@@ -365,15 +383,19 @@ def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:
     return area_downscale(query, (max(1, round(width * scale)), max(1, round(height * scale))))
 
 
-def _restore_resolution(
-    score: np.ndarray, mask: np.ndarray, shape: tuple[int, int], pixel_score: str
-) -> tuple[np.ndarray, np.ndarray]:
+def _restore_resolution(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The mask at the query's resolution (``shape``)."""
+    return mask if mask.shape == shape else nearest_upscale(mask, shape)
+
+
+def _restore_score(score: np.ndarray, mask: np.ndarray, masked: bool) -> np.ndarray:
+    """The score map at the mask's (the query's) resolution: bilinear, and zero outside the
+    mask again when ``masked`` (the ``regions`` map), whose upscaling would blur it out."""
+    shape = mask.shape[:2]
     if score.shape == shape:
-        return score, mask
-    size = (shape[1], shape[0])
-    score = cv2.resize(score, size, interpolation=cv2.INTER_LINEAR)
-    mask = nearest_upscale(mask, shape)
-    return (_masked(score, mask) if pixel_score == "regions" else score), mask
+        return score
+    score = cv2.resize(score, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    return _masked(score, mask) if masked else score
 
 
 def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -36,6 +36,7 @@ IMAGE_OUTPUTS = ("mask", "score", "overlay")
 OUTPUT_TYPES: dict[str, type] = {
     "mask": Image,
     "score": Image,
+    "score/camera_info": CameraInfo,
     "overlay": Image,
     "anomaly": Bool,
     "result": DiagnosticArray,

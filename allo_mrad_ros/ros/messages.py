@@ -309,6 +309,72 @@ def fill_camera_info(msg: Any, intrinsics: CameraIntrinsics, frame_id: str = "")
     return msg
 
 
+def scaled_camera_info(
+    msg: Any, source: Any, image_size: tuple[int, int], size: tuple[int, int]
+) -> Any:
+    """Fill ``msg`` with the ``sensor_msgs/CameraInfo`` ``source`` describing a ``size``
+    (width, height) resampling of its ``image_size`` image, as image_proc's resize node
+    publishes a scaled image's camera_info.
+
+    Like image_proc: ``K`` and ``P`` are scaled per axis by the ratio of the actual sizes
+    (``Tx``, ``Ty`` with them), the ROI's offsets scaled, binning, ``D``, ``R`` and the
+    distortion model kept. Unlike image_proc, which multiplies ``cx``, ``cy`` by the ratio,
+    the principal point keeps the pixel-centre convention of OpenCV's resampling (as
+    :meth:`~allo_mrad_ros.camera.CameraIntrinsics.scaled` does for the reference): a 4x
+    smaller map moves it by 0.375 pixel. The ROI's size is the new image's times the
+    binning, and the principal point is set so that image_geometry's model of ``msg``
+    (ROI crop, then binning) is the camera of the resampled image exactly. The same
+    ``size`` as ``image_size`` copies ``source`` unchanged. ``msg.header`` is left alone.
+    """
+    width, height = (int(v) for v in image_size)
+    new_width, new_height = (int(v) for v in size)
+    if width <= 0 or height <= 0 or new_width <= 0 or new_height <= 0:
+        raise ValueError(f"image sizes must be positive, got {image_size} and {size}")
+    msg.distortion_model = source.distortion_model
+    msg.d = list(source.d)
+    msg.r = list(source.r)
+    msg.binning_x, msg.binning_y = int(source.binning_x), int(source.binning_y)
+    msg.roi.do_rectify = bool(source.roi.do_rectify)
+    k, p = [float(v) for v in source.k], [float(v) for v in source.p]
+    if (new_width, new_height) == (width, height):
+        msg.width, msg.height = int(source.width), int(source.height)
+        msg.k, msg.p = k, p
+        roi = source.roi
+        msg.roi.x_offset, msg.roi.y_offset = int(roi.x_offset), int(roi.y_offset)
+        msg.roi.width, msg.roi.height = int(roi.width), int(roi.height)
+        return msg
+    binning = (int(source.binning_x) or 1, int(source.binning_y) or 1)
+    roi = source.roi
+    offsets = (int(roi.x_offset), int(roi.y_offset))
+    has_roi = (*offsets, int(roi.width), int(roi.height)) != (0, 0, 0, 0)
+    ratios = (new_width / width, new_height / height)
+    new_offsets = tuple(round(o * r) for o, r in zip(offsets, ratios, strict=True))
+    new_sizes = (new_width, new_height)
+    calibrated = (int(source.width), int(source.height))
+    for axis, (f_index, c_index) in enumerate(((0, 2), (4, 5))):
+        b, r, o, o_new = binning[axis], ratios[axis], offsets[axis], new_offsets[axis]
+        for matrix, (f, c, t) in (
+            (k, (f_index, c_index, None)),
+            (p, (f_index + axis, c_index + axis, 3 + 4 * axis)),
+        ):
+            matrix[f] *= r
+            # The image's principal point (image_geometry: crop, then bin), moved to the
+            # resampled image's pixel centres, then back into the calibrated frame.
+            matrix[c] = b * (((matrix[c] - o) / b + 0.5) * r - 0.5) + o_new
+            if t is not None:
+                matrix[t] *= r
+    msg.k, msg.p = k, p
+    if has_roi:
+        msg.roi.x_offset, msg.roi.y_offset = new_offsets
+        msg.roi.width, msg.roi.height = new_width * binning[0], new_height * binning[1]
+        msg.width = max(round(calibrated[0] * ratios[0]), new_offsets[0] + msg.roi.width)
+        msg.height = max(round(calibrated[1] * ratios[1]), new_offsets[1] + msg.roi.height)
+    else:
+        msg.roi.x_offset = msg.roi.y_offset = msg.roi.width = msg.roi.height = 0
+        msg.width, msg.height = (n * b for n, b in zip(new_sizes, binning, strict=True))
+    return msg
+
+
 def stamp_to_ns(stamp: Any) -> int:
     """Nanoseconds of a ``builtin_interfaces/Time``."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)

@@ -17,8 +17,9 @@ Topic names come from :mod:`allo_mrad_ros.interface`.
 
 Outputs: ``~/score`` (32FC1, 0..255) is the continuous pixel ranking map, the cross score
 softly saturated (``mrad.pixel_score: continuous``; ``regions`` gives the paper's sparse map,
-zero outside the grown regions); ``~/mask`` (mono8 0/255) is the union of the grown regions
-and ``~/anomaly`` the image decision on its area.
+zero outside the grown regions), at the detector's processing resolution with
+``~/score/camera_info`` (``score_full_resolution``: at the image's); ``~/mask`` (mono8 0/255)
+is the union of the grown regions and ``~/anomaly`` the image decision on its area.
 """
 
 from __future__ import annotations
@@ -157,8 +158,9 @@ class MradDetectorNode(Node):
         self._lock = threading.Lock()
         self._image_slot: LatestSlot[tuple[Image, float]] = LatestSlot()
         self._intrinsics: CameraIntrinsics | None = None
-        # Valid camera_infos by stamp: (intrinsics, frame_id), paired with images by stamp.
-        self._infos: StampedBuffer[tuple[CameraIntrinsics, str]] = StampedBuffer(64)
+        # Valid camera_infos by stamp: (intrinsics, frame_id, message), paired with images by
+        # stamp; the message is what ~/score/camera_info is made from.
+        self._infos: StampedBuffer[tuple[CameraIntrinsics, str, CameraInfo]] = StampedBuffer(64)
         self._input_subscriptions: list[Subscription] = []
         self._sun_direction = np.asarray(self._config.sun_direction, dtype=np.float64)
         self._sun_strength = self._config.sun_strength
@@ -459,7 +461,9 @@ class MradDetectorNode(Node):
         except MessageError as error:
             self._diagnostics.report(error)
             return
-        self._infos.add(messages.stamp_to_ns(msg.header.stamp), (intrinsics, msg.header.frame_id))
+        self._infos.add(
+            messages.stamp_to_ns(msg.header.stamp), (intrinsics, msg.header.frame_id, msg)
+        )
         with self._lock:
             self._intrinsics = intrinsics
 
@@ -532,7 +536,7 @@ class MradDetectorNode(Node):
                 f"no valid camera_info on {self._info_topic} stamped within {tolerance_s} s of "
                 f"image stamp {stamp_ns} ns (camera_info_tolerance_s); frame skipped",
             )
-        intrinsics, info_frame = entry
+        intrinsics, info_frame, _ = entry
         image_frame = str(msg.header.frame_id)
         if info_frame != image_frame:
             self._diagnostics.count("camera_info_frame_mismatches")
@@ -577,6 +581,10 @@ class MradDetectorNode(Node):
             reference_camera = camera.scaled(config.pipeline.render.reference_scale)
             if (reference_camera.height, reference_camera.width) != frame.reference.shape[:2]:
                 reference_camera = None  # camera_info changed under this frame
+        # The camera_info the frame was processed with (paired by stamp, as the worker did).
+        entry = self._infos.nearest(
+            messages.stamp_to_ns(msg.header.stamp), round(config.camera_info_tolerance_s * 1e9)
+        )
         self._outputs.publish(
             msg.header,
             image,
@@ -585,6 +593,8 @@ class MradDetectorNode(Node):
             config.publish_reference,
             config.publish_overlay,
             score_map,
+            None if entry is None else entry[2],
+            config.score_full_resolution,
         )
 
     def destroy_node(self) -> None:

@@ -202,6 +202,14 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
         ),
         "publish_reference": NodeParameter(False, _flag("publish the rendered reference")),
         "publish_overlay": NodeParameter(True, _flag("publish the image with the mask outlined")),
+        "score_full_resolution": NodeParameter(
+            False,
+            _flag(
+                "publish ~/score at the image's resolution (upscaled) with the image's "
+                "camera_info; false: at the detector's processing resolution "
+                "(mrad.process_scale) with its scaled camera_info"
+            ),
+        ),
         "diagnostics_period_s": NodeParameter(
             1.0, _number("period of /diagnostics messages", 0.1, 60.0), True
         ),
@@ -521,6 +529,7 @@ class NodeConfig:
     expected_rate_hz: float = 0.0
     rate_tolerance: float = 0.1
     max_stamp_delay_s: float = 1.0
+    score_full_resolution: bool = False
 
 
 def node_config_from(values: dict[str, Any]) -> NodeConfig:
@@ -571,4 +580,5 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         expected_rate_hz=float(values["expected_rate_hz"]),
         rate_tolerance=float(values["rate_tolerance"]),
         max_stamp_delay_s=float(values["max_stamp_delay_s"]),
+        score_full_resolution=values["score_full_resolution"],
     )

@@ -240,3 +240,76 @@ def test_plumb_bob_camera_rectified_uses_p_and_zero_distortion_uses_k():
     assert (rectified.fx, rectified.fy, rectified.cx, rectified.cy) == (480.0, 481.0, 318.0, 242.0)
     raw = messages.camera_intrinsics(_plumb_bob([0.0] * 5), rectified=False)
     assert (raw.fx, raw.fy, raw.cx, raw.cy) == (500.0, 502.0, 320.5, 240.5)
+
+
+def _info(width, height, k, p=None, binning=(0, 0), roi=(0, 0, 0, 0), d=(0.0,) * 5):
+    """A CameraInfo stand-in with every field scaled_camera_info reads."""
+    x, y, w, h = roi
+    return Msg(
+        header=Msg(),
+        width=width,
+        height=height,
+        distortion_model="plumb_bob",
+        d=list(d),
+        k=list(k),
+        r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p=list(p if p is not None else [k[0], 0.0, k[2], 0.0, 0.0, k[4], k[5], 0.0, 0, 0, 1, 0]),
+        binning_x=binning[0],
+        binning_y=binning[1],
+        roi=Msg(x_offset=x, y_offset=y, width=w, height=h, do_rectify=False),
+    )
+
+
+def _target():
+    return Msg(header=Msg(), roi=Msg())
+
+
+def test_scaled_camera_info_of_a_quarter_size_map():
+    k = [1333.0, 0.0, 959.5, 0.0, 1340.0, 539.5, 0.0, 0.0, 1.0]
+    p = [1300.0, 0.0, 950.0, -130.0, 0.0, 1310.0, 540.0, 2.0, 0.0, 0.0, 1.0, 0.0]
+    source = _info(1920, 1080, k, p)
+    info = messages.scaled_camera_info(_target(), source, (1920, 1080), (480, 270))
+    assert (info.width, info.height) == (480, 270)
+    # Written out by hand: f / 4; pixel centres kept, c' = (c + 0.5) / 4 - 0.5; Tx, Ty / 4.
+    assert info.k == [333.25, 0.0, 239.5, 0.0, 335.0, 134.5, 0.0, 0.0, 1.0]
+    assert info.p == [325.0, 0.0, 237.125, -32.5, 0.0, 327.5, 134.625, 0.5, 0.0, 0.0, 1.0, 0.0]
+    assert info.d == source.d and info.r == source.r and info.distortion_model == "plumb_bob"
+    assert (info.binning_x, info.binning_y) == (0, 0)
+    assert (info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height) == (0, 0, 0, 0)
+
+
+def test_scaled_camera_info_to_the_same_size_is_a_copy():
+    k = [500.0, 0.0, 100.0, 0.0, 500.0, 80.0, 0.0, 0.0, 1.0]
+    source = _info(400, 300, k, binning=(2, 2), roi=(10, 20, 200, 120))
+    info = messages.scaled_camera_info(_target(), source, (100, 60), (100, 60))
+    assert (info.width, info.height, info.k, info.p) == (400, 300, source.k, source.p)
+    assert (info.binning_x, info.roi.x_offset, info.roi.width) == (2, 10, 200)
+
+
+@pytest.mark.parametrize("rectified", [False, True])
+@pytest.mark.parametrize(
+    ("binning", "roi"),
+    [
+        ((0, 0), (0, 0, 0, 0)),
+        ((2, 2), (0, 0, 0, 0)),
+        ((1, 1), (40, 24, 640, 360)),
+        ((2, 1), (40, 24, 640, 360)),
+    ],
+    ids=["plain", "binned", "roi", "binned_roi"],
+)
+def test_scaled_camera_info_describes_the_resampled_image(binning, roi, rectified):
+    # image_geometry's model of the scaled camera_info (crop to the ROI, then bin) is the
+    # camera of the image resampled to the map's size, computed here from the image's camera.
+    k = [1000.0, 0.0, 700.3, 0.0, 990.0, 401.7, 0.0, 0.0, 1.0]
+    p = [980.0, 0.0, 690.0, 0.0, 0.0, 985.0, 405.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    source = _info(1280, 800, k, p, binning, roi)
+    image = messages.camera_intrinsics(source, rectified)
+    size = (round(image.width * 0.25), round(image.height * 0.25))
+    info = messages.scaled_camera_info(_target(), source, (image.width, image.height), size)
+    scaled = messages.camera_intrinsics(info, rectified)
+    sx, sy = size[0] / image.width, size[1] / image.height
+    assert (scaled.width, scaled.height) == size
+    assert scaled.fx == pytest.approx(image.fx * sx) and scaled.fy == pytest.approx(image.fy * sy)
+    assert scaled.cx == pytest.approx((image.cx + 0.5) * sx - 0.5)
+    assert scaled.cy == pytest.approx((image.cy + 0.5) * sy - 0.5)
+    assert (info.binning_x, info.binning_y) == binning

@@ -11,6 +11,7 @@ import sys
 import types
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import pytest
 import rclpy
@@ -401,3 +402,50 @@ def test_the_camera_frame_follows_the_optical_frame_convention():
     from allo_mrad_ros import interface
 
     assert f"{interface.HARDWARE_ID}_optical_frame" == interface.CAMERA_FRAME
+
+
+def test_region_peaks_on_the_processing_resolution_map():
+    # A 60x40 mask and its 15x10 map (process_scale 0.25).
+    mask = np.zeros((40, 60), np.uint8)
+    mask[8:16, 20:28] = 255  # map rows 2-3, columns 5-6
+    mask[30:32, 50:52] = 255  # map row 7, column 12
+    small = np.zeros((10, 15), np.float32)
+    small[0, 0] = 250.0  # outside every region
+    small[3, 6] = 70.0
+    small[2, 5] = 40.0
+    small[7, 12] = 9.0
+    regions = region_peaks(mask, small)
+    assert regions == [((20, 8, 8, 8), 70.0), ((50, 30, 2, 2), 9.0)]
+    # The same as the peaks on the map upscaled by nearest neighbour to the mask's size.
+    upscaled = cv2.resize(small, (60, 40), interpolation=cv2.INTER_NEAREST)
+    assert regions == region_peaks(mask, upscaled)
+
+
+def test_region_peaks_on_a_map_of_another_ratio_take_the_pixel_each_centre_falls_in():
+    rng = np.random.default_rng(4)
+    mask = (rng.random((27, 48)) > 0.8).astype(np.uint8) * 255
+    small = rng.random((7, 13)).astype(np.float32)
+    count, labels = cv2.connectedComponents(mask, connectivity=8)
+    expected = np.full(count, -np.inf)
+    for row, column in zip(*np.nonzero(labels), strict=True):
+        y = min(int((row + 0.5) * 7 / 27), 6)
+        x = min(int((column + 0.5) * 13 / 48), 12)
+        expected[labels[row, column]] = max(expected[labels[row, column]], float(small[y, x]))
+    assert [peak for _, peak in region_peaks(mask, small)] == list(expected[1:])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_regions_labelled_in_the_mask_bounding_box_equal_the_whole_mask_labelling(seed):
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((90, 160), np.uint8)
+    for _ in range(rng.integers(1, 6)):
+        y, x = rng.integers(0, 90), rng.integers(0, 160)
+        mask[y : y + rng.integers(1, 20), x : x + rng.integers(1, 30)] = 255
+    score = rng.random((90, 160)).astype(np.float32)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    expected = []
+    for i in range(1, count):
+        peak = float(score[labels == i].max())
+        expected.append((tuple(int(v) for v in stats[i, :4]), peak))
+    assert sorted(region_peaks(mask, score)) == sorted(expected)
+    assert region_peaks(np.zeros_like(mask), score) == []

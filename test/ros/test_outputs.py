@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rclpy
+from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.pipeline import DetectionResult
 from allo_mrad_ros.pipeline import ProcessedFrame
+from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros import outputs as outputs_module
 from allo_mrad_ros.ros.outputs import Outputs, connected_boxes, region_marker
 
@@ -17,6 +19,7 @@ pytestmark = pytest.mark.ros
 
 NAMES = (
     "score",
+    "score_info",
     "mask",
     "anomaly",
     "result",
@@ -56,12 +59,18 @@ def subscribe(outputs: Outputs, *names: str) -> dict[str, FakePublisher]:
     return fakes
 
 
+# The camera of the 160x90 image; the detector's map is 80x45 (process_scale 0.5).
+IMAGE_CAMERA = CameraIntrinsics(160, 90, 100.0, 100.0, 80.0, 45.0)
+
+
 def frame() -> ProcessedFrame:
     mask = np.zeros((90, 160), np.uint8)
     mask[10:20, 30:50] = 255
     mask[60:62, 100:101] = 255
+    work_score = np.zeros((45, 80), np.float32)
+    work_score[6, 20] = 90.0  # inside the first region (rows 10-19, columns 30-49)
     result = DetectionResult(
-        score=np.zeros((90, 160), np.float32),
+        work_score=work_score,
         raw_score=np.zeros((45, 80), np.float32),
         mask=mask,
         area=int(np.count_nonzero(mask)),
@@ -71,22 +80,64 @@ def frame() -> ProcessedFrame:
     return ProcessedFrame(reference=np.zeros((45, 80, 3), np.uint8), results={"MRAD": result})
 
 
-def publish(outputs: Outputs, reference: bool = True, overlay: bool = True) -> None:
+def publish(
+    outputs: Outputs,
+    reference: bool = True,
+    overlay: bool = True,
+    processed: ProcessedFrame | None = None,
+    full_resolution: bool = False,
+) -> None:
     header = Header(frame_id="cam")
     header.stamp.sec = 7
     camera = CameraIntrinsics(80, 45, 50.0, 50.0, 40.0, 22.5)
-    outputs.publish(header, np.zeros((90, 160, 3), np.uint8), frame(), camera, reference, overlay)
+    info = messages.fill_camera_info(CameraInfo(), IMAGE_CAMERA, "cam")
+    outputs.publish(
+        header,
+        np.zeros((90, 160, 3), np.uint8),
+        processed or frame(),
+        camera,
+        reference,
+        overlay,
+        camera_info=info,
+        score_full_resolution=full_resolution,
+    )
 
 
 def test_only_the_subscribed_mask_is_built_and_nothing_heavy(outputs, monkeypatch):
     fakes = subscribe(outputs, "mask")
     outlined = []
     monkeypatch.setattr(outputs_module, "outline", lambda *a: outlined.append(a))
-    publish(outputs)
+    processed = frame()
+    publish(outputs, processed=processed)
     assert len(fakes["mask"].sent) == 1 and fakes["mask"].sent[0].header.stamp.sec == 7
-    for name in ("score", "result", "regions", "reference", "reference_info", "overlay"):
-        assert fakes[name].sent == [], name
+    for name in NAMES:
+        if name not in ("mask", "anomaly"):
+            assert fakes[name].sent == [], name
     assert outlined == []
+    # The full-resolution score (a cached property) was never made.
+    assert "score" not in vars(processed.primary)
+
+
+@pytest.mark.parametrize("full_resolution", [False, True], ids=["processing", "full"])
+def test_the_score_and_its_camera_info_at_either_resolution(outputs, full_resolution):
+    fakes = subscribe(outputs, "score", "score_info")
+    processed = frame()
+    publish(outputs, processed=processed, full_resolution=full_resolution)
+    score, info = fakes["score"].sent[0], fakes["score_info"].sent[0]
+    width, height = (160, 90) if full_resolution else (80, 45)
+    assert (score.width, score.height, score.encoding) == (width, height, "32FC1")
+    assert (info.width, info.height) == (width, height)
+    assert score.header.stamp.sec == info.header.stamp.sec == 7
+    assert score.header.frame_id == info.header.frame_id == "cam"
+    values = np.frombuffer(score.data, np.float32).reshape(height, width)
+    expected = processed.primary.score if full_resolution else processed.primary.work_score
+    np.testing.assert_array_equal(values, expected)
+    assert ("score" in vars(processed.primary)) == full_resolution
+    # The map's camera: half the focal lengths; pixel centres kept, (80 + 0.5) / 2 - 0.5.
+    fx, cx, fy, cy = info.k[0], info.k[2], info.k[4], info.k[5]
+    assert (fx, cx, fy, cy) == (
+        (100.0, 80.0, 100.0, 45.0) if full_resolution else (50, 39.75, 50, 22.25)
+    )
 
 
 def test_every_subscribed_output_is_published_with_the_image_header(outputs):
@@ -116,6 +167,7 @@ def test_a_frame_detected_without_the_score_map_leaves_the_score_out(outputs):
     image = np.zeros((90, 160, 3), np.uint8)
     outputs.publish(header, image, frame(), None, True, True, score_map=False)
     assert fakes["score"].sent == []
+    assert fakes["score_info"].sent == []  # no camera_info was given
     assert all(len(fakes[name].sent) == 1 for name in ("mask", "overlay", "result"))
 
 
@@ -132,7 +184,7 @@ def test_wanted_only_with_a_subscriber_to_an_enabled_output(outputs):
     assert outputs.wanted(True, True) and not outputs.wanted(True, False)
     subscribe(outputs, "reference_info")
     assert outputs.wanted(True, False) and not outputs.wanted(False, True)
-    for name in ("mask", "score", "anomaly", "result", "regions"):
+    for name in ("mask", "score", "score_info", "anomaly", "result", "regions"):
         subscribe(outputs, name)
         assert outputs.wanted(False, False), name
 

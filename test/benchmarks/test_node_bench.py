@@ -1,0 +1,54 @@
+"""bench-node's bookkeeping: renders per frame from the node's counters, the feed plan."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from allo_mrad_ros.benchmarks import node as bench
+
+
+def test_renders_per_frame_from_the_counters_and_n_a_without_them():
+    before = {"frames_processed": 10, "references_rendered": 10, "references_reused": 0}
+    after = {"frames_processed": 110, "references_rendered": 35, "references_reused": 75}
+    assert bench.renders_per_frame(before, after) == 0.25
+    # A node that does not count its renders (no reference reuse): n/a, not 0 or 1.
+    assert bench.renders_per_frame({"frames_processed": 1}, {"frames_processed": 9}) is None
+    assert bench.renders_per_frame(before, before) is None  # nothing processed
+
+
+def test_the_feed_plan_plays_the_moving_segment_back_and_forth():
+    poses = [np.eye(4) for _ in range(4)]
+    for k, pose in enumerate(poses):
+        pose[0, 3] = 0.005 * k
+    images = [np.full((2, 2, 3), k, np.uint8) for k in range(4)]
+    plan = bench.FeedPlan("moving", poses, images, 30.0)
+    assert [plan.frame(i) for i in range(8)] == [0, 1, 2, 3, 2, 1, 0, 1]
+    motion = plan.motion()
+    assert motion["segment_frames"] == 4 and motion["segment_s"] == pytest.approx(0.1)
+    assert motion["linear_m_s_max"] == pytest.approx(0.15)
+    still = bench.FeedPlan("still", [np.eye(4)] * 2, images[:2], 30.0)
+    assert [still.frame(i) for i in range(4)] == [0, 1, 0, 1]
+    assert still.motion()["linear_m_s_max"] == 0.0
+
+
+def test_the_summary_line_says_n_a_for_unknown_renders():
+    report = {
+        "trajectory": "moving",
+        "pipelined": True,
+        "fps": 29.6,
+        "frames_dropped": 3,
+        "frames_published": 1003,
+        "renders_per_frame": None,
+        "latency_ms_p50": 30.0,
+        "latency_ms_p95": 45.0,
+        "latency_ms_p99": 50.0,
+        "cpu_s_per_frame": 0.02,
+        "rss_mb_after_1000": 400.0,
+        "rss_growth_percent": 1.0,
+        "load_average_before": [1.0, 0, 0],
+        "load_average_after": [2.0, 0, 0],
+    }
+    assert " n/a " in bench._summary_line("1080p30", report)
+    report["renders_per_frame"] = 0.2
+    assert " 0.20 " in bench._summary_line("1080p30", report)
