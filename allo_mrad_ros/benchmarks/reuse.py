@@ -15,7 +15,6 @@ Usage: ``python -m allo_mrad_ros.benchmarks.reuse --out reports/bench_reuse.json
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from dataclasses import dataclass
@@ -25,6 +24,11 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.benchmarks import finish
+from allo_mrad_ros.benchmarks.trajectory import (
+    MAX_ANGULAR_DEG_S,
+    MAX_LINEAR_M_S,
+    top_speed_path,
+)
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.metrics import (
@@ -54,40 +58,6 @@ class Segment:
     masks: list[bytes]  # PNG of the class image (2: anomaly)
 
 
-def arm_trajectory(
-    start: np.ndarray,
-    frames: int,
-    rate_hz: float,
-    max_deg_s: float,
-    max_m_s: float,
-    rng: np.random.Generator,
-) -> list[np.ndarray]:
-    """Camera poses of an arm sweeping at ``max_deg_s`` and ``max_m_s`` (station frame).
-
-    The angular velocity (camera frame) and the linear velocity (station frame) keep their
-    magnitudes and turn smoothly, at a random pace, so the motion has no jerks.
-    """
-    dt = 1.0 / rate_hz
-    spin_axis, move_axis = rng.normal(size=3), rng.normal(size=3)
-    spin_turn, move_turn = rng.normal(size=3), rng.normal(size=3)
-    pace = rng.uniform(0.2, 0.6)
-    pose = start.copy()
-    poses = [pose.copy()]
-    for index in range(1, frames):
-        phase = pace * index * dt
-        spin = _unit(spin_axis + math.sin(phase) * spin_turn)
-        move = _unit(move_axis + math.sin(phase) * move_turn)
-        rotation, _ = cv2.Rodrigues(spin * math.radians(max_deg_s) * dt)
-        pose[:3, :3] = pose[:3, :3] @ rotation
-        pose[:3, 3] = pose[:3, 3] + move * max_m_s * dt
-        poses.append(pose.copy())
-    return poses
-
-
-def _unit(vector: np.ndarray) -> np.ndarray:
-    return vector / np.linalg.norm(vector)
-
-
 def make_segments(
     camera: CameraIntrinsics, count: int, frames: int, rate_hz: float, seed: int
 ) -> list[Segment]:
@@ -98,7 +68,8 @@ def make_segments(
     with ReferenceRenderer(None, camera, scale=1.0) as renderer:
         for index in range(count):
             distance = rng.uniform(10.0, 30.0)
-            direction = _unit(rng.normal(size=3) * [1.0, 1.0, 0.5])
+            direction = rng.normal(size=3) * [1.0, 1.0, 0.5]
+            direction /= np.linalg.norm(direction)
             start = look_at(direction * distance, rng.normal(scale=2.0, size=3))
             # The anomaly floats 1-2 m in front of the surface seen at the image centre.
             depth = renderer.render(start, SUN, depth=True).depth
@@ -110,7 +81,7 @@ def make_segments(
             anomaly[:3, 3] = start[:3, 3] + spot * along
             obj = build_anomaly(kinds[index % len(kinds)], seed + index)
             extra = ExtraObject(obj.scene, anomaly, LABEL_ANOMALY)
-            poses = arm_trajectory(start, frames, rate_hz, 5.0, 0.3, rng)
+            poses = top_speed_path(start, frames, rate_hz, MAX_ANGULAR_DEG_S, MAX_LINEAR_M_S, rng)
             exposure = rng.uniform(0.8, 1.2)
             queries, masks = [], []
             for pose in poses:

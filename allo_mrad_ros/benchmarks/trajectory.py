@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from allo_mrad_ros.geometry import look_at
@@ -120,3 +121,42 @@ def speeds(poses: list[np.ndarray], rate_hz: float) -> tuple[np.ndarray, np.ndar
     cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     angular = np.degrees(np.arccos(cosine)) * rate_hz
     return linear, angular
+
+
+def top_speed_path(
+    start: np.ndarray,
+    frames: int,
+    rate_hz: float,
+    max_deg_s: float,
+    max_m_s: float,
+    rng: np.random.Generator,
+) -> list[np.ndarray]:
+    """``frames`` camera poses from ``start`` of an arm always at its top speeds.
+
+    The angular velocity (camera frame, ``max_deg_s``) and the linear velocity (station
+    frame, ``max_m_s``) keep their magnitudes and turn smoothly at a random pace: the worst
+    case for reference reuse, which the reuse accuracy bench measures on.
+    """
+    dt = 1.0 / rate_hz
+    spin_axis, move_axis = rng.normal(size=3), rng.normal(size=3)
+    spin_turn, move_turn = rng.normal(size=3), rng.normal(size=3)
+    pace = rng.uniform(0.2, 0.6)
+    pose = start.copy()
+    poses = [pose.copy()]
+    for index in range(1, frames):
+        phase = pace * index * dt
+        spin = _unit_vector(spin_axis + math.sin(phase) * spin_turn)
+        move = _unit_vector(move_axis + math.sin(phase) * move_turn)
+        rotation, _ = cv2.Rodrigues(spin * math.radians(max_deg_s) * dt)
+        pose[:3, :3] = pose[:3, :3] @ rotation
+        pose[:3, 3] = pose[:3, 3] + move * max_m_s * dt
+        poses.append(pose.copy())
+    return poses
+
+
+def _unit_vector(vector: np.ndarray) -> np.ndarray:
+    return vector / np.linalg.norm(vector)
+
+
+def _unit_vector(vector: np.ndarray) -> np.ndarray:
+    return vector / np.linalg.norm(vector)

@@ -14,6 +14,7 @@ from allo_mrad_ros.benchmarks.trajectory import (
     ping_pong,
     segment_poses,
     speeds,
+    top_speed_path,
 )
 from allo_mrad_ros.geometry import look_at
 
@@ -90,3 +91,16 @@ def test_speeds_of_a_known_motion():
     linear, angular = speeds(poses, 30.0)
     np.testing.assert_allclose(linear, 0.3, rtol=1e-9)
     np.testing.assert_allclose(angular, 3.0, rtol=1e-6)
+
+
+def test_the_top_speed_path_holds_both_speeds_and_turns_smoothly():
+    rng = np.random.default_rng(4)
+    start = look_at([-20.0, 5.0, 3.0], [0.0, 0.0, 0.0])
+    poses = top_speed_path(start, 90, 30.0, MAX_ANGULAR_DEG_S, MAX_LINEAR_M_S, rng)
+    assert len(poses) == 90 and np.array_equal(poses[0], start)
+    linear, angular = speeds(poses, 30.0)
+    np.testing.assert_allclose(linear, MAX_LINEAR_M_S, rtol=1e-9)
+    np.testing.assert_allclose(angular, MAX_ANGULAR_DEG_S, rtol=1e-6)
+    steps = np.diff([pose[:3, 3] for pose in poses], axis=0)
+    turn = np.degrees(np.arccos(np.clip(np.sum(steps[1:] * steps[:-1], 1) / 0.01**2, -1, 1)))
+    assert turn.max() < 2.0  # the direction of motion turns, it does not jump
