@@ -141,7 +141,23 @@ def image_score(score: np.ndarray, area: int, params: MradParams) -> float:
         return float(area)
     flat = score.ravel()
     count = max(1, round(params.image_top_fraction * flat.size))
-    return float(np.partition(flat, flat.size - count)[flat.size - count :].mean(dtype=np.float64))
+    return float(_largest(flat, count).mean(dtype=np.float64))
+
+
+def _largest(values: np.ndarray, count: int) -> np.ndarray:
+    """The ``count`` largest of ``values`` (1-D), in increasing order.
+
+    NumPy's partition slows tenfold when most values are one number (a map at its floor,
+    two thirds of a clean frame), so the candidates are first narrowed to the values above
+    a threshold read from every 16th value, and sorted; when fewer than ``count`` lie above
+    it, all are sorted.
+    """
+    sample = np.sort(values[::16])
+    above = sample[max(0, sample.size - 4 * max(1, count // 16) - 1)]
+    candidates = values[values > above]
+    if candidates.size < count:
+        candidates = values
+    return np.sort(candidates)[candidates.size - count :]
 
 
 def detect(

@@ -8,6 +8,7 @@ from skimage.filters import apply_hysteresis_threshold
 from sklearn.cluster import MeanShift
 
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
+from allo_mrad_ros.detector.pipeline import _largest
 from allo_mrad_ros.detector.postprocess import (
     NEGATIVE_BAND,
     blur_scores,
@@ -210,3 +211,19 @@ def test_continuous_map_is_strictly_increasing_in_the_signed_score(scaling):
     assert np.all(np.diff(mapped[0]) > 0)
     assert mapped.min() > 0.0 and mapped.max() <= 255.0
     assert mapped[0, raw[0] < 0].max() < NEGATIVE_BAND <= mapped[0, raw[0] >= 0].min()
+
+
+@pytest.mark.parametrize("kind", ["spread", "floor", "few levels", "constant"])
+def test_the_largest_values_equal_a_full_sort_whatever_the_ties(kind):
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        size = int(rng.integers(1, 4000))
+        count = int(rng.integers(1, size + 1))
+        values = rng.random(size).astype(np.float32)
+        if kind == "floor":  # most of a clean frame's map sits at its floor
+            values[rng.random(size) < 0.7] = 1.0
+        elif kind == "few levels":
+            values = np.round(values * 3)
+        elif kind == "constant":
+            values[:] = 0.5
+        np.testing.assert_array_equal(_largest(values, count), np.sort(values)[size - count :])
