@@ -12,7 +12,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
 
 setup: $(STAMP)
 
@@ -165,6 +165,19 @@ data/bench_cycles/frames.csv: | $(CYCLES_STAMP)
 
 data/bench_cycles_twin/frames.csv: | $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-cycles --seed 0 --query-renderer pyrender --out data/bench_cycles_twin --overwrite
+
+# Dark glossy objects (the opt-in dark_visor) against dark station parts: the structure cue
+# off and on, on the bench-dark validation and test splits (docs/evaluation.md).
+DARK_SETTINGS = default,default:structure_weight=0.03,default:structure_weight=0.1
+bench-dark: $(STAMP) data/bench_dark/frames.csv
+	$(PY) -m allo_mrad_ros.benchmarks.stations_bench data/bench_dark --sequence --split val \
+	  --settings $(DARK_SETTINGS) --recall --out reports/bench_dark_val.json
+	$(PY) -m allo_mrad_ros.benchmarks.stations_bench data/bench_dark --sequence --split test \
+	  --settings $(DARK_SETTINGS) --recall --compare default,default:structure_weight=0.03 \
+	  --out reports/bench_dark_test.json
+
+data/bench_dark/frames.csv: | $(STAMP)
+	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-dark --seed 0 --out data/bench_dark --overwrite
 
 eval-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --overwrite --jobs 2

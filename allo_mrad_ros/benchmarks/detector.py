@@ -18,6 +18,7 @@ import platform
 import resource
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
@@ -25,10 +26,11 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.benchmarks import finish
-from allo_mrad_ros.detector import MradParams, detect, profile
+from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.backends import BackendError, select_backend
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
+from allo_mrad_ros.pipeline import params_from
 from allo_mrad_ros.render import DEFAULT_SCALE
 
 _ORACLE_PATH = Path(__file__).resolve().parents[2] / "test" / "mrad_oracle.py"
@@ -102,12 +104,13 @@ def run(
     reference_scale: float,
     profile_name: str,
     backends: list[str] | None = None,
+    changes: Sequence[str] = (),
 ) -> dict:
     """Time ``detect`` and the oracle on the built-in 1080p example; return the figures."""
     pair = example_pair(1080, 1920)
     ref_size = (round(1920 * reference_scale), round(1080 * reference_scale))
     reference = cv2.resize(pair.reference, ref_size, interpolation=cv2.INTER_AREA)
-    params = profile(profile_name)
+    params = params_from(profile_name, changes)
     # The same profile without the colour transfer: what the transfer costs per frame.
     bare = params.replace(colour_transfer="none")
     for _ in range(warmup):
@@ -274,6 +277,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--profile", default="default", help="detector parameter profile")
     parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="detector parameter over the profile (repeatable)",
+    )
+    parser.add_argument(
         "--array-backends",
         help="comma-separated array backends to compare (default: numpy, and torch where "
         "PyTorch is installed)",
@@ -284,7 +294,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames must be at least 20")
     backends = [b.strip() for b in args.array_backends.split(",")] if args.array_backends else None
     report = run(
-        args.frames, args.warmup, args.oracle_frames, args.reference_scale, args.profile, backends
+        args.frames,
+        args.warmup,
+        args.oracle_frames,
+        args.reference_scale,
+        args.profile,
+        backends,
+        args.set,
     )
     print(format_report(report))
     return finish(args.out, report)

@@ -124,6 +124,11 @@ class MradParams:
         With a colour transfer, a query pixel whose every channel reaches this level over
         station surface is glare (it says "brighter than white", not which colour) and
         takes the reference's colour; 256 disables it, 128..256.
+    structure_weight : float
+        Weight of the structure cue (:mod:`~allo_mrad_ros.detector.structure`: edges the
+        query has and its reference cell does not, luminance-normalised) added to the raw
+        cross score, in units of ``score_ref`` per unit of excess log-contrast; 0 (the
+        default, as measured: it did not pay) leaves it out, 0..100.
     """
 
     grid: int = 8
@@ -157,6 +162,7 @@ class MradParams:
     transfer_edge_margin: int = 0
     transfer_gain: bool = True
     glare_level: float = 250.0
+    structure_weight: float = 0.0
 
     def __post_init__(self) -> None:
         for name, spec in PARAMETER_SPECS.items():
@@ -328,6 +334,12 @@ PARAMETER_SPECS: dict[str, ParameterSpec] = {
     ),
     "glare_level": ParameterSpec(
         float, "query level (every channel) above which station pixels are glare; 256 off", 128, 256
+    ),
+    "structure_weight": ParameterSpec(
+        float,
+        "weight of the structure cue (edges absent from the reference cell); 0 off",
+        0,
+        100,
     ),
 }
 

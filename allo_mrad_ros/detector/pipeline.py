@@ -45,6 +45,7 @@ from allo_mrad_ros.detector.regions import (
     seed_window,
 )
 from allo_mrad_ros.detector.score import cross_score, cross_scores, rx_score
+from allo_mrad_ros.detector.structure import structure_score
 
 
 @dataclass(frozen=True)
@@ -233,6 +234,12 @@ def detect(
             backend,
             cache,
         )
+    if params.structure_weight > 0.0:
+        with timer.stage("structure"):
+            # In raw-score units, so it passes through the same scaling, mask and map.
+            cue = structure_score(work, reference, params.grid)
+            cue *= np.float32(params.structure_weight * params.score_ref)
+            raw, map_raw = raw + cue, [m + cue for m in map_raw]
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(
             scale_scores(raw, params.score_scaling, params.score_ref), params.min_score

@@ -25,7 +25,7 @@ from allo_mrad_ros.errors import AlloError
 from allo_mrad_ros.resources import package_version
 from allo_mrad_ros.staging import signals_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, QUERY_RENDERERS, SynthError, preset
-from allo_mrad_ros.synth.objects import ANOMALY_TYPES
+from allo_mrad_ros.synth.objects import KNOWN_TYPES
 from allo_mrad_ros.targets import SEQUENCE, TargetError, check_target, output_path
 
 
@@ -45,10 +45,10 @@ def _non_negative(text: str) -> float:
 
 def _types(text: str) -> tuple[str, ...]:
     names = tuple(n.strip() for n in text.split(",") if n.strip())
-    unknown = [n for n in names if n not in ANOMALY_TYPES]
+    unknown = [n for n in names if n not in KNOWN_TYPES]
     if not names or unknown:
         raise argparse.ArgumentTypeError(
-            f"unknown object types {unknown}; choose from {', '.join(ANOMALY_TYPES)}"
+            f"unknown object types {unknown}; choose from {', '.join(KNOWN_TYPES)}"
         )
     return names
 

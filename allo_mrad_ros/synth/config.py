@@ -108,7 +108,16 @@ class SynthConfig:
         The scale factors of that variant (ALLO: 0.3, 0.5, 0.7). A scaled object that
         cannot be placed visibly is placed at the next larger scale, finally at 1.
     anomaly_types : tuple of str or None
-        Object types to use; None for all (:data:`~.objects.ANOMALY_TYPES`).
+        Object types to use; None for the default set (:data:`~.objects.ANOMALY_TYPES`;
+        opt-in types such as ``dark_visor`` are drawn only when named).
+    dark_background_types : tuple of str
+        Object types placed only against a dark part of the station: a placement is kept
+        when the ring of pixels around the object's silhouette is mostly station and its
+        mean luminance is at most ``dark_background_level``; when no try meets that, the
+        darkest valid placement is kept. Empty (the default) leaves placement as ALLO's.
+    dark_background_level : float
+        Largest mean luminance (0..1, display values of the rendered query before the
+        camera model) of that ring.
     camera_distance_m : tuple of float
         Range of base-pose distances from the point of the station looked at.
     min_camera_clearance_m : float
@@ -168,6 +177,8 @@ class SynthConfig:
     scale_probability: float = 0.2
     scales: tuple[float, ...] = (0.3, 0.5, 0.7)
     anomaly_types: tuple[str, ...] | None = None
+    dark_background_types: tuple[str, ...] = ()
+    dark_background_level: float = 0.12
     camera_distance_m: tuple[float, float] = (12.0, 30.0)
     min_camera_clearance_m: float = 7.0
     days: tuple[int, int] = (1, 365)
@@ -223,15 +234,16 @@ class SynthConfig:
         for scale in self.scales:
             _finite(scale, "scales", 0.05, 1.0)
         if self.anomaly_types is not None:
-            from allo_mrad_ros.synth.objects import ANOMALY_TYPES
+            from allo_mrad_ros.synth.objects import KNOWN_TYPES
 
             if not isinstance(self.anomaly_types, tuple) or not self.anomaly_types:
                 raise SynthError("anomaly_types must be a non-empty tuple or None")
-            unknown = [t for t in self.anomaly_types if t not in ANOMALY_TYPES]
+            unknown = [t for t in self.anomaly_types if t not in KNOWN_TYPES]
             if unknown:
                 raise SynthError(
-                    f"unknown anomaly types {unknown}; known: {', '.join(ANOMALY_TYPES)}"
+                    f"unknown anomaly types {unknown}; known: {', '.join(KNOWN_TYPES)}"
                 )
+        self._check_dark_background()
         object.__setattr__(
             self, "camera_distance_m", _pair(self.camera_distance_m, "camera_distance_m", 1.0)
         )
@@ -272,6 +284,19 @@ class SynthConfig:
         _finite(self.rate_hz, "rate_hz", 1e-3, 1e4)
         if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
             raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
+
+    def _check_dark_background(self) -> None:
+        from allo_mrad_ros.synth.objects import KNOWN_TYPES
+
+        types = self.dark_background_types
+        if not isinstance(types, tuple) or not all(isinstance(t, str) for t in types):
+            raise SynthError(f"dark_background_types must be a tuple of names, got {types!r}")
+        unknown = [t for t in types if t not in KNOWN_TYPES]
+        if unknown:
+            raise SynthError(
+                f"unknown dark_background_types {unknown}; known: {', '.join(KNOWN_TYPES)}"
+            )
+        _finite(self.dark_background_level, "dark_background_level", 0.0, 1.0)
 
     def _check_sun(self) -> None:
         strengths, weights = self.sun_strengths, self.sun_weights
@@ -385,6 +410,20 @@ def _bench_stations() -> SynthConfig:
     )
 
 
+def _bench_dark() -> SynthConfig:
+    # Dark glossy objects against dark station parts: the dark visor alone, kept dark (no
+    # colour variant), placed where the station around it is dark, under a Sun weighted to
+    # its weaker strengths; a validation split to choose on and a test split to report.
+    return SynthConfig(
+        name="bench-dark",
+        splits={"val": SplitSpec(8, 24, 6), "test": SplitSpec(8, 24, 6)},
+        anomaly_types=("dark_visor",),
+        dark_background_types=("dark_visor",),
+        colour_probability=0.0,
+        sun_weights=(0.4, 0.3, 0.3),
+    )
+
+
 PRESETS = MappingProxyType(
     {
         "smoke": _smoke,
@@ -393,6 +432,7 @@ PRESETS = MappingProxyType(
         "bench-val": _bench_val,
         "bench-cycles": _bench_cycles,
         "bench-stations": _bench_stations,
+        "bench-dark": _bench_dark,
     }
 )
 """Preset name to a function returning its :class:`SynthConfig`."""
@@ -408,7 +448,9 @@ def preset(name: str) -> SynthConfig:
         test split), ``bench`` (train 120, val 60, test 330 at 1920x1080) or ``bench-val``
         (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1)
         or ``bench-cycles`` (test 48 at 640x360, queries path-traced by Blender Cycles
-        without our camera model; needs the optional bpy, ``make bench-cycles``).
+        without our camera model; needs the optional bpy, ``make bench-cycles``) or
+        ``bench-dark`` (val 32 and test 32 at 1920x1080: the opt-in dark visor against
+        dark station parts).
 
     Returns
     -------

@@ -13,12 +13,19 @@ from functools import lru_cache
 from os import PathLike
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.ephemeris import Sky, StationEphemeris
 from allo_mrad_ros.geometry import pose_components
-from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer, RenderResult
+from allo_mrad_ros.render import (
+    LABEL_ANOMALY,
+    LABEL_STATION,
+    ExtraObject,
+    ReferenceRenderer,
+    RenderResult,
+)
 from allo_mrad_ros.synth import placement
 from allo_mrad_ros.synth.config import SynthConfig, SynthError
 from allo_mrad_ros.synth.lighting import QueryLight, query_lamps, query_light
@@ -51,6 +58,36 @@ _CHECK_MARGIN = 0.7
 _CHECK_SCALE = 0.25
 # Perturbed camera poses tried per draw before giving up on a frame (cameras in the hull).
 _CLEAR_ATTEMPTS = 50
+# The background of a dark-background type: a ring this wide (share of the image width)
+# around its silhouette, which must be at least this much station (not space).
+_RING_FRACTION = 0.015
+_RING_STATION_SHARE = 0.5
+
+
+def background_level(rgb: np.ndarray, labels: np.ndarray) -> float:
+    """Mean luminance (0..1) of the ring of pixels around the anomaly's silhouette.
+
+    Parameters
+    ----------
+    rgb : numpy.ndarray
+        (h, w, 3) uint8 render with the object.
+    labels : numpy.ndarray
+        (h, w) uint8 classes of the same render.
+
+    Returns
+    -------
+    float
+        The ring's mean luminance, or ``inf`` when less than half of the ring is station
+        (the object is seen against space, not against the station).
+    """
+    anomaly = (labels == LABEL_ANOMALY).astype(np.uint8)
+    width = max(3, 2 * round(_RING_FRACTION * labels.shape[1] / 2) + 1)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (width, width))
+    ring = (cv2.dilate(anomaly, kernel) > 0) & (anomaly == 0)
+    if not ring.any() or np.mean(labels[ring] == LABEL_STATION) < _RING_STATION_SHARE:
+        return math.inf
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    return float(grey[ring].mean()) / 255.0
 
 
 def camera_intrinsics(config: SynthConfig) -> CameraIntrinsics:
@@ -306,6 +343,9 @@ class FrameSynthesizer:
         reasons: dict[str, int] = {}
         # A scale variant too small to be seen is placed at the next larger scale, finally 1.
         scales = [plan.scale, *sorted(s for s in {*config.scales, 1.0} if s > plan.scale)]
+        dark = plan.anomaly in config.dark_background_types
+        # The darkest valid placement of a dark-background type, kept if none is dark enough.
+        darkest: tuple[float, tuple] | None = None
         for scale in scales:
             obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour, scale)
             if self._area_bound(obj) < need:
@@ -344,9 +384,21 @@ class FrameSynthesizer:
                             pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
                             if pixels >= need:
                                 extra = self._anomaly_extra(plan, obj, candidate, pixels, tries)
-                                return T, result, extra, extras
-                            reason = "small"
+                                if not dark:
+                                    return T, result, extra, extras
+                                level = background_level(result.rgb, result.labels)
+                                if math.isfinite(level):
+                                    extra["background_level"] = round(level, 4)
+                                if level <= config.dark_background_level:
+                                    return T, result, extra, extras
+                                if darkest is None or level < darkest[0]:
+                                    darkest = (level, (T, result, extra, extras))
+                                reason = "bright"
+                            else:
+                                reason = "small"
                         reasons[reason] = reasons.get(reason, 0) + 1
+            if darkest is not None:
+                return darkest[1]
         raise SynthError(
             f"frame {plan.index} ({plan.anomaly}, camera {plan.split}/{plan.camera}): no "
             f"placement met the rules in {tries} tries ({reasons})"

@@ -1,7 +1,9 @@
 """Procedural anomaly objects, built deterministically from trimesh primitives and a seed.
 
 Sixteen types cover the families of ALLO's test set: thermal blankets, cables, tools lost
-during EVAs, an astronaut glove, CubeSats and small satellites, debris. Each builder draws
+during EVAs, an astronaut glove, CubeSats and small satellites, debris. One more, a dark
+glossy helmet visor, is opt-in (:data:`OPT_IN_TYPES`): a sequence gets it only when its
+settings name it, so the sequences of every existing preset keep their frames. Each builder draws
 its dimensions from a seeded NumPy generator, so ``build_anomaly(kind, seed)`` always gives
 the same object; sizes are those of the real things (a 1U CubeSat is 10 cm).
 """
@@ -25,6 +27,7 @@ from .base import (
     sample_triangles,
 )
 from .cables import cable, handrail, tether_hook
+from .glossy import dark_visor
 from .satellites import cubesat_1u, cubesat_3u, cubesat_6u, helicopter, smallsat
 from .sheets import blanket_crumpled, blanket_curved, debris_panel, mli_strip
 from .tools import drill, glove, pistol_grip_tool, wrench
@@ -51,7 +54,17 @@ ANOMALY_TYPES: MappingProxyType[str, Builder] = MappingProxyType(
         "debris_panel": debris_panel,
     }
 )
-"""Object type name to builder, in a fixed order."""
+"""Object type name to builder, in a fixed order: the types a sequence draws by default."""
+
+OPT_IN_TYPES: MappingProxyType[str, Builder] = MappingProxyType({"dark_visor": dark_visor})
+"""Types drawn only when a sequence names them (adding one to the default draw would
+change the frame plan of every existing preset)."""
+
+KNOWN_TYPES: MappingProxyType[str, Builder] = MappingProxyType({**ANOMALY_TYPES, **OPT_IN_TYPES})
+"""Every type :func:`build_anomaly` and a sequence's ``anomaly_types`` accept."""
+
+DARK_TYPES = frozenset({"dark_visor"})
+"""Types whose own materials are dark (diffuse albedo under 10 %)."""
 
 SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip"})
 """Types made of open sheets (zero thickness); all others are closed solids."""
@@ -69,7 +82,7 @@ def build_anomaly(
     Parameters
     ----------
     kind : str
-        A key of :data:`ANOMALY_TYPES`.
+        A key of :data:`KNOWN_TYPES`.
     seed : int
         Non-negative seed of the object's own random generator.
     colour : str
@@ -88,15 +101,15 @@ def build_anomaly(
     ObjectError
         For an unknown kind or colour, a negative seed or a scale outside (0, 1].
     """
-    if kind not in ANOMALY_TYPES:
-        raise ObjectError(f"unknown anomaly type {kind!r}; known: {', '.join(ANOMALY_TYPES)}")
+    if kind not in KNOWN_TYPES:
+        raise ObjectError(f"unknown anomaly type {kind!r}; known: {', '.join(KNOWN_TYPES)}")
     if colour != DEFAULT_COLOUR and colour not in COLOURS:
         raise ObjectError(f"unknown colour {colour!r}; known: default, {', '.join(COLOURS)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ObjectError(f"seed must be a non-negative integer, got {seed!r}")
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 1:
         raise ObjectError(f"scale must be a number in (0, 1], got {scale!r}")
-    parts = ANOMALY_TYPES[kind](np.random.default_rng(int(seed)))
+    parts = KNOWN_TYPES[kind](np.random.default_rng(int(seed)))
     low = np.min([p.mesh.bounds[0] for p in parts], axis=0)
     high = np.max([p.mesh.bounds[1] for p in parts], axis=0)
     centre = (low + high) / 2.0
@@ -112,8 +125,11 @@ def build_anomaly(
 __all__ = [
     "ANOMALY_TYPES",
     "COLOURS",
+    "DARK_TYPES",
     "DEFAULT_COLOUR",
+    "KNOWN_TYPES",
     "MATERIALS",
+    "OPT_IN_TYPES",
     "SHEET_TYPES",
     "AnomalyObject",
     "ObjectError",

@@ -29,6 +29,9 @@ MATERIALS: dict[str, tuple[tuple[float, float, float], float, float]] = {
     "rubber": ((0.10, 0.10, 0.10), 0.0, 0.9),
     "handrail_yellow": ((0.85, 0.62, 0.08), 0.1, 0.5),
     "carbon": ((0.08, 0.08, 0.09), 0.2, 0.4),
+    # A dark tinted visor: a dielectric (specular reflectance 4 %) of very low roughness,
+    # so nearly all it sends back is a sharp highlight of the lights.
+    "visor_black": ((0.02, 0.02, 0.025), 0.0, 0.06),
 }
 
 # ALLO's colour variants recolour an object; these are the named colours used.
