@@ -26,15 +26,16 @@ reused (:class:`~allo_mrad_ros.detector.reference_cache.ReferenceCache`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.errors import InvalidInput
-from allo_mrad_ros.view import View
+from allo_mrad_ros.render.bodies import CelestialBody
 
 # A warp that moves no pixel by more than this (reference pixels) is no warp: resampling
 # would only blur the keyframe.
@@ -49,6 +50,15 @@ _SUN_STRENGTH_TOLERANCE = 1e-3
 
 class ReuseError(InvalidInput):
     """An invalid reuse bound."""
+
+
+class View(Protocol):
+    """What a reference is rendered from (:class:`allo_mrad_ros.view.View` has it)."""
+
+    T_station_camera: np.ndarray
+    sun_direction: np.ndarray
+    sun_strength: float
+    bodies: Sequence[CelestialBody]
 
 
 @dataclass(frozen=True)
