@@ -595,6 +595,7 @@ class MradDetectorNode(Node):
             score_map,
             None if entry is None else entry[2],
             config.score_full_resolution,
+            config.overlay_full_resolution,
         )
 
     def destroy_node(self) -> None:

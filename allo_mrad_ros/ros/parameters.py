@@ -210,6 +210,14 @@ def node_parameters(tf_available: bool) -> dict[str, NodeParameter]:
                 "(mrad.process_scale) with its scaled camera_info"
             ),
         ),
+        "overlay_full_resolution": NodeParameter(
+            False,
+            _flag(
+                "publish ~/overlay at the image's resolution; false: the image area-averaged "
+                "to the detector's processing resolution (mrad.process_scale), a sixteenth "
+                "of the bytes at the default scale"
+            ),
+        ),
         "diagnostics_period_s": NodeParameter(
             1.0, _number("period of /diagnostics messages", 0.1, 60.0), True
         ),
@@ -530,6 +538,7 @@ class NodeConfig:
     rate_tolerance: float = 0.1
     max_stamp_delay_s: float = 1.0
     score_full_resolution: bool = False
+    overlay_full_resolution: bool = False
 
 
 def node_config_from(values: dict[str, Any]) -> NodeConfig:
@@ -581,4 +590,5 @@ def node_config_from(values: dict[str, Any]) -> NodeConfig:
         rate_tolerance=float(values["rate_tolerance"]),
         max_stamp_delay_s=float(values["max_stamp_delay_s"]),
         score_full_resolution=values["score_full_resolution"],
+        overlay_full_resolution=values["overlay_full_resolution"],
     )

@@ -13,7 +13,12 @@ from allo_mrad_ros.detector.pipeline import DetectionResult
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros import outputs as outputs_module
-from allo_mrad_ros.ros.outputs import Outputs, connected_boxes, region_marker
+from allo_mrad_ros.ros.outputs import (
+    OVERLAY_COLOUR,
+    Outputs,
+    connected_boxes,
+    region_marker,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -86,6 +91,8 @@ def publish(
     overlay: bool = True,
     processed: ProcessedFrame | None = None,
     full_resolution: bool = False,
+    overlay_full_resolution: bool = False,
+    image: np.ndarray | None = None,
 ) -> None:
     header = Header(frame_id="cam")
     header.stamp.sec = 7
@@ -93,13 +100,14 @@ def publish(
     info = messages.fill_camera_info(CameraInfo(), IMAGE_CAMERA, "cam")
     outputs.publish(
         header,
-        np.zeros((90, 160, 3), np.uint8),
+        np.zeros((90, 160, 3), np.uint8) if image is None else image,
         processed or frame(),
         camera,
         reference,
         overlay,
         camera_info=info,
         score_full_resolution=full_resolution,
+        overlay_full_resolution=overlay_full_resolution,
     )
 
 
@@ -138,6 +146,32 @@ def test_the_score_and_its_camera_info_at_either_resolution(outputs, full_resolu
     assert (fx, cx, fy, cy) == (
         (100.0, 80.0, 100.0, 45.0) if full_resolution else (50, 39.75, 50, 22.25)
     )
+
+
+@pytest.mark.parametrize("full_resolution", [False, True], ids=["processing", "full"])
+def test_the_overlay_at_either_resolution_outlines_the_mask_on_the_image(outputs, full_resolution):
+    fakes = subscribe(outputs, "overlay")
+    image = np.zeros((90, 160, 3), np.uint8)
+    image[:, 80:] = 120  # right half grey
+    publish(outputs, image=image, overlay_full_resolution=full_resolution)
+    sent = fakes["overlay"].sent[0]
+    width, height = (160, 90) if full_resolution else (80, 45)
+    assert (sent.width, sent.height, sent.encoding) == (width, height, "rgb8")
+    overlay = np.frombuffer(sent.data, np.uint8).reshape(height, width, 3)
+    red = np.all(overlay == OVERLAY_COLOUR, axis=2)
+    # Every outline pixel lies around one of the two regions, and the first is outlined.
+    scale = width / 160
+    near = np.zeros((height, width), bool)
+    for top, bottom, left, right in ((10, 20, 30, 50), (60, 62, 100, 101)):
+        near[
+            max(0, int(top * scale) - 3) : int(bottom * scale) + 3,
+            max(0, int(left * scale) - 3) : int(right * scale) + 3,
+        ] = True
+    assert red.any() and not (red & ~near).any()
+    assert red[int(10 * scale) - 3 : int(20 * scale) + 3, int(30 * scale) - 3 :][:, :30].any()
+    # Elsewhere it is the image, area-averaged when smaller.
+    assert overlay[height // 2, width - 1].tolist() == [120, 120, 120]
+    assert overlay[height - 1, 0].tolist() == [0, 0, 0]
 
 
 def test_every_subscribed_output_is_published_with_the_image_header(outputs):

@@ -43,7 +43,10 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monk
 
     class SlowPipeline:
         provider = types.SimpleNamespace(
-            camera=CAMERA, render=lambda view: "reference", close=lambda: None
+            camera=CAMERA,
+            render=lambda view, time_s=None: "reference",
+            close=lambda: None,
+            reuse=None,
         )
 
         def detect(self, image, reference, score_map=True):
