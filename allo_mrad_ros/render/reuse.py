@@ -40,6 +40,10 @@ from allo_mrad_ros.render.bodies import CelestialBody
 # A warp that moves no pixel by more than this (reference pixels) is no warp: resampling
 # would only blur the keyframe.
 _STILL_PX = 0.02
+# A warped reference stands for a later view whose pixels it shows at most this far off
+# (reference pixels; the nearest-pixel warp itself rounds by up to half a pixel), so the
+# detector's cache of it is used again instead of warping every frame.
+_SNAP_PX = 0.25
 # Resampling of the warp.
 _INTERPOLATION = cv2.INTER_NEAREST
 # Rotation axes sampled for the margin.
@@ -80,7 +84,7 @@ class ReuseBounds:
         [0, 10] degrees.
     """
 
-    max_error_px: float = 4.0
+    max_error_px: float = 2.0
     max_rotation_deg: float = 2.0
     max_age_s: float = 1.0
     max_sun_change_deg: float = 0.05
@@ -326,6 +330,8 @@ class ReferenceReuse:
         self.reused = 0
         self.last_decision = ReuseDecision("first")
         self._keyframe: Keyframe | None = None
+        # The last warp: its homography and image (read-only), for the keyframe in use.
+        self._warped: tuple[np.ndarray, np.ndarray] | None = None
 
     def reference(
         self,
@@ -333,19 +339,33 @@ class ReferenceReuse:
         time_s: float | None,
         render: Callable[[View], tuple[np.ndarray, np.ndarray]],
     ) -> np.ndarray:
-        """The reference of ``view``: the keyframe warped, or ``render(view)`` (the wide RGB
-        image and its depth) made the new keyframe."""
+        """The reference of ``view``: the keyframe warped (or the last warp, when it shows
+        the view's pixels within a quarter pixel and the bound allows), or ``render(view)``
+        (the wide RGB image and its depth) made the new keyframe. Read-only."""
         decision = decide(
             self._keyframe, view, time_s, self.bounds, self.camera, self.margin, self.scale
         )
         self.last_decision = decision
-        if decision.reuse:
-            self.reused += 1
-            return warp(self._keyframe, decision, self.camera)
-        rgb, depth = render(view)
-        self._keyframe = keyframe_of(view, time_s, rgb, depth, self.margin)
-        self.rendered += 1
-        return self._keyframe.image
+        if not decision.reuse:
+            rgb, depth = render(view)
+            self._keyframe = keyframe_of(view, time_s, rgb, depth, self.margin)
+            self._warped = None
+            self.rendered += 1
+            return self._keyframe.image
+        self.reused += 1
+        if decision.homography is None:
+            return self._keyframe.image
+        if self._warped is not None:
+            homography, image = self._warped
+            offset = _content_offset_px(homography, decision.homography, self.camera)
+            if offset < _SNAP_PX and decision.error_px + offset / self.scale <= (
+                self.bounds.max_error_px
+            ):
+                return image
+        image = warp(self._keyframe, decision, self.camera)
+        image.flags.writeable = False
+        self._warped = (decision.homography, image)
+        return image
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -412,6 +432,14 @@ def _sphere_points(count: int) -> np.ndarray:
     angle = math.pi * (3.0 - math.sqrt(5.0)) * index
     radius = np.sqrt(1.0 - z * z)
     return np.c_[radius * np.cos(angle), radius * np.sin(angle), z]
+
+
+def _content_offset_px(shown: np.ndarray, wanted: np.ndarray, camera: CameraIntrinsics) -> float:
+    """How far (keyframe pixels) the content of an image warped with ``shown`` lies from
+    where the warp ``wanted`` puts it, at the image's corners."""
+    corners = _corners(camera)
+    difference = _apply(np.linalg.inv(shown), corners) - _apply(np.linalg.inv(wanted), corners)
+    return float(np.linalg.norm(difference, axis=1).max())
 
 
 def _largest_shift_px(homography: np.ndarray, camera: CameraIntrinsics, margin: int) -> float:

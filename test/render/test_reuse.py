@@ -258,3 +258,23 @@ def test_widened_keeps_the_focal_length_and_shifts_the_principal_point():
     wide = widened(camera, 5)
     assert (wide.width, wide.height, wide.fx, wide.fy) == (110, 90, 90.0, 91.0)
     assert (wide.cx, wide.cy) == (54.5, 44.5)
+
+
+def test_a_warp_stands_for_the_next_view_when_it_shows_it_within_a_quarter_pixel():
+    calls = []
+
+    def render(view):
+        calls.append(view)
+        wide = reuse.wide_camera
+        rgb = np.random.default_rng(0).integers(0, 255, (wide.height, wide.width, 3), np.uint8)
+        return rgb, np.full(rgb.shape[:2], 30.0, np.float32)
+
+    reuse = ReferenceReuse(CAMERA, ReuseBounds(max_error_px=8.0), SCALE)
+    reuse.reference(View(START, SUN), 0.0, render)
+    first = reuse.reference(View(turned(START, 0.3), SUN), 0.01, render)  # ~0.9 px: warped
+    assert not first.flags.writeable
+    # 0.01 degree more moves the content by ~0.03 px: the same image stands for it.
+    assert reuse.reference(View(turned(START, 0.31), SUN), 0.02, render) is first
+    # 0.3 degree more (~0.9 px): warped anew.
+    second = reuse.reference(View(turned(START, 0.6), SUN), 0.03, render)
+    assert second is not first and len(calls) == 1 and reuse.reused == 3
