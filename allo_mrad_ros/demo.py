@@ -234,7 +234,7 @@ def _wait_for_node(listener: object, node: subprocess.Popen, node_log: Path) -> 
 
 
 def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None:
-    """Send camera_info until the node reports its renderer ready (GL start-up takes ~1 s),
+    """Send camera_info until the node reports its renderer and detector warmed up (~1 s),
     so the first frames of the bag are not dropped while it starts."""
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
@@ -247,7 +247,7 @@ def _prime_camera_info(node: object, intrinsics: object, node_log: Path) -> None
     )
     info = fill_camera_info(CameraInfo(), intrinsics)
     deadline = time.monotonic() + 60
-    while "renderer ready" not in node_log.read_text():
+    while "warmed up" not in node_log.read_text():
         if time.monotonic() > deadline:
             raise DemoError(f"the node's renderer did not start; see {node_log}")
         publisher.publish(info)

@@ -25,6 +25,7 @@ from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, BackendError, select
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
 from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
 from allo_mrad_ros.render.reuse import ReferenceReuse, ReuseBounds
 from allo_mrad_ros.view import View
@@ -249,6 +250,14 @@ class ReferenceProvider:
         )
         return result.rgb, result.depth
 
+    def warm_up(self) -> None:
+        """Render once from a pose looking at the station, outside any reuse: the first
+        render compiles the shaders and fills the GL caches (several times a frame's time)."""
+        low, high = self.renderer.station_bounds
+        centre = (low + high) / 2.0
+        eye = centre + np.array([0.0, -1.0, 0.3]) * 2.0 * float(np.linalg.norm(high - low))
+        self.renderer.render(look_at(eye, centre), (0.3, -0.5, 0.8))
+
     def close(self) -> None:
         """Release the GL context."""
         self.renderer.close()
@@ -332,6 +341,16 @@ class Pipeline:
     def with_config(self, config: PipelineConfig) -> Pipeline:
         """A pipeline with another configuration sharing this one's provider."""
         return Pipeline(self._provider, config, self._cache)
+
+    def warm_up(self) -> None:
+        """Render once and run every method on a blank frame, so the first camera frame does
+        not pay for compiled shaders, first-use allocations and lazily loaded code."""
+        self._provider.warm_up()
+        camera, reference = self._provider.camera, self._provider.reference_camera
+        self.detect(
+            np.zeros((camera.height, camera.width, 3), np.uint8),
+            np.zeros((reference.height, reference.width, 3), np.uint8),
+        )
 
     @property
     def cache(self) -> ReferenceCache:

@@ -358,6 +358,11 @@ class ReferenceRenderer:
 
     # ------------------------------------------------------------------ bookkeeping
     @property
+    def station_bounds(self) -> np.ndarray:
+        """(2, 3) lowest and highest corner of the station model's bounding box, metres."""
+        return self._station_bounds.copy()
+
+    @property
     def node_count(self) -> int:
         """Number of nodes in the scene now (constant between renders)."""
         return len(self._scene.nodes)

@@ -235,6 +235,16 @@ class ProcessingWorker:
         )
         return provider
 
+    def _warm_up(self, pipeline: Pipeline) -> None:
+        """Render and detect once before any frame: the first frame would otherwise take
+        several frame times (shaders, first-use allocations) and the frames behind it would
+        be dropped. A camera the detector cannot take is reported by its frames."""
+        try:
+            pipeline.warm_up()
+        except (RendererError, ValueError):
+            return
+        self._logger.info("renderer and detector warmed up: processing frames")
+
     def _pipeline_for(
         self, state: Snapshot, pipeline: Pipeline | None, built_for: tuple | None
     ) -> tuple[Pipeline | None, tuple | None]:
@@ -251,12 +261,14 @@ class ProcessingWorker:
                 pipeline = None
             try:
                 provider = self._provider(state.intrinsics, state.config)
-                return Pipeline(provider, state.config.pipeline), built_for
+                pipeline = Pipeline(provider, state.config.pipeline)
             except (RendererError, ValueError) as error:
                 self._diagnostics.report(
                     MessageError("renderer", f"cannot build the renderer: {error}")
                 )
                 return None, built_for
+            self._warm_up(pipeline)
+            return pipeline, built_for
         if pipeline is not None and pipeline.config != state.config.pipeline:
             pipeline = pipeline.with_config(state.config.pipeline)
         return pipeline, built_for

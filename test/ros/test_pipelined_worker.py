@@ -55,7 +55,7 @@ class Stages:
     def __init__(self, render_s=0.0, detect_s=0.0):
         self.render_s, self.detect_s = render_s, detect_s
         self.gl_threads, self.detect_threads = [], []
-        self.built, self.closed, self.score_maps = [], [], []
+        self.built, self.closed, self.score_maps, self.warmed_up = [], [], [], []
         self.gate = threading.Event()
         self.gate.set()
         self.detecting = threading.Event()
@@ -86,6 +86,9 @@ class Stages:
 
             def with_config(self, config):
                 return Pipeline(self.provider, config)
+
+            def warm_up(self):
+                stages.warmed_up.append(threading.get_ident())
 
             def detect(self, image, reference, score_map=True):
                 stages.detect_threads.append(threading.get_ident())
@@ -251,6 +254,8 @@ def test_opengl_is_called_from_one_thread_only_across_a_camera_change_and_the_st
     assert stages.built == [CAMERA, OTHER_CAMERA] and stages.closed == [CAMERA, OTHER_CAMERA]
     assert len(set(stages.gl_threads)) == 1
     assert set(stages.detect_threads).isdisjoint(stages.gl_threads)  # detection ran beside
+    # Each new renderer is warmed up (it renders) on the GL thread before its first frame.
+    assert len(stages.warmed_up) == 2 and set(stages.warmed_up) == set(stages.gl_threads)
 
 
 @pytest.mark.parametrize("pipelined", [True, False])
