@@ -269,8 +269,12 @@ def _play_bag(listener: object, paths: DemoPaths, rate: float) -> None:
                 str(paths.bag),
                 "--rate",
                 str(rate),
+                # The recorder subscribes to the image too: the pose and camera_info
+                # topics have only the node, so their publishers wait for it.
                 "--wait-for",
                 interface.IMAGE_TOPIC,
+                interface.POSE_TOPIC,
+                interface.CAMERA_INFO_TOPIC,
             ),
             stdout=stream,
             stderr=subprocess.STDOUT,
@@ -324,6 +328,7 @@ def evaluate_offline(paths: DemoPaths) -> dict:
             str(paths.offline),
             "--overwrite",
             "--quiet",
+            "--reuse-reference",
         ),
         paths.logs / "evaluate.log",
         "allo-bag evaluate",

@@ -152,6 +152,13 @@ def _parser() -> argparse.ArgumentParser:
             help=f"render Sun shadows in the reference (default {DEFAULT_SHADOWS})",
         )
         sub.add_argument(
+            "--reuse-reference",
+            action="store_true",
+            help="warp the last render to nearby frames within the node's default bounds, "
+            "frames in time order, as the node does (docs/node.md, Reference reuse); "
+            "default: render every frame",
+        )
+        sub.add_argument(
             "--array-backend",
             default="numpy",
             help="where the detectors' per-pixel work runs: numpy (default), torch, "
@@ -222,10 +229,15 @@ def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)
         For an unknown profile, method or parameter, or a value out of range.
     """
     from allo_mrad_ros.pipeline import PipelineConfig, ProcessingError, RenderSettings, params_from
+    from allo_mrad_ros.render.reuse import ReuseBounds
 
     try:
         return PipelineConfig(
-            RenderSettings(reference_scale=args.reference_scale, shadows=args.shadows),
+            RenderSettings(
+                reference_scale=args.reference_scale,
+                shadows=args.shadows,
+                reuse=ReuseBounds() if getattr(args, "reuse_reference", False) else None,
+            ),
             params_from(args.profile, args.set),
             tuple(methods),
             args.array_backend,

@@ -138,7 +138,9 @@ def _small(array: np.ndarray, interpolation: int) -> np.ndarray:
 def _evaluate_frame(job: tuple[EvalFrame, bool]) -> FrameOutcome:
     frame, want_overlay = job
     try:
-        processed = worker_pipeline().process(frame.image, frame.view, reference=frame.reference)
+        processed = worker_pipeline().process(
+            frame.image, frame.view, reference=frame.reference, time_s=frame.stamp_ns / 1e9
+        )
         methods = {
             name: MethodOutcome.of(result, frame.mask, dict(result.timings_ms))
             for name, result in processed.results.items()
