@@ -36,6 +36,19 @@ import numpy as np
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.render.warp import (
+    angle_deg,
+    apply_homography,
+    beyond_px,
+    content_offset_px,
+    image_corners,
+    largest_shift_px,
+    relative_motion,
+    rotation_angle_deg,
+    sphere_points,
+    uncovered_px,
+    widened,
+)
 
 # A warp that moves no pixel by more than this (reference pixels) is no warp: resampling
 # would only blur the keyframe.
@@ -113,24 +126,12 @@ class ReuseBounds:
         # about axes spread over the sphere (an off-axis corner moves more than f tan(angle)).
         inverse_k = np.linalg.inv(camera.matrix)
         reach = 0.0
-        for axis in _sphere_points(_MARGIN_AXES):
+        for axis in sphere_points(_MARGIN_AXES):
             rotation, _ = cv2.Rodrigues(axis * math.radians(self.max_rotation_deg))
             source = camera.matrix @ rotation.T @ inverse_k
-            reach = max(reach, _beyond(_apply(source, _corners(camera)), camera))
+            reach = max(reach, beyond_px(apply_homography(source, image_corners(camera)), camera))
         # One pixel for the sampled axes' gaps, one for the resampling's footprint.
         return math.ceil(reach) + 2
-
-
-def widened(camera: CameraIntrinsics, margin: int) -> CameraIntrinsics:
-    """``camera`` with ``margin`` more pixels on every side (same focal length)."""
-    return CameraIntrinsics(
-        width=camera.width + 2 * margin,
-        height=camera.height + 2 * margin,
-        fx=camera.fx,
-        fy=camera.fy,
-        cx=camera.cx + margin,
-        cy=camera.cy + margin,
-    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,15 +188,6 @@ class ReuseDecision:
         return not self.reason
 
 
-def relative_motion(T_station_from: np.ndarray, T_station_to: np.ndarray) -> np.ndarray:
-    """4x4 transform taking points of the ``from`` camera frame into the ``to`` camera's."""
-    rotation_to = T_station_to[:3, :3]
-    motion = np.eye(4)
-    motion[:3, :3] = rotation_to.T @ T_station_from[:3, :3]
-    motion[:3, 3] = rotation_to.T @ (T_station_from[:3, 3] - T_station_to[:3, 3])
-    return motion
-
-
 def decide(
     keyframe: Keyframe | None,
     view: View,
@@ -241,14 +233,14 @@ def decide(
     if (
         abs(new.sun_strength - old.sun_strength)
         > _SUN_STRENGTH_TOLERANCE * max(old.sun_strength, 1.0)
-        or _angle_deg(new.sun_direction, old.sun_direction) > bounds.max_sun_change_deg
+        or angle_deg(new.sun_direction, old.sun_direction) > bounds.max_sun_change_deg
     ):
         return ReuseDecision("sun")
     if not _same_bodies(old, new, bounds.max_sun_change_deg):
         return ReuseDecision("bodies")
     motion = relative_motion(old.T_station_camera, new.T_station_camera)
     rotation, translation = motion[:3, :3], motion[:3, 3]
-    rotation_deg = _rotation_angle_deg(rotation)
+    rotation_deg = rotation_angle_deg(rotation)
     if rotation_deg > bounds.max_rotation_deg:
         return ReuseDecision("rotation", rotation_deg=rotation_deg)
     near, far = keyframe.inverse_depth
@@ -265,11 +257,11 @@ def decide(
     wide = widened(camera, margin)
     homography = camera.matrix @ plane @ np.linalg.inv(wide.matrix)
     homography /= homography[2, 2]
-    uncovered = _uncovered_px(homography, camera, wide)
+    uncovered = uncovered_px(homography, camera, wide)
     error_px = (parallax + uncovered) / scale
     if error_px > bounds.max_error_px:
         return ReuseDecision("error", error_px=error_px, rotation_deg=rotation_deg)
-    if parallax < _STILL_PX and _largest_shift_px(homography, camera, margin) < _STILL_PX:
+    if parallax < _STILL_PX and largest_shift_px(homography, camera, margin) < _STILL_PX:
         return ReuseDecision("", None, error_px, rotation_deg)
     return ReuseDecision("", homography, error_px, rotation_deg)
 
@@ -357,7 +349,7 @@ class ReferenceReuse:
             return self._keyframe.image
         if self._warped is not None:
             homography, image = self._warped
-            offset = _content_offset_px(homography, decision.homography, self.camera)
+            offset = content_offset_px(homography, decision.homography, self.camera)
             if offset < _SNAP_PX and decision.error_px + offset / self.scale <= (
                 self.bounds.max_error_px
             ):
@@ -366,16 +358,6 @@ class ReferenceReuse:
         image.flags.writeable = False
         self._warped = (decision.homography, image)
         return image
-
-
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    norms = np.linalg.norm(a) * np.linalg.norm(b)
-    if norms == 0:
-        return 0.0 if np.linalg.norm(a) == np.linalg.norm(b) else 180.0
-    # atan2 of the cross and dot products is accurate for tiny angles (arccos is not).
-    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(a @ b)))
 
 
 def _same_bodies(old: View, new: View, max_change_deg: float) -> bool:
@@ -389,61 +371,6 @@ def _same_bodies(old: View, new: View, max_change_deg: float) -> bool:
             return False
         if abs(b.radius - a.radius) > 1e-3 * a.radius:
             return False
-        if _angle_deg(a.centre, b.centre) > max_change_deg:
+        if angle_deg(a.centre, b.centre) > max_change_deg:
             return False
     return True
-
-
-def _rotation_angle_deg(rotation: np.ndarray) -> float:
-    # The angle of a rotation matrix from its axis-angle vector (accurate near 0).
-    vector, _ = cv2.Rodrigues(rotation)
-    return math.degrees(float(np.linalg.norm(vector)))
-
-
-def _corners(camera: CameraIntrinsics) -> np.ndarray:
-    # Outer edges of the corner pixels (centres at integers).
-    w, h = camera.width - 0.5, camera.height - 0.5
-    return np.array([[-0.5, -0.5], [w, -0.5], [w, h], [-0.5, h]])
-
-
-def _apply(homography: np.ndarray, points: np.ndarray) -> np.ndarray:
-    mapped = np.c_[points, np.ones(len(points))] @ homography.T
-    return mapped[:, :2] / mapped[:, 2:3]
-
-
-def _uncovered_px(
-    homography: np.ndarray, camera: CameraIntrinsics, wide: CameraIntrinsics
-) -> float:
-    """How far (keyframe pixels) the view's image reaches beyond the keyframe's render."""
-    return _beyond(_apply(np.linalg.inv(homography), _corners(camera)), wide)
-
-
-def _beyond(points: np.ndarray, camera: CameraIntrinsics) -> float:
-    """How far the farthest of ``points`` lies outside ``camera``'s image (0: inside)."""
-    low = -0.5 - points
-    high = points - np.array([camera.width - 0.5, camera.height - 0.5])
-    return float(max(0.0, low.max(), high.max()))
-
-
-def _sphere_points(count: int) -> np.ndarray:
-    """``count`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
-    index = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * index / count
-    angle = math.pi * (3.0 - math.sqrt(5.0)) * index
-    radius = np.sqrt(1.0 - z * z)
-    return np.c_[radius * np.cos(angle), radius * np.sin(angle), z]
-
-
-def _content_offset_px(shown: np.ndarray, wanted: np.ndarray, camera: CameraIntrinsics) -> float:
-    """How far (keyframe pixels) the content of an image warped with ``shown`` lies from
-    where the warp ``wanted`` puts it, at the image's corners."""
-    corners = _corners(camera)
-    difference = _apply(np.linalg.inv(shown), corners) - _apply(np.linalg.inv(wanted), corners)
-    return float(np.linalg.norm(difference, axis=1).max())
-
-
-def _largest_shift_px(homography: np.ndarray, camera: CameraIntrinsics, margin: int) -> float:
-    """How far the warp moves the image's corners from where the plain crop puts them."""
-    crop = np.array([[1.0, 0.0, -margin], [0.0, 1.0, -margin], [0.0, 0.0, 1.0]])
-    corners = _corners(camera) + margin
-    return float(np.abs(_apply(homography, corners) - _apply(crop, corners)).max())

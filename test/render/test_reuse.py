@@ -18,9 +18,8 @@ from allo_mrad_ros.render.reuse import (
     ReuseError,
     decide,
     keyframe_of,
-    relative_motion,
-    widened,
 )
+from allo_mrad_ros.render.warp import relative_motion, widened
 from allo_mrad_ros.view import View
 
 CAMERA = ALLO_INTRINSICS.scaled(0.125)  # the default reference of a 1080p camera
