@@ -1,4 +1,4 @@
-"""Flood of the running ``mrad_detector`` node: full-HD frames at 30 Hz for minutes (issue 13).
+"""Flood of the running ``mrad_detector`` node: full-HD frames at 30 Hz for minutes.
 
 The node runs as its own process with its default parameters; a camera feed in this process
 publishes rendered 1920x1080 frames, poses and the Sun at ``--rate`` Hz for ``--minutes``,

@@ -26,7 +26,7 @@ from allo_mrad_ros.benchmarks.perturbations import PERTURBATIONS
 from allo_mrad_ros.benchmarks.tradeoff import Sweep, _split
 from allo_mrad_ros.benchmarks.tradeoff_settings import render_settings
 from allo_mrad_ros.detector import DetectionResult, MradParams, detect, profile
-from allo_mrad_ros.detector.pipeline import image_score
+from allo_mrad_ros.detector.decision import image_score
 from allo_mrad_ros.metrics import roc_auc
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View

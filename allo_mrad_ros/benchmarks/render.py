@@ -29,7 +29,7 @@ from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
 from allo_mrad_ros.render.gl_patches import plain_pyrender
 from allo_mrad_ros.resources import share_path
 
-# Reference render at the default scale must stay at or under this median (issue 3).
+# Reference render at the default scale must stay at or under this median.
 TARGET_REF_MS = 40.0
 # ALLO's ephemeris table, day 5 (Blender units = metres, scaled with apparent size kept).
 SUN_CENTRE = (713.4, -3611.3, -1565.0)

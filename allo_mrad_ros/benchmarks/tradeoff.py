@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         default=3.0,
         help="also name the most accurate setting this many times faster than the most "
-        "accurate one (issue 7's target: 3)",
+        "accurate one (target: 3)",
     )
     parser.add_argument(
         "--reprint",

@@ -7,15 +7,18 @@ Pipeline stages, each in one place:
 3. noise removal and blur -- :mod:`.postprocess` (``remove_noise``, ``blur_scores``)
 4. seeds -- :mod:`.regions` (``find_seeds``)
 5. region growing -- :mod:`.regions` (``grow_regions``)
-6. decision -- :mod:`.pipeline` (``decide``), composed by :func:`detect`
+6. decision and image score -- :mod:`.decision` (``decide``, ``image_score``)
+
+:mod:`.pipeline` composes them in :func:`detect`; stage 0, the colour transfer, is
+:mod:`.colour_transfer`.
 """
 
+from allo_mrad_ros.detector.decision import decide
 from allo_mrad_ros.detector.params import PROFILES, MradParams, profile
 from allo_mrad_ros.detector.pipeline import (
     METHODS,
     DetectionResult,
     Detector,
-    decide,
     detect,
     detect_pad,
     detect_rxd,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from allo_mrad_ros.detector import MradParams, detect
-from allo_mrad_ros.detector.pipeline import image_score
+from allo_mrad_ros.detector.decision import image_score
 from allo_mrad_ros.example_scene import example_pair
 
 

@@ -7,8 +7,8 @@ from mrad_oracle import flood_fill_naive, local_std_naive
 from skimage.filters import apply_hysteresis_threshold
 from sklearn.cluster import MeanShift
 
+from allo_mrad_ros.detector.decision import _largest
 from allo_mrad_ros.detector.grid import cell_edges, cell_slices
-from allo_mrad_ros.detector.pipeline import _largest
 from allo_mrad_ros.detector.postprocess import (
     NEGATIVE_BAND,
     blur_scores,
