@@ -13,7 +13,8 @@ MODULES = sorted(m.name for m in pkgutil.iter_modules(benchmarks.__path__))
 
 @pytest.mark.parametrize("name", MODULES)
 def test_benchmark_module_imports_and_prints_help(name, capsys):
-    if name in ("node", "node_profile", "flood") and importlib.util.find_spec("rclpy") is None:
+    needs_rclpy = ("node", "node_outputs", "node_profile", "flood")
+    if name in needs_rclpy and importlib.util.find_spec("rclpy") is None:
         pytest.skip("the node benchmarks need rclpy")
     module = importlib.import_module(f"allo_mrad_ros.benchmarks.{name}")
     if not hasattr(module, "main"):
