@@ -74,6 +74,11 @@ class DetectionResult:
     masked_score : bool
         The score is zero outside the mask (``pixel_score="regions"``): :attr:`score` is
         masked again after its upscaling.
+    work_query : numpy.ndarray or None
+        The query at the processing resolution, as the detector saw it before the colour
+        transfer (area-averaged); None when not kept.
+    work_mask : numpy.ndarray or None
+        ``mask`` at the processing resolution, before its upscaling; None when not kept.
     """
 
     work_score: np.ndarray
@@ -84,6 +89,8 @@ class DetectionResult:
     image_score: float
     timings_ms: dict[str, float] = field(default_factory=dict)
     masked_score: bool = False
+    work_query: np.ndarray | None = None
+    work_mask: np.ndarray | None = None
 
     @cached_property
     def score(self) -> np.ndarray:
@@ -170,6 +177,7 @@ def detect(
             f"processed at process_scale={params.process_scale} "
             f"({work.shape[1]}x{work.shape[0]}); use a larger image or process_scale=1"
         )
+    seen = work
     if params.colour_transfer != "none":
         with timer.stage("colour_transfer"):
             work, reference = transfer_colours(work, reference, params, cache, backend)
@@ -229,11 +237,22 @@ def detect(
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
     with timer.stage("decision"):
         # The full-resolution score is made only when read (DetectionResult.score).
-        mask = _restore_resolution(mask, full_shape)
-        area, anomalous = decide(mask, params.area_threshold)
+        full_mask = _restore_resolution(mask, full_shape)
+        area, anomalous = decide(full_mask, params.area_threshold)
         frame_score = image_score(score, area, params)
     masked = params.pixel_score == "regions"
-    return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish(), masked)
+    return DetectionResult(
+        score,
+        raw,
+        full_mask,
+        area,
+        anomalous,
+        frame_score,
+        timer.finish(),
+        masked,
+        work_query=seen,
+        work_mask=mask,
+    )
 
 
 def transfer_colours(
@@ -320,7 +339,7 @@ def detect_pad(
         raw = cross_score(
             query, reference, 1, params.abs_floor, params.rel_floor, backend=backend, cache=cache
         )
-    return _threshold_only(raw, params, timer)
+    return _threshold_only(query, raw, params, timer)
 
 
 def detect_rxd(
@@ -341,10 +360,12 @@ def detect_rxd(
     timer = _StageTimer()
     with timer.stage("rx_score"):
         raw = rx_score(query, params.abs_floor, params.rel_floor, backend)
-    return _threshold_only(raw, params, timer)
+    return _threshold_only(query, raw, params, timer)
 
 
-def _threshold_only(raw: np.ndarray, params: MradParams, timer: _StageTimer) -> DetectionResult:
+def _threshold_only(
+    query: np.ndarray, raw: np.ndarray, params: MradParams, timer: _StageTimer
+) -> DetectionResult:
     # The baselines rank pixels by their scaled score; the threshold only makes the mask.
     with timer.stage("scale_threshold"):
         score = scale_scores(raw, params.score_scaling, params.score_ref)
@@ -352,7 +373,17 @@ def _threshold_only(raw: np.ndarray, params: MradParams, timer: _StageTimer) -> 
     with timer.stage("decision"):
         area, anomalous = decide(mask, params.area_threshold)
         frame_score = image_score(score, area, params)
-    return DetectionResult(score, raw, mask, area, anomalous, frame_score, timer.finish())
+    return DetectionResult(
+        score,
+        raw,
+        mask,
+        area,
+        anomalous,
+        frame_score,
+        timer.finish(),
+        work_query=query,
+        work_mask=mask,
+    )
 
 
 def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:

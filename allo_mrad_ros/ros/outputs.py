@@ -312,14 +312,17 @@ class Outputs:
 
 def _overlay(image: np.ndarray, result: Any, full_resolution: bool) -> np.ndarray:
     """The image with the mask outlined, at the image's or the processing resolution."""
-    image = _as_uint8(image)
     height, width = result.work_score.shape[:2]
     if full_resolution or (height, width) == image.shape[:2]:
-        return outline(image, result.mask, OVERLAY_COLOUR)
+        return outline(_as_uint8(image), result.mask, OVERLAY_COLOUR)
     # A display's copy: what the detector saw, at a sixteenth of the bytes of a full one.
-    small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
-    mask = cv2.resize(result.mask, (width, height), interpolation=cv2.INTER_NEAREST)
-    return outline(small, mask, OVERLAY_COLOUR)
+    # The detector's own downscaled query and mask when it kept them (no second resize).
+    small, mask = result.work_query, result.work_mask
+    if small is None or small.shape[:2] != (height, width):
+        small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    if mask is None or mask.shape[:2] != (height, width):
+        mask = cv2.resize(result.mask, (width, height), interpolation=cv2.INTER_NEAREST)
+    return outline(_as_uint8(small), mask, OVERLAY_COLOUR)
 
 
 def _as_uint8(image: np.ndarray) -> np.ndarray:

@@ -59,3 +59,20 @@ def test_the_eager_reference_sees_a_difference():
     assert (
         eager_score(work, mask, "regions").tobytes() != eager_score(work, mask, "blurred").tobytes()
     )
+
+
+def test_the_work_query_and_mask_are_what_the_detector_saw_and_decided(pair):
+    params = MradParams()
+    result = detect(pair.query, pair.reference, params)
+    height, width = result.work_score.shape
+    assert result.work_query.shape == (height, width, 3)
+    # The area average of the query (not the colour-transferred one).
+    area = cv2.resize(pair.query, (width, height), interpolation=cv2.INTER_AREA)
+    assert np.abs(result.work_query.astype(int) - area.astype(int)).max() <= 1
+    # The full mask is the work mask made larger, nearest neighbour.
+    rows = np.minimum(
+        (np.arange(result.mask.shape[0]) * height) // result.mask.shape[0], height - 1
+    )
+    cols = np.minimum((np.arange(result.mask.shape[1]) * width) // result.mask.shape[1], width - 1)
+    np.testing.assert_array_equal(result.mask, result.work_mask[rows][:, cols])
+    assert result.work_mask.any()

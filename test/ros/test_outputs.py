@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import rclpy
@@ -19,6 +21,7 @@ from allo_mrad_ros.ros.outputs import (
     connected_boxes,
     region_marker,
 )
+from allo_mrad_ros.visualise import outline
 
 pytestmark = pytest.mark.ros
 
@@ -172,6 +175,21 @@ def test_the_overlay_at_either_resolution_outlines_the_mask_on_the_image(outputs
     # Elsewhere it is the image, area-averaged when smaller.
     assert overlay[height // 2, width - 1].tolist() == [120, 120, 120]
     assert overlay[height - 1, 0].tolist() == [0, 0, 0]
+
+
+def test_the_small_overlay_draws_on_what_the_detector_saw(outputs):
+    # The detector's downscaled query and mask, not a second resize of the image: an image
+    # the overlay would resample to another colour shows that it was not resampled.
+    fakes = subscribe(outputs, "overlay")
+    seen = np.full((45, 80, 3), 77, np.uint8)
+    work_mask = np.zeros((45, 80), np.uint8)
+    work_mask[20:30, 10:20] = 255
+    result = dataclasses.replace(frame().primary, work_query=seen, work_mask=work_mask)
+    processed = ProcessedFrame(reference=np.zeros((45, 80, 3), np.uint8), results={"MRAD": result})
+    publish(outputs, processed=processed, image=np.full((90, 160, 3), 200, np.uint8))
+    overlay = np.frombuffer(fakes["overlay"].sent[0].data, np.uint8).reshape(45, 80, 3)
+    np.testing.assert_array_equal(overlay, outline(seen, work_mask, OVERLAY_COLOUR))
+    assert np.all(overlay == OVERLAY_COLOUR, axis=2)[20:30, 10:20].any()
 
 
 def test_every_subscribed_output_is_published_with_the_image_header(outputs):
