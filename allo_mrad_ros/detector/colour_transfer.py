@@ -27,6 +27,7 @@ reference's colour in either direction.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -90,8 +91,8 @@ class ColourTransfer:
         if bins is None:
             bins = _bin_index(reference, self.bin_width)
         n = 256 // self.bin_width
-        flat = self.lut.reshape(n * n * n, 3)
-        return flat[bins]
+        # np.take is several times faster than fancy indexing for this gather.
+        return np.take(self.lut.reshape(n * n * n, 3), bins, axis=0)
 
 
 def fit_colour_transfer(
@@ -185,9 +186,7 @@ def _reference_samples(
     index = np.flatnonzero(keep)
     index = index[:: max(1, -(-index.size // MAX_PAIRS))]
     pixels = reference.reshape(-1, 3)[index]
-    n_fine = 256 // finest_bin
-    fine = np.indices((n_fine, n_fine, n_fine)).reshape(3, -1).T  # finest bin coordinates
-    source = np.zeros(n_fine**3, np.intp)
+    source = np.zeros((256 // finest_bin) ** 3, np.intp)
     levels = []
     columns = 0
     for width in _WIDTHS[: _WIDTHS.index(finest_bin) + 1]:
@@ -206,12 +205,21 @@ def _reference_samples(
         column = np.full(n**3, -1, np.intp)
         column[occupied] = columns + np.arange(occupied.size)
         columns += occupied.size
-        enclosing = fine * finest_bin // width
-        parent = (enclosing[:, 0] * n + enclosing[:, 1]) * n + enclosing[:, 2]
+        parent = _enclosing_bins(finest_bin, width)
         # The one-bin level takes any pair, so every finest bin has a source.
         has_own = counts[parent] >= (min_count if width < 256 else 1)
         source[has_own] = column[parent[has_own]]
     return _Samples(index, pixels.T.astype(np.int32), tuple(levels), source)
+
+
+@lru_cache(maxsize=32)
+def _enclosing_bins(finest: int, width: int) -> np.ndarray:
+    # For each finest bin, the index of the bin of ``width`` that encloses it.
+    n_fine, n = 256 // finest, 256 // width
+    enclosing = np.indices((n_fine, n_fine, n_fine)).reshape(3, -1) * finest // width
+    parent = (enclosing[0] * n + enclosing[1]) * n + enclosing[2]
+    parent.flags.writeable = False
+    return parent
 
 
 def apply_to_reference(reference: np.ndarray, transfer: ColourTransfer) -> np.ndarray:
@@ -228,7 +236,7 @@ def clip_glare(query: np.ndarray, reference: np.ndarray, level: float) -> np.nda
     """
     values = _eight_bit(query)
     pixels = _resized(_eight_bit(reference), values.shape[:2])
-    glare = _glare(values, pixels, level)
+    glare = _glare(values, level) & _station_surface(pixels)
     out = values.copy()
     out[glare] = pixels[glare]
     return out
@@ -296,8 +304,12 @@ def apply_to_query(
     mapped = cv2.add(departure, pixels.astype(np.float32))
     out = _to_uint8(mapped)
     if glare_level < 256.0:
-        glare = _glare(values, pixels, glare_level, departure)
-        out[glare] = pixels[glare]
+        glare = _glare(values, glare_level, departure)
+        if glare.any():
+            glare &= derived(
+                cache, small, ("surface", height, width), lambda: _station_surface(pixels)
+            )
+            out[glare] = pixels[glare]
     return out
 
 
@@ -315,26 +327,32 @@ def _per_pixel(cells: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.repeat(np.repeat(table, rows, axis=0), cols, axis=1)
 
 
-def _glare(
-    query: np.ndarray, reference: np.ndarray, level: float, departure: np.ndarray | None = None
-) -> np.ndarray:
-    # Glare bleeds past the clipped pixels (a lens's flare, a sensor's bloom): its border,
+def _glare(query: np.ndarray, level: float, departure: np.ndarray | None = None) -> np.ndarray:
+    # Clipped query pixels, over station or not (the caller keeps the station's). Glare
+    # bleeds past the clipped pixels (a lens's flare, a sensor's bloom): its border,
     # _GLARE_MARGIN pixels wide, goes with it where it brightened every channel.
     darkest = np.minimum(np.minimum(query[..., 0], query[..., 1]), query[..., 2])
     clipped = darkest >= level
     if not clipped.any():
         return clipped
-    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
-    brightest = np.maximum(np.maximum(reference[..., 0], reference[..., 1]), reference[..., 2])
-    surface = brightest > _SPACE_LEVEL
     size = 2 * _GLARE_MARGIN + 1
     near = cv2.dilate(clipped.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
-    if departure is not None:
-        lowest = np.minimum(np.minimum(departure[..., 0], departure[..., 1]), departure[..., 2])
-        clipped = clipped | (near & (lowest >= 0.0))
+    if departure is None:
+        glare = near
     else:
-        clipped = near
-    return clipped & surface
+        # Only the border's pixels need their departure read: usually a few hundred.
+        border = np.flatnonzero(near & ~clipped)
+        brighter = (departure.reshape(-1, 3)[border] >= 0.0).all(axis=1)
+        glare = clipped.copy()
+        glare.reshape(-1)[border[brighter]] = True
+    return glare
+
+
+def _station_surface(reference: np.ndarray) -> np.ndarray:
+    """Where the reference shows station, not space: a channel above :data:`_SPACE_LEVEL`."""
+    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
+    brightest = np.maximum(np.maximum(reference[..., 0], reference[..., 1]), reference[..., 2])
+    return brightest > _SPACE_LEVEL
 
 
 def _paired(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
