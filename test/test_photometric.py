@@ -163,3 +163,40 @@ def test_cell_quantiles_equal_numpy_quantile(dtype, backend):
             pixels = cell_pixels(to_255(image), i, j, 3)
             expected = np.quantile(pixels, QUANTILES, axis=0).T
             np.testing.assert_allclose(ours[i * 3 + j], expected, atol=1e-4)
+
+
+@pytest.mark.parametrize(("grid", "max_gain"), [(3, 2.0), (4, 1.5), (1, 3.0)])
+def test_saturation_variance_matches_a_per_pixel_float64_oracle(grid, max_gain):
+    from mrad_oracle import cell_of
+
+    from allo_mrad_ros.detector.photometric import saturation_variance
+
+    rng = np.random.default_rng(grid)
+    reference = np.clip(rng.normal(150, 60, (30, 45, 3)), 0, 255).astype(np.uint8)
+    reference[2:9, 5:20] = (255, 252, 120)  # clipped on two channels
+    reference[20:, 40:] = 255
+    half_range = 0.5 * 255.0 * (1.0 - 1.0 / max_gain)
+    sums = np.zeros((grid, grid, 3))
+    counts = np.zeros((grid, grid))
+    sizes = np.zeros((grid, grid))
+    for row in range(30):
+        for col in range(45):
+            i, j = cell_of(row, col, 30, 45, grid)
+            sizes[i, j] += 1
+            colour = reference[row, col].astype(np.float64)
+            if colour.max() >= 250.0:
+                sums[i, j] += colour
+                counts[i, j] += 1
+    expected = np.zeros((grid * grid, 3, 3))
+    for i in range(grid):
+        for j in range(grid):
+            if counts[i, j]:
+                u = sums[i, j] / counts[i, j] / 255.0
+                share = counts[i, j] / sizes[i, j]
+                expected[i * grid + j] = share * half_range**2 * np.outer(u, u)
+    assert np.count_nonzero(counts) >= 1
+    np.testing.assert_allclose(
+        saturation_variance(reference, grid, max_gain), expected, rtol=1e-9, atol=1e-9
+    )
+    flat = np.full((30, 45, 3), 100, np.uint8)
+    assert not saturation_variance(flat, grid, max_gain).any()

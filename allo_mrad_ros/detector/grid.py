@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from functools import lru_cache
+
+import numpy as np
 
 
 def cell_edges(length: int, grid: int) -> list[int]:
@@ -36,3 +39,13 @@ def cell_slices(height: int, width: int, grid: int) -> list[tuple[slice, slice]]
 def iter_cells(height: int, width: int, grid: int) -> Iterator[tuple[int, tuple[slice, slice]]]:
     """Yield ``(cell_index, (rows, cols))`` for each cell, row-major."""
     yield from enumerate(cell_slices(height, width, grid))
+
+
+@lru_cache(maxsize=8)
+def cell_index_map(height: int, width: int, grid: int) -> np.ndarray:
+    """Return the H x W (read-only) row-major index of the cell each pixel lies in."""
+    rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
+    cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
+    cells = (rows[:, None] * grid + cols[None, :]).astype(np.intp)
+    cells.flags.writeable = False
+    return cells

@@ -21,7 +21,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import median_filter
 
-from allo_mrad_ros.detector.grid import cell_edges, cell_slices
+from allo_mrad_ros.detector.grid import cell_index_map, cell_slices
 from allo_mrad_ros.detector.images import area_downscale, to_float32
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 
@@ -92,9 +92,7 @@ def _quantiles_uint8(image: np.ndarray, grid: int) -> np.ndarray:
 @lru_cache(maxsize=8)
 def _histogram_base(height: int, width: int, grid: int) -> np.ndarray:
     # Bin offset of each pixel's (cell, channel) histogram; the pixel value is added to it.
-    rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
-    cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
-    cells = rows[:, None] * grid + cols[None, :]
+    cells = cell_index_map(height, width, grid)
     base = (cells[:, :, None] * 768 + 256 * np.arange(3)).astype(np.intp)
     base.flags.writeable = False
     return base
@@ -187,16 +185,24 @@ def saturation_variance(reference: np.ndarray, grid: int, max_gain: float) -> np
     # NumPy's max over a length-3 last axis is ~50x slower than two elementwise maxima.
     brightest = np.maximum(np.maximum(pixels[:, :, 0], pixels[:, :, 1]), pixels[:, :, 2])
     saturated = brightest >= SATURATED
-    slices = cell_slices(pixels.shape[0], pixels.shape[1], grid)
+    cells = grid * grid
+    out = np.zeros((cells, 3, 3))
+    if not saturated.any():
+        return out
+    index = cell_index_map(pixels.shape[0], pixels.shape[1], grid)
+    which = index[saturated]
+    count = np.bincount(which, minlength=cells)
+    clipped_pixels = pixels[saturated].astype(np.float64)
+    sums = np.stack(
+        [np.bincount(which, weights=clipped_pixels[:, c], minlength=cells) for c in range(3)],
+        axis=1,
+    )
+    size = np.bincount(index.ravel(), minlength=cells)
+    has = count > 0
+    colour = sums[has] / count[has, None] / 255.0
     half_range = 0.5 * 255.0 * (1.0 - 1.0 / max_gain)
-    out = np.zeros((len(slices), 3, 3))
-    for index, cell in enumerate(slices):
-        clipped = saturated[cell]
-        count = int(np.count_nonzero(clipped))
-        if count == 0:
-            continue
-        colour = pixels[cell][clipped].mean(axis=0).astype(np.float64) / 255.0
-        out[index] = (count / clipped.size) * half_range**2 * np.outer(colour, colour)
+    share = (count[has] / size[has]) * half_range**2
+    out[has] = share[:, None, None] * colour[:, :, None] * colour[:, None, :]
     return out
 
 
