@@ -11,8 +11,9 @@ each trajectory and camera mode (1920x1080 at 30 Hz, 1280x720 at 60 Hz) it repor
 frames processed per second and dropped, the references the node rendered per processed
 frame (from the ``references_rendered`` and ``frames_processed`` counters of
 ``/diagnostics``; n/a for a node without the first), the latency from image stamp to
-received mask (p50, p95, p99), the node's CPU seconds per processed frame and its resident
-memory after 100 and after 1,000 processed frames. ROS traffic stays on loopback
+received mask (p50, p95, p99), the node's CPU seconds per processed frame (and under it each
+kind of thread's share, :mod:`.thread_cpu`) and its resident memory after 100 and after
+1,000 processed frames. ROS traffic stays on loopback
 (``config/fastdds_loopback.xml``).
 
 Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``;
@@ -39,7 +40,7 @@ import numpy as np
 import psutil
 import rclpy
 
-from allo_mrad_ros.benchmarks import finish
+from allo_mrad_ros.benchmarks import finish, thread_cpu
 from allo_mrad_ros.benchmarks.trajectory import (
     MAX_ANGULAR_DEG_S,
     MAX_LINEAR_M_S,
@@ -218,7 +219,7 @@ def run(
         published: list[int] = []
         rss_mb: dict[int, float] = {}
         period = 1.0 / rate_hz
-        cpu_before = node.cpu_times()
+        cpu_before, threads_before = node.cpu_times(), thread_cpu.sample(node.pid)
         start = time.monotonic()
         next_time = start
         while len(feed.arrival["mask"]) < frames and time.monotonic() - start < timeout_s:
@@ -233,7 +234,7 @@ def run(
             for mark in (100, frames):
                 if done >= mark and mark not in rss_mb:
                     rss_mb[mark] = node.memory_info().rss / 2**20
-        cpu_after = node.cpu_times()
+        cpu_after, threads_after = node.cpu_times(), thread_cpu.sample(node.pid)
         feed.spin(1.0)
         counters_after = _fresh_counters(feed)
     arrivals = feed.arrival["mask"]
@@ -263,6 +264,9 @@ def run(
         "latency_ms_p99": float(np.percentile(latencies, 99)),
         "latency_ms_max": float(latencies.max()),
         "cpu_s_per_frame": cpu_s / max(len(stamps), 1),
+        "thread_cpu_ms_per_frame": thread_cpu.per_frame_ms(
+            threads_before, threads_after, len(stamps)
+        ),
         "rss_mb_after_100": before,
         "rss_mb_after_1000": after,
         "rss_frames_mark": frames,
@@ -292,6 +296,13 @@ def _summary_line(name: str, report: dict) -> str:
         f"{float('nan') if growth is None else growth:+6.1f}% "
         f"{report['load_average_before'][0]:4.2f}-{report['load_average_after'][0]:4.2f}"
     )
+
+
+def _threads_line(report: dict) -> str:
+    # The main thread carries the process's name.
+    threads = report.get("thread_cpu_ms_per_frame") or {}
+    shown = [f"{'main' if kind == 'python' else kind} {ms:.1f}" for kind, ms in threads.items()]
+    return "  CPU ms per frame by thread: " + (", ".join(shown[:6]) or "n/a (no /proc)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -400,6 +411,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 results[name, trajectory, pipelined] = report
                 print(_summary_line(name, report), flush=True)
+                print(_threads_line(report), flush=True)
             del plan
     first, main_variant = modes[0], variants[-1]
     main_path = paths[0]

@@ -32,7 +32,7 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.backends import select_backend
 from allo_mrad_ros.pipeline import Pipeline, ProcessedFrame, ReferenceProvider
 from allo_mrad_ros.render import RendererError
-from allo_mrad_ros.ros import messages
+from allo_mrad_ros.ros import messages, process_tuning
 from allo_mrad_ros.ros.buffers import HandOver, LatestSlot
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
@@ -152,6 +152,7 @@ class ProcessingWorker:
     # --- threads ------------------------------------------------------------------------
 
     def _run(self, loop: Callable[[], None]) -> None:
+        process_tuning.name_this_thread(threading.current_thread().name)
         try:
             loop()
         finally:
