@@ -275,11 +275,14 @@ class ProcessedFrame:
         Method name to :class:`~allo_mrad_ros.detector.DetectionResult`, in the order asked.
     timings_ms : dict
         ``render`` (0 when the reference was supplied), one entry per method, ``total``.
+    reference_camera : CameraIntrinsics or None
+        The intrinsics the reference was rendered with (None when it was supplied).
     """
 
     reference: np.ndarray
     results: dict[str, DetectionResult]
     timings_ms: dict[str, float] = field(default_factory=dict)
+    reference_camera: CameraIntrinsics | None = None
 
     @property
     def primary(self) -> DetectionResult:
@@ -419,10 +422,12 @@ class Pipeline:
                 f"{expected[1]}x{expected[0]}"
             )
         timings: dict[str, float] = {"render": 0.0}
+        reference_camera = None
         if reference is None:
             reference = self._provider.render(view, time_s)
+            reference_camera = self._provider.reference_camera
             timings["render"] = 1e3 * (time.perf_counter() - start)
         results, detect_ms = self.detect(image, reference)
         timings.update(detect_ms)
         timings["total"] = 1e3 * (time.perf_counter() - start)
-        return ProcessedFrame(reference, results, timings)
+        return ProcessedFrame(reference, results, timings, reference_camera)

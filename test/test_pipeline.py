@@ -116,6 +116,17 @@ def test_a_new_config_swaps_the_pipeline_and_leaves_the_old_one_as_it_was(render
     assert second.config.params.grid == 2 and two.score.shape == one.score.shape
 
 
+def test_a_frame_names_the_camera_its_reference_was_rendered_for(renderers, pose):
+    camera, provider = renderers
+    image = camera.render(pose, SUN).rgb
+    pipeline = Pipeline(provider)
+    rendered = pipeline.process(image, View(pose, SUN))
+    assert rendered.reference_camera == INTRINSICS.scaled(0.5)
+    assert rendered.reference.shape[:2] == (180, 320)
+    supplied = pipeline.process(image, View(pose, SUN), reference=rendered.reference)
+    assert supplied.reference_camera is None  # a supplied reference's camera is not known
+
+
 def test_parameters_from_text_and_numbers_have_one_coercion():
     assert params_from("accurate", ["grid=3", "tolerance=30"]) == MradParams(
         process_scale=1.0, grid=3, tolerance=30.0

@@ -5,9 +5,8 @@ One place per concern:
 * parameters are declared up front (:mod:`.parameters`) and validated at start and on every
   change into one immutable :class:`~.parameters.NodeConfig`; a rejected change keeps the
   old value and says why;
-* subscription callbacks only store the newest message (:class:`.buffers.LatestSlot` for
-  images, :class:`.buffers.StampedBuffer` for poses and Sun directions), so inputs never
-  wait for processing;
+* :class:`.inputs.NodeInputs` subscribes to the inputs while an output has a subscriber;
+  its callbacks only store the newest message, so inputs never wait for processing;
 * :class:`.pose_source.PoseSource` looks the camera pose up (TF or topic);
 * :class:`.worker.ProcessingWorker` renders (its render thread owns OpenGL) frame n+1 while
   its detect thread detects and publishes frame n with an immutable, swappable ``Pipeline``;
@@ -24,16 +23,13 @@ is the union of the grown regions and ``~/anomaly`` the image decision on its ar
 
 from __future__ import annotations
 
-import copy
 import sys
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -43,20 +39,16 @@ from rcl_interfaces.msg import (
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
-from std_msgs.msg import Float32
-from visualization_msgs.msg import MarkerArray
 
 from allo_mrad_ros import interface
-from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.pipeline import ProcessedFrame
-from allo_mrad_ros.ros import messages, process_tuning
-from allo_mrad_ros.ros.buffers import LatestSlot, StampedBuffer
+from allo_mrad_ros.ros import process_tuning
 from allo_mrad_ros.ros.diagnostics import Diagnostics
-from allo_mrad_ros.ros.messages import MessageError
+from allo_mrad_ros.ros.inputs import NodeInputs
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import (
     NodeParameter,
@@ -74,7 +66,6 @@ from allo_mrad_ros.ros.parameters import (
 )
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
 from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
-from allo_mrad_ros.view import View
 
 # Exit status when a parameter value is invalid (as for a command-line usage error).
 EXIT_INVALID_PARAMETER = 2
@@ -87,9 +78,6 @@ QOS_POLICIES = tuple(
 )
 # How often the node looks whether any output has a subscriber (to subscribe to its inputs).
 INPUT_POLL_S = 0.25
-# Longest wait of the processing thread for the camera_info of an image's stamp: the two
-# topics arrive in no guaranteed order.
-CAMERA_INFO_WAIT_S = 0.5
 
 
 def qos_overriding() -> QoSOverridingOptions:
@@ -156,17 +144,8 @@ class MradDetectorNode(Node):
         self._tuning = process_tuning.apply(config.keep_freed_memory_mb, config.opencv_threads)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.Lock()
-        self._image_slot: LatestSlot[tuple[Image, float]] = LatestSlot()
-        self._intrinsics: CameraIntrinsics | None = None
-        # Valid camera_infos by stamp: (intrinsics, frame_id, message), paired with images by
-        # stamp; the message is what ~/score/camera_info is made from.
-        self._infos: StampedBuffer[tuple[CameraIntrinsics, str, CameraInfo]] = StampedBuffer(64)
-        self._input_subscriptions: list[Subscription] = []
-        self._sun_direction = np.asarray(self._config.sun_direction, dtype=np.float64)
-        self._sun_strength = self._config.sun_strength
-        self._sun_from_topic = False
-        self._sun_directions: StampedBuffer[np.ndarray] = StampedBuffer(512)
-        self._bodies: tuple = ()
+        # Made here, not in _build: an unconfigured managed node takes parameter changes too.
+        self._inputs = NodeInputs(self, config, self._outputs_wanted, qos_overriding)
         self._input_timer = None
         self._worker: ProcessingWorker | None = None
         if not managed:
@@ -188,7 +167,7 @@ class MradDetectorNode(Node):
         self._diagnostics = Diagnostics(
             self,
             config.diagnostics_period_s,
-            lambda: self._image_slot.received,
+            lambda: self._inputs.images.received,
             "",
             config.input_timeout_s,
             config.hardware_id,
@@ -212,13 +191,14 @@ class MradDetectorNode(Node):
             state,
             self._diagnostics.report,
         )
+        self._inputs.pose_source = self._pose_source
         self._diagnostics.pose_source = self._pose_source.kind
-        self._diagnostics.idle = self._idle_reason
-        self._diagnostics.inputs_subscribed = lambda: bool(self._input_subscriptions)
+        self._diagnostics.idle = self._inputs.idle_reason
+        self._diagnostics.inputs_subscribed = lambda: bool(self._inputs.subscriptions)
         self._worker = ProcessingWorker(
-            self._image_slot,
-            self._snapshot,
-            self._view_of,
+            self._inputs.images,
+            self._inputs.snapshot,
+            self._inputs.view_of,
             self._publish,
             self._diagnostics,
             self.get_logger(),
@@ -236,15 +216,15 @@ class MradDetectorNode(Node):
 
     def _start_inputs(self) -> None:
         """Subscribe to the inputs while an output has a subscriber, from now on."""
-        self._update_inputs()  # unsubscribes the inputs while no output is subscribed
-        self._input_timer = self.create_timer(INPUT_POLL_S, self._update_inputs)
+        self._inputs.update()  # unsubscribes the inputs while no output is subscribed
+        self._input_timer = self.create_timer(INPUT_POLL_S, self._inputs.update)
 
     def _stop_inputs(self) -> None:
         """Stop watching the outputs and unsubscribe from the image and camera_info."""
         if self._input_timer is not None:
             self.destroy_timer(self._input_timer)
             self._input_timer = None
-        self._unsubscribe_inputs()
+        self._inputs.unsubscribe()
 
     # --- parameters ---------------------------------------------------------------------
 
@@ -313,103 +293,32 @@ class MradDetectorNode(Node):
             return SetParametersResult(successful=False, reason=str(error))
         with self._lock:
             self._values, self._config = proposed, config
-            if not self._sun_from_topic:
-                self._sun_direction = np.asarray(config.sun_direction, dtype=np.float64)
-                self._sun_strength = config.sun_strength
+            self._inputs.configure(config)
         return SetParametersResult(successful=True)
 
-    # --- inputs -------------------------------------------------------------------------
+    # --- topics -------------------------------------------------------------------------
 
     def _setup_io(self, state: QoSProfile) -> None:
         # Relative names: they resolve in the node's namespace; QoS overridable at start
         # (qos_overrides.<resolved topic>.subscription.<policy>, read-only parameters).
-        self._image_type, image_topic = Image, interface.IMAGE_INPUT
+        image_type, image_topic = Image, interface.IMAGE_INPUT
         base = self.resolve_topic_name(image_topic)
         if self._config.image_transport == "compressed":
             # image_transport's rule: the remapped, resolved base topic + "/compressed".
             image_topic = base + interface.COMPRESSED_SUFFIX
-            self._image_type = CompressedImage
+            image_type = CompressedImage
         self._image_topic = self.resolve_topic_name(image_topic)
         # image_transport's CameraSubscriber: camera_info is the sibling of the (remapped)
         # image topic, so remapping the image moves both.
         self._info_topic = camera_info_topic(base)
-        self._state_qos = state
-        self.create_subscription(
-            Float32, interface.SUN_STRENGTH_INPUT, self._on_sun_strength, state
-        )
-        self.create_subscription(MarkerArray, interface.BODIES_INPUT, self._on_bodies, state)
+        self._inputs.open(image_type, self._image_topic, self._info_topic, state, self._diagnostics)
         self._outputs = Outputs(self, self._config.hardware_id, qos_overriding)
-        self._subscribe_inputs()  # once at start: declares the inputs' QoS override parameters
+        self._inputs.subscribe()  # once at start: declares the inputs' QoS override parameters
 
-    def _subscribe_inputs(self) -> None:
-        def inputs() -> QoSProfile:
-            # A copy each: an override sets the policy on the profile object it is given.
-            return copy.copy(qos_profile_sensor_data)
-
-        self._input_subscriptions = [
-            # The Sun direction is stamped per frame by its publisher; while idle the node
-            # keeps the last one it received.
-            self.create_subscription(
-                Vector3Stamped, interface.SUN_DIRECTION_INPUT, self._on_sun, self._state_qos
-            ),
-            self.create_subscription(
-                self._image_type,
-                self._image_topic,
-                self._on_image,
-                inputs(),
-                qos_overriding_options=qos_overriding(),
-            ),
-            self.create_subscription(
-                CameraInfo,
-                self._info_topic,
-                self._on_camera_info,
-                inputs(),
-                qos_overriding_options=qos_overriding(),
-            ),
-        ]
-        pose_source = getattr(self, "_pose_source", None)
-        if pose_source is not None:
-            pose_source.set_active(True)
-
-    def _unsubscribe_inputs(self) -> None:
-        for subscription in self._input_subscriptions:
-            self.destroy_subscription(subscription)
-        self._input_subscriptions = []
-        pose_source = getattr(self, "_pose_source", None)
-        if pose_source is not None:
-            pose_source.set_active(False)
-
-    def _update_inputs(self) -> None:
-        """Subscribe to the image, its camera_info, the pose topic and the Sun direction only
-        while an output has a subscriber, as image_pipeline nodes do: else every 6 MB frame
-        crosses DDS for nothing."""
-        if not self.context.ok():
-            return  # shutting down: the graph cannot be asked any more
+    def _outputs_wanted(self) -> bool:
+        """Whether any output has a subscriber (if not, no input is needed)."""
         config = self._config
-        wanted = self._outputs.wanted(config.publish_reference, config.publish_overlay)
-        if wanted and not self._input_subscriptions:
-            self._subscribe_inputs()
-            self.get_logger().info(
-                f"an output has a subscriber: subscribed to {self._image_topic} and "
-                f"{self._info_topic}"
-            )
-        elif not wanted and self._input_subscriptions:
-            self._unsubscribe_inputs()
-            self.get_logger().info(
-                f"no output has a subscriber: unsubscribed from {self._image_topic} and "
-                f"{self._info_topic}"
-            )
-
-    def _idle_reason(self) -> str:
-        """Why no frame is processed on purpose ("" when an output is subscribed)."""
-        if not self.context.ok():
-            return "shutting down"
-        config = self._config
-        if self._outputs.wanted(config.publish_reference, config.publish_overlay):
-            return ""
-        if self._input_subscriptions:
-            return "no subscriber to any output: unsubscribing the inputs"
-        return "no subscriber to any output: inputs unsubscribed"
+        return self._outputs.wanted(config.publish_reference, config.publish_overlay)
 
     def _check_qos_overrides(self) -> None:
         """Refuse a ``qos_overrides.*`` parameter that no publisher or subscription applied
@@ -440,133 +349,24 @@ class MradDetectorNode(Node):
                 )
             )
 
-    def _on_image(self, msg: Image | CompressedImage) -> None:
-        stamp_ns = messages.stamp_to_ns(msg.header.stamp)
-        self._diagnostics.input_seen(
-            msg.header.frame_id, stamp_ns, self.get_clock().now().nanoseconds
-        )
-        config = self._config
-        if not self._outputs.wanted(config.publish_reference, config.publish_overlay):
-            # Nobody listens: neither render nor detect.
-            self._diagnostics.count("frames_skipped_no_subscribers")
-            return
-        if self._image_slot.put((msg, time.monotonic())):
-            self._diagnostics.count("frames_dropped_stale")
+    # --- the inputs' state under the node's own names, which the node's tests inspect ---
+
+    @property
+    def _input_subscriptions(self) -> list[Subscription]:
+        return self._inputs.subscriptions
+
+    @property
+    def _sun_direction(self) -> np.ndarray:
+        return self._inputs.sun_direction
+
+    def _subscribe_inputs(self) -> None:
+        self._inputs.subscribe()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            intrinsics = messages.check_camera_size(
-                messages.camera_intrinsics(msg, self._config.rectified_input)
-            )
-        except MessageError as error:
-            self._diagnostics.report(error)
-            return
-        self._infos.add(
-            messages.stamp_to_ns(msg.header.stamp), (intrinsics, msg.header.frame_id, msg)
-        )
-        with self._lock:
-            self._intrinsics = intrinsics
-
-    def _on_sun(self, msg: Vector3Stamped) -> None:
-        try:
-            direction = messages.vector_to_direction(msg.vector)
-            direction = self._pose_source.in_station(msg.header, direction, "sun")
-        except MessageError as error:
-            self._diagnostics.report(error)
-            return
-        self._sun_directions.add(messages.stamp_to_ns(msg.header.stamp), direction)
-        with self._lock:
-            self._sun_direction, self._sun_from_topic = direction, True
-
-    def _on_sun_strength(self, msg: Float32) -> None:
-        if not np.isfinite(msg.data) or msg.data < 0:
-            self._diagnostics.report(
-                MessageError("sun", f"sun strength {msg.data} must be finite and >= 0")
-            )
-            return
-        with self._lock:
-            self._sun_strength, self._sun_from_topic = float(msg.data), True
-
-    def _on_bodies(self, msg: MarkerArray) -> None:
-        try:
-            bodies = tuple(messages.markers_to_bodies(msg.markers))
-            bodies = self._pose_source.bodies_in_station(msg.markers, bodies)
-        except MessageError as error:
-            self._diagnostics.report(error)
-            return
-        with self._lock:
-            self._bodies = bodies
-
-    # --- what the worker asks for -------------------------------------------------------
+        self._inputs.on_camera_info(msg)
 
     def _snapshot(self, msg: Image | CompressedImage | None = None) -> Snapshot:
-        """The node state for ``msg`` (its camera_info paired by stamp), or for building the
-        renderer ahead of the first frame (``msg`` None: the latest camera_info)."""
-        problem = None
-        intrinsics = None
-        if msg is not None:
-            intrinsics, problem = self._camera_for(msg)
-        with self._lock:
-            return Snapshot(
-                self._intrinsics if msg is None else intrinsics,
-                self._config,
-                self._sun_direction,
-                self._sun_strength,
-                self._bodies,
-                problem,
-            )
-
-    def _camera_for(
-        self, msg: Image | CompressedImage
-    ) -> tuple[CameraIntrinsics | None, MessageError | None]:
-        """The camera_info of the image's stamp (exact, or nearest within
-        ``camera_info_tolerance_s``), as image_transport's CameraSubscriber pairs them;
-        waits up to :data:`CAMERA_INFO_WAIT_S` for it. A differing frame_id is counted."""
-        stamp_ns = messages.stamp_to_ns(msg.header.stamp)
-        tolerance_s = self._config.camera_info_tolerance_s
-        tolerance_ns = round(tolerance_s * 1e9)
-        deadline = time.monotonic() + CAMERA_INFO_WAIT_S
-        entry = self._infos.nearest(stamp_ns, tolerance_ns)
-        while entry is None and time.monotonic() < deadline:
-            time.sleep(0.002)
-            entry = self._infos.nearest(stamp_ns, tolerance_ns)
-        if entry is None:
-            return None, MessageError(
-                "camera_info",
-                f"no valid camera_info on {self._info_topic} stamped within {tolerance_s} s of "
-                f"image stamp {stamp_ns} ns (camera_info_tolerance_s); frame skipped",
-            )
-        intrinsics, info_frame, _ = entry
-        image_frame = str(msg.header.frame_id)
-        if info_frame != image_frame:
-            self._diagnostics.count("camera_info_frame_mismatches")
-            self.get_logger().warning(
-                f"camera_info frame_id {info_frame!r} differs from the image's {image_frame!r} "
-                "(counted in /diagnostics as camera_info_frame_mismatches)",
-                throttle_duration_sec=10.0,
-            )
-        return intrinsics, None
-
-    def _view_of(self, msg: Image, state: Snapshot) -> View | None:
-        """Pose and lighting at the image stamp (None, counted, when no pose is known)."""
-        tolerance_s = state.config.pose_tolerance_s
-        pose = self._pose_source.lookup(msg.header, tolerance_s, state.config.tf_timeout_s)
-        if pose is None:
-            self._diagnostics.count("pose_lookup_failures")
-            self.get_logger().warning(
-                f"no camera pose within {tolerance_s} s (tf: {state.config.tf_timeout_s} s "
-                "wait) of image stamp "
-                f"{messages.stamp_to_ns(msg.header.stamp)} ns "
-                f"(pose source {self._pose_source.kind}); frame skipped",
-                throttle_duration_sec=5.0,
-            )
-            return None
-        # The Sun direction stamped nearest the image, else the latest known one.
-        stamped = self._sun_directions.nearest(
-            messages.stamp_to_ns(msg.header.stamp), int(tolerance_s * 1e9)
-        )
-        sun = state.sun_direction if stamped is None else stamped
-        return View(pose, sun, state.sun_strength, state.bodies)
+        return self._inputs.snapshot(msg)
 
     # --- outputs ------------------------------------------------------------------------
 
@@ -574,17 +374,11 @@ class MradDetectorNode(Node):
         self, msg: Image, image: np.ndarray, frame: ProcessedFrame, score_map: bool = True
     ) -> None:
         config = self._config
-        with self._lock:
-            camera = self._intrinsics
-        reference_camera = None
-        if camera is not None:
-            reference_camera = camera.scaled(config.pipeline.render.reference_scale)
-            if (reference_camera.height, reference_camera.width) != frame.reference.shape[:2]:
-                reference_camera = None  # camera_info changed under this frame
-        # The camera_info the frame was processed with (paired by stamp, as the worker did).
-        entry = self._infos.nearest(
-            messages.stamp_to_ns(msg.header.stamp), round(config.camera_info_tolerance_s * 1e9)
-        )
+        reference_camera = frame.reference_camera
+        if reference_camera is not None and (
+            (reference_camera.height, reference_camera.width) != frame.reference.shape[:2]
+        ):
+            reference_camera = None  # ~/reference/camera_info would not describe ~/reference
         self._outputs.publish(
             msg.header,
             image,
@@ -593,7 +387,8 @@ class MradDetectorNode(Node):
             config.publish_reference,
             config.publish_overlay,
             score_map,
-            None if entry is None else entry[2],
+            # The camera_info the frame was processed with (paired by stamp, as the worker did).
+            self._inputs.camera_info_of(msg),
             config.score_full_resolution,
             config.overlay_full_resolution,
         )

@@ -336,7 +336,9 @@ class ProcessingWorker:
             return
         timings = {"render": rendered.render_ms, **detect_ms}
         timings["total"] = sum(timings.values())
-        frame = ProcessedFrame(rendered.reference, results, timings)
+        frame = ProcessedFrame(
+            rendered.reference, results, timings, rendered.pipeline.provider.reference_camera
+        )
         with self._publishing:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
             if not self._running:
