@@ -298,13 +298,6 @@ def _summary_line(name: str, report: dict) -> str:
     )
 
 
-def _threads_line(report: dict) -> str:
-    # The main thread carries the process's name.
-    threads = report.get("thread_cpu_ms_per_frame") or {}
-    shown = [f"{'main' if kind == 'python' else kind} {ms:.1f}" for kind, ms in threads.items()]
-    return "  CPU ms per frame by thread: " + (", ".join(shown[:6]) or "n/a (no /proc)")
-
-
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -411,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 results[name, trajectory, pipelined] = report
                 print(_summary_line(name, report), flush=True)
-                print(_threads_line(report), flush=True)
+                print(thread_cpu.summary(report.get("thread_cpu_ms_per_frame")), flush=True)
             del plan
     first, main_variant = modes[0], variants[-1]
     main_path = paths[0]

@@ -57,3 +57,12 @@ def per_frame_ms(
     frames = max(frames, 1)
     ranked = sorted(totals.items(), key=lambda item: -item[1])
     return {kind: 1e3 * seconds / frames for kind, seconds in ranked if seconds > 0}
+
+
+def summary(shares: dict[str, float] | None, shown: int = 6) -> str:
+    """One indented line of :func:`per_frame_ms`'s largest shares (the main thread carries
+    the process's name, ``python``)."""
+    parts = [
+        f"{'main' if kind == 'python' else kind} {ms:.1f}" for kind, ms in (shares or {}).items()
+    ]
+    return "  CPU ms per frame by thread: " + (", ".join(parts[:shown]) or "n/a (no /proc)")

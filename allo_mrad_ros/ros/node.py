@@ -41,8 +41,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from rclpy.subscription import Subscription
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import CompressedImage, Image
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.pipeline import ProcessedFrame
@@ -65,7 +64,7 @@ from allo_mrad_ros.ros.parameters import (
     validate,
 )
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
-from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
+from allo_mrad_ros.ros.worker import ProcessingWorker
 
 # Exit status when a parameter value is invalid (as for a command-line usage error).
 EXIT_INVALID_PARAMETER = 2
@@ -348,25 +347,6 @@ class MradDetectorNode(Node):
                     )
                 )
             )
-
-    # --- the inputs' state under the node's own names, which the node's tests inspect ---
-
-    @property
-    def _input_subscriptions(self) -> list[Subscription]:
-        return self._inputs.subscriptions
-
-    @property
-    def _sun_direction(self) -> np.ndarray:
-        return self._inputs.sun_direction
-
-    def _subscribe_inputs(self) -> None:
-        self._inputs.subscribe()
-
-    def _on_camera_info(self, msg: CameraInfo) -> None:
-        self._inputs.on_camera_info(msg)
-
-    def _snapshot(self, msg: Image | CompressedImage | None = None) -> Snapshot:
-        return self._inputs.snapshot(msg)
 
     # --- outputs ------------------------------------------------------------------------
 

@@ -27,6 +27,8 @@ def test_threads_are_grouped_by_name_without_their_number_and_ranked():
     assert shares["llvmpipe"] == pytest.approx(4.0)
     assert shares["python"] == pytest.approx(2.0)
     assert shares["dds.shm"] == pytest.approx(1.0)
+    assert thread_cpu.summary(shares, shown=2).endswith("llvmpipe 4.0, main 2.0")
+    assert thread_cpu.summary({}).endswith("n/a (no /proc)")
 
 
 @linux_only

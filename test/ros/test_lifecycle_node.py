@@ -37,7 +37,7 @@ def test_configure_builds_activate_starts_and_cleanup_removes(ros):
         assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
         assert node._input_timer is not None
         assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
-        assert node._input_timer is None and not node._input_subscriptions
+        assert node._input_timer is None and not node._inputs.subscriptions
         worker = node._worker
         assert node.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
         assert not worker.is_alive() and node._worker is None

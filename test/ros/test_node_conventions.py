@@ -173,18 +173,18 @@ def test_an_image_is_paired_with_the_camera_info_of_its_stamp_and_frame_mismatch
         small = messages.fill_camera_info(CameraInfo(), CAMERA.scaled(0.5), "cam_optical_frame")
         large = messages.fill_camera_info(CameraInfo(), CAMERA, "other_frame")
         small.header.stamp.sec, large.header.stamp.sec = 10, 11
-        node._on_camera_info(small)
-        node._on_camera_info(large)  # the latest, but not the first image's
-        state = node._snapshot(_image(10 * 10**9 + 500_000, "cam_optical_frame"))
+        node._inputs.on_camera_info(small)
+        node._inputs.on_camera_info(large)  # the latest, but not the first image's
+        state = node._inputs.snapshot(_image(10 * 10**9 + 500_000, "cam_optical_frame"))
         assert state.camera_problem is None and state.intrinsics == CAMERA.scaled(0.5)
         assert node._diagnostics.status().values  # no mismatch counted yet
         counted = {kv.key: kv.value for kv in node._diagnostics.status().values}
         assert "camera_info_frame_mismatches" not in counted
-        state = node._snapshot(_image(11 * 10**9, "cam_optical_frame"))
+        state = node._inputs.snapshot(_image(11 * 10**9, "cam_optical_frame"))
         assert state.intrinsics == CAMERA
         counted = {kv.key: kv.value for kv in node._diagnostics.status().values}
         assert counted["camera_info_frame_mismatches"] == "1"
-        unpaired = node._snapshot(_image(12 * 10**9, "cam_optical_frame"))
+        unpaired = node._inputs.snapshot(_image(12 * 10**9, "cam_optical_frame"))
         assert unpaired.intrinsics is None and "no valid camera_info" in str(
             unpaired.camera_problem
         )

@@ -138,10 +138,10 @@ def test_huge_sun_vector_keeps_its_direction_and_frames_keep_flowing(live):
     sun.header.frame_id = interface.STATION_FRAME
     feed.pub_sun.publish(sun)
     expected = np.array([1.0, -1.0, 1.0]) / 3**0.5
-    assert feed.wait_for(lambda: np.allclose(node._sun_direction, expected), TIMEOUT)
+    assert feed.wait_for(lambda: np.allclose(node._inputs.sun_direction, expected), TIMEOUT)
     stamp = process_one(feed)
     assert stamp is not None
-    assert np.isclose(np.linalg.norm(node._sun_direction), 1.0)
+    assert np.isclose(np.linalg.norm(node._inputs.sun_direction), 1.0)
     zero = set_parameter(feed, "sun_direction", double_array([0.0, 0.0, 0.0]))
     assert not zero.successful and "zero vector" in zero.reason
     assert np.allclose(node._config.sun_direction, (2**-0.5, 2**-0.5, 0.0))

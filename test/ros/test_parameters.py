@@ -93,8 +93,8 @@ def test_qos_overrides_reach_subscriptions_and_publishers():
         try:
             # Inputs are subscribed only while an output has a subscriber; the overrides
             # declared at start apply each time they are subscribed again.
-            assert not node._input_subscriptions
-            node._subscribe_inputs()
+            assert not node._inputs.subscriptions
+            node._inputs.subscribe()
             image = next(s for s in node.subscriptions if s.topic_name == "/arm_camera/image_raw")
             assert image.qos_profile.reliability == ReliabilityPolicy.RELIABLE
             assert image.qos_profile.depth == 3
