@@ -53,7 +53,7 @@ sweep: $(STAMP)
 # The node under a 1080p flood at 30 Hz for 10 minutes: alive, RSS growth after the first
 # minute, /diagnostics levels while flooding and seconds to STALE after the last image.
 flood: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.flood --minutes 10 --rate 30 --out reports/flood.json
+	$(ISOLATED) $(PY) -m benchmarks.flood --minutes 10 --rate 30 --out reports/flood.json
 
 # The distro route's Python side, without a ROS install: Python 3.10 and the NumPy 1.21 / SciPy
 # 1.8 / OpenCV 4.5 that Ubuntu 22.04 (Humble) ships, plus requirements-distro*.txt, then every
@@ -76,36 +76,36 @@ $(DISTRO_STAMP): test/data/humble_apt_stand_ins.txt requirements-distro.txt requ
 	@touch $@
 
 bench-detector: $(STAMP)
-	$(PY) -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json
+	$(PY) -m benchmarks.detector --out reports/bench_detector.json
 
 bench-render: $(STAMP)
-	$(PY) -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json
+	$(PY) -m benchmarks.render --out reports/bench_render.json
 
 bench-node: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
+	$(ISOLATED) $(PY) -m benchmarks.node --frames 1000 --out reports/bench_node.json
+	$(ISOLATED) $(PY) -m benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 
 # Accuracy cost of reference reuse on moving-arm trajectories (renders per frame, P.AP).
 bench-reuse: $(STAMP)
-	$(PY) -m allo_mrad_ros.benchmarks.reuse --out reports/bench_reuse.json
+	$(PY) -m benchmarks.reuse --out reports/bench_reuse.json
 
 # Both workers in one run: per camera mode the one-thread node, then the pipelined one.
 bench-node-compare: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --frames 1000 --compare-serial --out reports/bench_node_compare.json
+	$(ISOLATED) $(PY) -m benchmarks.node --frames 1000 --compare-serial --out reports/bench_node_compare.json
 
 # One frame of the node's path under cProfile (decode, render, detect, outputs), 1080p.
 profile-node: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node_profile --frames 20 --out reports/profile_node.json
+	$(ISOLATED) $(PY) -m benchmarks.node_profile --frames 20 --out reports/profile_node.json
 
 # Only the output comparison of bench-node: CPU per frame of ~/mask alone, plus each output, every output.
 bench-node-outputs: $(STAMP)
-	$(ISOLATED) $(PY) -m allo_mrad_ros.benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
+	$(ISOLATED) $(PY) -m benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
 
 # Speed against error: defaults chosen on data/bench_val, reported on data/bench's test split
 # (both generated first if missing: 510 + 330 frames, 37 + 22 min with 2 jobs at load 8-12
 # on 2 cores; not measured idle).
 bench: $(STAMP) data/bench/frames.csv data/bench_val/frames.csv
-	$(PY) -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench --validation data/bench_val --out reports
+	$(PY) -m benchmarks.tradeoff --sequence data/bench --validation data/bench_val --out reports
 
 data/bench/frames.csv:
 	$(MAKE) synth-bench
@@ -146,19 +146,19 @@ $(CYCLES_STAMP): requirements-cycles.txt $(STAMP)
 STATIONS_SRC ?= data/stations
 STATION_SETTINGS ?= default,no_transfer,transfer_reference,no_transfer_affine_map,PAD,RXD
 bench-stations: $(CYCLES_STAMP)
-	$(PY) -m allo_mrad_ros.benchmarks.stations prepare $(STATIONS_SRC) --out data/stations_prepared
-	$(PY) -m allo_mrad_ros.benchmarks.stations generate data/stations_prepared --out data/bench_stations
-	$(PY) -m allo_mrad_ros.benchmarks.stations_bench data/bench_stations --split val \
+	$(PY) -m benchmarks.stations prepare $(STATIONS_SRC) --out data/stations_prepared
+	$(PY) -m benchmarks.stations generate data/stations_prepared --out data/bench_stations
+	$(PY) -m benchmarks.stations_bench data/bench_stations --split val \
 	  --settings $(STATION_SETTINGS) --out reports/bench_stations_val.json
-	$(PY) -m allo_mrad_ros.benchmarks.stations_bench data/bench_stations --split test \
+	$(PY) -m benchmarks.stations_bench data/bench_stations --split test \
 	  --settings $(STATION_SETTINGS) --recall --out reports/bench_stations_test.json
 
 bench-cycles: $(CYCLES_STAMP) data/bench_cycles/frames.csv data/bench_cycles_twin/frames.csv
-	$(PY) -m allo_mrad_ros.benchmarks.cycles_silhouettes data/bench_cycles --frames 8 --out reports/cycles_silhouettes.json
+	$(PY) -m benchmarks.cycles_silhouettes data/bench_cycles --frames 8 --out reports/cycles_silhouettes.json
 	$(PY) -m rosbag_tools evaluate data/bench_cycles --out reports/eval_bench_cycles --overwrite --jobs 1
 	$(PY) -m rosbag_tools evaluate data/bench_cycles_twin --out reports/eval_bench_cycles_twin --overwrite --jobs 1
-	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles --out reports/false_scores_cycles.json
-	$(PY) -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles_twin --out reports/false_scores_cycles_twin.json
+	$(PY) -m benchmarks.false_scores data/bench_cycles --out reports/false_scores_cycles.json
+	$(PY) -m benchmarks.false_scores data/bench_cycles_twin --out reports/false_scores_cycles_twin.json
 
 data/bench_cycles/frames.csv: | $(CYCLES_STAMP)
 	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-cycles --seed 0 --out data/bench_cycles --overwrite
@@ -170,9 +170,9 @@ data/bench_cycles_twin/frames.csv: | $(STAMP)
 # off and on, on the bench-dark validation and test splits (docs/evaluation.md).
 DARK_SETTINGS = default,default:structure_weight=0.03,default:structure_weight=0.1
 bench-dark: $(STAMP) data/bench_dark/frames.csv
-	$(PY) -m allo_mrad_ros.benchmarks.stations_bench data/bench_dark --sequence --split val \
+	$(PY) -m benchmarks.stations_bench data/bench_dark --sequence --split val \
 	  --settings $(DARK_SETTINGS) --recall --out reports/bench_dark_val.json
-	$(PY) -m allo_mrad_ros.benchmarks.stations_bench data/bench_dark --sequence --split test \
+	$(PY) -m benchmarks.stations_bench data/bench_dark --sequence --split test \
 	  --settings $(DARK_SETTINGS) --recall --compare default,default:structure_weight=0.03 \
 	  --out reports/bench_dark_test.json
 
@@ -186,13 +186,13 @@ ablate-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools ablate data/bench --out reports/ablate_bench --overwrite --jobs 2
 
 bench-generate: $(STAMP)
-	$(PY) -m allo_mrad_ros.benchmarks.generate --out reports/bench_generate.json
+	$(PY) -m benchmarks.generate --out reports/bench_generate.json
 
 station-model: $(STAMP)
 	$(PY) -m allo_mrad_ros.render.station_model --out meshes/station.glb
 
 param-study: $(STAMP)
-	$(PY) -m allo_mrad_ros.benchmarks.param_study --out reports/param_study.json
+	$(PY) -m benchmarks.param_study --out reports/param_study.json
 
 clean:
 	rm -rf build install log *.egg-info .pytest_cache .ruff_cache

@@ -293,7 +293,7 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
     ``tally``."""
     import rclpy
 
-    from allo_mrad_ros.ros.feed import start_node, stop_node
+    from allo_mrad_ros.ros.node_process import start_node, stop_node
     from allo_mrad_ros.ros.recorder import OutputRecorder
 
     _step(3, "starting the mrad_detector node (pose_source: topic)")

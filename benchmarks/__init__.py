@@ -1,4 +1,7 @@
-"""Benchmarks that print figures and write them to ``reports/`` (run by ``make bench-*``)."""
+"""Benchmarks that print figures and write them to ``reports/`` (run by ``make bench-*``).
+
+Not installed: run them from the repository root as ``python -m benchmarks.<name>``.
+"""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ writes the same figures to a JSON report. The oracle lives in the tests
 (``test/mrad_oracle.py`` of a source checkout) and is skipped when the package runs from an
 install without its tests.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.detector --out reports/bench_detector.json``
+Usage: ``python -m benchmarks.detector --out reports/bench_detector.json``
 """
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ from types import ModuleType
 import cv2
 import numpy as np
 
-from allo_mrad_ros.benchmarks import finish
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.backends import BackendError, select_backend
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.pipeline import params_from
 from allo_mrad_ros.render import DEFAULT_SCALE
+from benchmarks import finish
 
 _ORACLE_PATH = Path(__file__).resolve().parents[2] / "test" / "mrad_oracle.py"
 

@@ -8,7 +8,7 @@ flagged by the mask and the share ranking above the median anomaly pixel of the 
 (the pixels that cost P.AP), and per sequence the median query-minus-reference grey level
 on the station. For comparing a path-traced sequence with its rasterised twin.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.false_scores data/bench_cycles``
+Usage: ``python -m benchmarks.false_scores data/bench_cycles``
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from allo_mrad_ros.benchmarks import finish
 from allo_mrad_ros.evaluation.sources import open_sequence
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
+from benchmarks import finish
 
 KINDS = ("edge", "space", "dark", "mid", "bright")
 DARK, BRIGHT = 40.0, 170.0

@@ -9,7 +9,7 @@ status said "no image" (ERROR; STALE is the aggregator's call; target <= 3 s). T
 load average is printed with the figures: on a shared machine the node processes fewer
 frames, not different ones.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.flood --minutes 10 --out reports/flood.json``
+Usage: ``python -m benchmarks.flood --minutes 10 --out reports/flood.json``
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ from pathlib import Path
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from allo_mrad_ros.benchmarks import finish, machine_facts
-from allo_mrad_ros.benchmarks.node import SUN, _frames, _node_session
 from allo_mrad_ros.ros.messages import stamp_to_ns
+from benchmarks import finish, machine_facts
+from benchmarks.node import SUN, _frames, _node_session
 
 LEVELS = {
     DiagnosticStatus.OK: "OK",

@@ -5,7 +5,7 @@ temporary folder and reports the throughput in frames per minute, plus the share
 spent rendering and post-processing (synthesis) against writing PNGs, measured on a second
 pass over a few frames. Writes a JSON report.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.generate --out reports/bench_generate.json``
+Usage: ``python -m benchmarks.generate --out reports/bench_generate.json``
 """
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import finish, machine_facts
 from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.sequence.png import encode_png
 from allo_mrad_ros.synth.config import PRESETS, preset
 from allo_mrad_ros.synth.frames import FrameSynthesizer
 from allo_mrad_ros.synth.generator import generate
 from allo_mrad_ros.synth.planning import plan_frames
+from benchmarks import finish, machine_facts
 
 
 def stage_times(name: str, frames: int, seed: int) -> dict[str, float]:

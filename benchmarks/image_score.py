@@ -9,7 +9,7 @@ on the full-resolution map (``detect`` takes them at the processing resolution: 
 fraction of an upsampled map, within interpolation). This is the measurement behind the
 default ``image_score`` / ``image_top_fraction`` (docs/detector.md, "Parameters").
 
-    python -m allo_mrad_ros.benchmarks.image_score --sequence data/bench_val --split val
+    python -m benchmarks.image_score --sequence data/bench_val --split val
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from allo_mrad_ros.benchmarks import finish
-from allo_mrad_ros.benchmarks.perturbations import PERTURBATIONS
-from allo_mrad_ros.benchmarks.tradeoff import Sweep, _split
-from allo_mrad_ros.benchmarks.tradeoff_settings import render_settings
 from allo_mrad_ros.detector import DetectionResult, MradParams, detect, profile
 from allo_mrad_ros.detector.decision import image_score
 from allo_mrad_ros.metrics import roc_auc
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
+from benchmarks import finish
+from benchmarks.tradeoff import Sweep, _split
+from benchmarks.tradeoff_settings import render_settings
+from harness.perturbations import PERTURBATIONS
 
 FRACTIONS = (1e-3, 3e-4, 1e-4, 3e-5, 0.0)
 """Top fractions of the map compared (0: one pixel, the maximum)."""

@@ -16,7 +16,7 @@ kind of thread's share, :mod:`.thread_cpu`) and its resident memory after 100 an
 1,000 processed frames. ROS traffic stays on loopback
 (``config/fastdds_loopback.xml``).
 
-Usage: ``python -m allo_mrad_ros.benchmarks.node --frames 1000 --out reports/bench_node.json``;
+Usage: ``python -m benchmarks.node --frames 1000 --out reports/bench_node.json``;
 ``--serial`` runs the node with ``pipelined:=false`` (one thread) and
 ``--compare-serial`` runs, per mode, the serial node and then the pipelined one back to back,
 so both are measured under the same machine load.
@@ -40,8 +40,15 @@ import numpy as np
 import psutil
 import rclpy
 
-from allo_mrad_ros.benchmarks import finish, thread_cpu
-from allo_mrad_ros.benchmarks.trajectory import (
+from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
+from allo_mrad_ros.example_scene import paste_object
+from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.render import ReferenceRenderer
+from allo_mrad_ros.resources import share_path
+from allo_mrad_ros.ros.node_process import start_node, stop_node
+from allo_mrad_ros.ros.process_tuning import keep_freed_memory
+from benchmarks import finish, thread_cpu
+from benchmarks.trajectory import (
     MAX_ANGULAR_DEG_S,
     MAX_LINEAR_M_S,
     SEGMENT_S,
@@ -50,13 +57,7 @@ from allo_mrad_ros.benchmarks.trajectory import (
     segment_poses,
     speeds,
 )
-from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
-from allo_mrad_ros.example_scene import paste_object
-from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.render import ReferenceRenderer
-from allo_mrad_ros.resources import share_path
-from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
-from allo_mrad_ros.ros.process_tuning import keep_freed_memory
+from harness.feed import CameraFeed
 
 SUN = (0.3, -0.5, 0.8)
 
@@ -347,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = Path(tempfile.mkdtemp(prefix="bench_node_"))
     if args.compare_outputs:
         # Here, not at the top: that module builds on this one's node session and frames.
-        from allo_mrad_ros.benchmarks.node_outputs import compare_outputs, outputs_table
+        from benchmarks.node_outputs import compare_outputs, outputs_table
 
         log = log_dir / "node.log"
         load = os.getloadavg()[0]

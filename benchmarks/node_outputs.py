@@ -1,6 +1,6 @@
 """The node's CPU per output (``bench-node --compare-outputs``, ``make bench-node-outputs``).
 
-``python -m allo_mrad_ros.benchmarks.node --compare-outputs`` measures what each output
+``python -m benchmarks.node --compare-outputs`` measures what each output
 costs: the node's CPU seconds per frame with only ``~/mask`` subscribed (the base), with the
 base plus one output (``~/score`` at the processing resolution with its camera_info; the
 same with ``score_full_resolution``; ``~/overlay``; ``~/reference`` with its camera_info;
@@ -27,10 +27,10 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 
 from allo_mrad_ros import interface
-from allo_mrad_ros.benchmarks.node import SUN, _frames, _node_session
 from allo_mrad_ros.camera import ALLO_INTRINSICS
-from allo_mrad_ros.ros.feed import OUTPUT_TYPES, CameraFeed
 from allo_mrad_ros.ros.outputs import vision_msgs_module
+from benchmarks.node import SUN, _frames, _node_session
+from harness.feed import OUTPUT_TYPES, CameraFeed
 
 
 def _lock_step(feed: CameraFeed, pose: np.ndarray, images: list, frames: int) -> int:

@@ -7,7 +7,7 @@ real rclpy publishers that report one subscriber each, so messages are built and
 as in the node. cProfile over ``--frames`` frames after one warm-up frame; prints the stages'
 share and the functions with the most own time.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.node_profile --frames 20``
+Usage: ``python -m benchmarks.node_profile --frames 20``
 """
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ import rclpy
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros import interface
-from allo_mrad_ros.benchmarks import finish, machine_facts
-from allo_mrad_ros.benchmarks.node import SUN, _frames
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.view import View
+from benchmarks import finish, machine_facts
+from benchmarks.node import SUN, _frames
 
 
 class _Listened:

@@ -6,7 +6,7 @@ shift, the reference at 1/4 resolution. Prints P.AP, P.AUROC, I.AUROC and P.FPR9
 variant. It decides nothing by itself; docs/detector.md records what was chosen from it, and
 the ALLO-like validation split (``make bench``) supersedes it.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.param_study [--scenes 16] [--out FILE]``
+Usage: ``python -m benchmarks.param_study [--scenes 16] [--out FILE]``
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from allo_mrad_ros.benchmarks import finish
 from allo_mrad_ros.detector import METHODS, MradParams
 from allo_mrad_ros.example_scene import camera_effects, paste_object, station_view
 from allo_mrad_ros.metrics import MetricsAccumulator
+from benchmarks import finish
 
 VARIANTS: dict[str, dict] = {
     "default": {},

@@ -1,12 +1,12 @@
 """Photometric robustness: MRAD variants on queries perturbed as a camera differs from a render.
 
 Every query of a sequence split is perturbed by each of
-:data:`~allo_mrad_ros.benchmarks.perturbations.PERTURBATIONS` (the reference stays the
+:data:`~harness.perturbations.PERTURBATIONS` (the reference stays the
 clean render), and each detector variant is scored: the fraction of pixels its mask flags on
 normal frames (mean and worst frame), its image-level AUROC and its pixel step AP. This is
 the measurement behind docs/detector.md, "Photometric model".
 
-    python -m allo_mrad_ros.benchmarks.photometric --sequence data/bench_val --split val
+    python -m benchmarks.photometric --sequence data/bench_val --split val
 """
 
 from __future__ import annotations
@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from allo_mrad_ros.benchmarks.perturbations import PERTURBATIONS
-from allo_mrad_ros.benchmarks.tradeoff import Sweep, _split
-from allo_mrad_ros.benchmarks.tradeoff_settings import PREVIOUS_DEFAULT, render_settings
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
+from benchmarks.tradeoff import Sweep, _split
+from benchmarks.tradeoff_settings import PREVIOUS_DEFAULT, render_settings
+from harness.perturbations import PERTURBATIONS
 
 
 def variants() -> dict[str, tuple[str, MradParams]]:

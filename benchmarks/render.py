@@ -10,7 +10,7 @@ patches of ``render/uniforms.py`` and ``render/shader_patches.py``): the two ren
 turns frame by frame in one process, so machine load weighs on both alike, and every pair of
 images is compared.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.render --out reports/bench_render.json``
+Usage: ``python -m benchmarks.render --out reports/bench_render.json``
 """
 
 from __future__ import annotations
@@ -22,42 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import finish, machine_facts
 from allo_mrad_ros.camera import ALLO_INTRINSICS
-from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at
-from allo_mrad_ros.render import DEFAULT_SCALE, CelestialBody, ReferenceRenderer
+from allo_mrad_ros.geometry import euler_zyx_to_matrix
+from allo_mrad_ros.render import DEFAULT_SCALE, ReferenceRenderer
 from allo_mrad_ros.render.gl_patches import plain_pyrender
 from allo_mrad_ros.resources import share_path
+from benchmarks import finish, machine_facts
+from harness.scene import BODIES, SUN_CENTRE, viewpoints
 
 # Reference render at the default scale must stay at or under this median.
 TARGET_REF_MS = 40.0
-# ALLO's ephemeris table, day 5 (Blender units = metres, scaled with apparent size kept).
-SUN_CENTRE = (713.4, -3611.3, -1565.0)
-BODIES = (
-    CelestialBody("sun", SUN_CENTRE, 18.97),
-    CelestialBody("earth", (1069.0, 1517.1, 745.3), 35.28),
-    CelestialBody("moon", (0.0, -411.5, -284.0), 212.3),
-)
-
-
-def viewpoints() -> list[np.ndarray]:
-    """Twelve arm-camera-like poses: 8 to 40 m from the station, looking at its parts."""
-    targets = [(-6.0, 0.0, 0.0), (0.0, 0.0, 0.0), (7.5, 0.0, 0.0), (13.0, 0.0, 1.0)]
-    poses = []
-    for i in range(12):
-        azimuth = 2.0 * np.pi * i / 12.0
-        distance = 8.0 + 32.0 * ((i * 5) % 12) / 11.0
-        elevation = np.radians(-30.0 + 60.0 * ((i * 7) % 12) / 11.0)
-        target = np.array(targets[i % len(targets)])
-        offset = distance * np.array(
-            [
-                np.cos(elevation) * np.cos(azimuth),
-                np.cos(elevation) * np.sin(azimuth),
-                np.sin(elevation),
-            ]
-        )
-        poses.append(look_at(target + offset, target))
-    return poses
 
 
 def _summary(samples: list[float]) -> dict[str, float]:

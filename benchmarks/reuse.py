@@ -10,7 +10,7 @@ and the report gives, per setting, renders per frame, pooled P.AP and its differ
 rendering every frame (paired frame bootstrap, 95 % interval) and the mean reference
 difference from a fresh render.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.reuse --out reports/bench_reuse.json``
+Usage: ``python -m benchmarks.reuse --out reports/bench_reuse.json``
 """
 
 from __future__ import annotations
@@ -24,12 +24,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from allo_mrad_ros.benchmarks import finish
-from allo_mrad_ros.benchmarks.trajectory import (
-    MAX_ANGULAR_DEG_S,
-    MAX_LINEAR_M_S,
-    top_speed_path,
-)
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.metrics import (
@@ -42,6 +36,12 @@ from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer
 from allo_mrad_ros.render.reuse import ReuseBounds
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES, build_anomaly
 from allo_mrad_ros.view import View
+from benchmarks import finish
+from benchmarks.trajectory import (
+    MAX_ANGULAR_DEG_S,
+    MAX_LINEAR_M_S,
+    top_speed_path,
+)
 
 SUN = np.array([0.3, -0.5, 0.8])
 # Error bounds (camera pixels) and rotation bounds (degrees) measured by default.

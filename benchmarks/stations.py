@@ -12,8 +12,8 @@ The models are not part of the package or of git: put the ``.glb`` files named i
 
 Usage::
 
-    python -m allo_mrad_ros.benchmarks.stations prepare data/stations --out data/stations_prepared
-    python -m allo_mrad_ros.benchmarks.stations generate data/stations_prepared \\
+    python -m benchmarks.stations prepare data/stations --out data/stations_prepared
+    python -m benchmarks.stations generate data/stations_prepared \\
         --out data/bench_stations
 """
 

@@ -1,6 +1,6 @@
 """The multi-station path-traced bench (``make bench-stations``): colour gap, per station.
 
-Each station of :data:`~allo_mrad_ros.benchmarks.stations.BENCH_SPLITS` has its own
+Each station of :data:`~benchmarks.stations.BENCH_SPLITS` has its own
 sequence (``allo-synth generate --preset bench-stations --mesh <station>``): queries
 path-traced by Blender Cycles under several view transforms and exposures, JPEG, references
 rasterised here from the reported pose at the evaluator's default scale. Every reference is
@@ -14,7 +14,7 @@ threshold where the setting's false-positive rate is 5 %. Writes a JSON report.
 
 Usage::
 
-    python -m allo_mrad_ros.benchmarks.stations_bench data/bench_stations --split val \\
+    python -m benchmarks.stations_bench data/bench_stations --split val \\
         --settings default,no_transfer,PAD,RXD --out reports/bench_stations_val.json
 """
 
@@ -30,8 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks import machine_facts
-from allo_mrad_ros.benchmarks.stations import BENCH_SPLITS
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.metrics import (
     MetricsAccumulator,
@@ -41,6 +39,8 @@ from allo_mrad_ros.metrics import (
 from allo_mrad_ros.pipeline import ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
+from benchmarks import machine_facts
+from benchmarks.stations import BENCH_SPLITS
 
 MASK_ANOMALY = 2
 

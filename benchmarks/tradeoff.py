@@ -24,7 +24,7 @@ On an ALLO-like sequence (``allo-synth generate --preset bench``):
 Writes ``speed_vs_error.json``, ``speed_vs_error.png`` (validation),
 ``speed_vs_error_test.png`` and ``pose_robustness.png``; ``--reprint`` prints a saved report.
 
-Usage: ``python -m allo_mrad_ros.benchmarks.tradeoff --sequence data/bench
+Usage: ``python -m benchmarks.tradeoff --sequence data/bench
 --validation data/bench_val --out reports``
 """
 
@@ -40,7 +40,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from allo_mrad_ros.benchmarks.tradeoff_report import (
+from allo_mrad_ros.detector import profile
+from allo_mrad_ros.metrics import frame_counts
+from allo_mrad_ros.pipeline import Pipeline, ReferenceProvider, RenderSettings
+from allo_mrad_ros.sequence import Frame, read_sequence
+from allo_mrad_ros.sequence import Sequence as AlloSequence
+from allo_mrad_ros.view import View
+from benchmarks.tradeoff_report import (
     _describe_default_on_test,
     _describe_gap,
     _gap_to_baseline,
@@ -54,19 +60,13 @@ from allo_mrad_ros.benchmarks.tradeoff_report import (
     plot_robustness,
     reprint,
 )
-from allo_mrad_ros.benchmarks.tradeoff_settings import (
+from benchmarks.tradeoff_settings import (
     Outcome,
     Setting,
     perturbed,
     sweep_settings,
     true_pose,
 )
-from allo_mrad_ros.detector import profile
-from allo_mrad_ros.metrics import frame_counts
-from allo_mrad_ros.pipeline import Pipeline, ReferenceProvider, RenderSettings
-from allo_mrad_ros.sequence import Frame, read_sequence
-from allo_mrad_ros.sequence import Sequence as AlloSequence
-from allo_mrad_ros.view import View
 
 
 class Sweep:

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks.tradeoff_settings import MASK_PHOTOMETRIC, Outcome, map_key
 from allo_mrad_ros.metrics import bootstrap_ap_difference
+from benchmarks.tradeoff_settings import MASK_PHOTOMETRIC, Outcome, map_key
 
 
 def pareto_front(rows: Iterable[dict]) -> list[dict]:

@@ -1,20 +1,16 @@
 """A ROS peer for the node: publishes camera inputs and collects the node's outputs.
 
 The integration tests and ``make bench-node`` run the node as its own process
-(:func:`start_node`) and drive it with a :class:`CameraFeed` in theirs. Keep DDS on loopback
-(``config/fastdds_loopback.xml``) when using it.
+(:func:`allo_mrad_ros.ros.node_process.start_node`) and drive it with a :class:`CameraFeed`
+in theirs. Keep DDS on loopback (``config/fastdds_loopback.xml``) when using it.
 """
 
 from __future__ import annotations
 
 import array
-import os
-import subprocess
-import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -44,30 +40,6 @@ OUTPUT_TYPES: dict[str, type] = {
     "reference": Image,
     "reference/camera_info": CameraInfo,
 }
-
-
-def start_node(log_path: Path, *parameters: str, namespace: str = "") -> subprocess.Popen:
-    """Start the node as a separate process with ``name:=value`` parameters.
-
-    ``pose_source:=topic`` comes first (it can be overridden); output goes to ``log_path``.
-    """
-    arguments = [sys.executable, "-m", "allo_mrad_ros.ros.node", "--ros-args"]
-    if namespace:
-        arguments += ["-r", f"__ns:=/{namespace.strip('/')}"]
-    for parameter in ("pose_source:=topic", *parameters):
-        arguments += ["-p", parameter]
-    log = log_path.open("w")
-    return subprocess.Popen(arguments, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ))
-
-
-def stop_node(process: subprocess.Popen) -> None:
-    """Terminate the node process (kill it if it does not stop within 10 s)."""
-    process.terminate()
-    try:
-        process.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
 
 
 class CameraFeed:

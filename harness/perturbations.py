@@ -4,7 +4,7 @@ Each function takes an H x W x 3 uint8 image and returns a new uint8 image; toge
 are the render-to-camera gap (exposure, gamma, tone curves including filmic and AgX-like
 view transforms, desaturation, white balance, vignetting, light fall-off, sensor noise, JPEG,
 bloom). The photometric tests and
-``python -m allo_mrad_ros.benchmarks.photometric`` apply them to normal frames.
+``python -m benchmarks.photometric`` apply them to normal frames.
 """
 
 from __future__ import annotations

@@ -18,8 +18,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 KEYS_FILE = ROOT / "test" / "data" / "rosdep_keys.txt"
 RUNTIME_TREES = ("allo_mrad_ros", "rosbag_tools", "launch")
-# The packages, plus the tests' own helper modules (test/**/*.py that are not tests).
-FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools"} | {
+# Trees that run only in development (tests, benchmarks and what they share): not installed.
+DEV_TREES = ("test", "harness", "benchmarks")
+# The packages and the development trees, plus the tests' own helper modules (test/**/*.py
+# that are not tests).
+FIRST_PARTY = {"allo_mrad_ros", "rosbag_tools", "harness", "benchmarks"} | {
     path.stem for path in (ROOT / "test").rglob("*.py") if not path.stem.startswith("test_")
 }
 
@@ -184,11 +187,11 @@ def test_every_test_import_has_a_provider():
         ROOT / "requirements.txt"
     )
     missing = []
-    for module, where in sorted(_third_party_imports(("test",)).items()):
+    for module, where in sorted(_third_party_imports(DEV_TREES).items()):
         provider = MODULE_PROVIDERS.get(module, ROS_MODULE_PACKAGES.get(module, module))
         if provider not in keys and provider.lower() not in dev and module not in keys:
             missing.append(f"{module} ({where})")
-    assert not missing, f"test imports without a key or requirement: {missing}"
+    assert not missing, f"test or benchmark imports without a key or requirement: {missing}"
 
 
 @pytest.mark.parametrize("name", ["requirements-distro.txt", "requirements-distro-nodeps.txt"])

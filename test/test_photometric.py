@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from array_backends import ARRAY_BACKENDS, skip_unless_runnable
 
-from allo_mrad_ros.benchmarks.perturbations import PERTURBATIONS, exposure
 from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.photometric import PhotometricError, fit_cell_affine
+from harness.perturbations import PERTURBATIONS, exposure
 
 HEIGHT, WIDTH = 540, 960
 PATCH = (slice(250, 280), slice(560, 590))

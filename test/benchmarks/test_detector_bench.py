@@ -4,8 +4,8 @@ import importlib.util
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks.detector import compare_backends
 from allo_mrad_ros.detector import MradParams
+from benchmarks.detector import compare_backends
 
 
 def test_backends_are_timed_and_compared_with_numpy_and_an_unrunnable_one_says_why():

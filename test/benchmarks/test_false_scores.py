@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from allo_mrad_ros.benchmarks.false_scores import KINDS, pixel_kinds, probe
 from allo_mrad_ros.synth.config import preset
 from allo_mrad_ros.synth.generator import generate
+from benchmarks.false_scores import KINDS, pixel_kinds, probe
 
 
 def test_kinds_partition_the_pixels_that_are_not_anomalies():

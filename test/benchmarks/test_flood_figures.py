@@ -4,7 +4,7 @@ import pytest
 
 pytest.importorskip("rclpy")  # the flood benchmark drives a node (skipped on the distro route)
 
-from allo_mrad_ros.benchmarks.flood import peak_growth
+from benchmarks.flood import peak_growth
 
 
 def sawtooth(minutes: float, base_mb: float, rise_mb_per_minute: float = 0.0) -> list:

@@ -5,7 +5,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from allo_mrad_ros.benchmarks import node as bench
+from benchmarks import node as bench
 
 
 def test_renders_per_frame_from_the_counters_and_n_a_without_them():

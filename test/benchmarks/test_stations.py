@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from allo_mrad_ros.benchmarks.stations import BENCH_SPLITS, StationError, prepare_station
-from allo_mrad_ros.benchmarks.stations_bench import parse_setting
 from allo_mrad_ros.synth.config import SynthConfig, SynthError, preset
 from allo_mrad_ros.synth.realism import jpeg_round_trip
+from benchmarks.stations import BENCH_SPLITS, StationError, prepare_station
+from benchmarks.stations_bench import parse_setting
 
 
 def test_a_model_in_centimetres_is_centred_and_scaled_to_its_length(tmp_path):
@@ -102,14 +102,14 @@ def cv2_friendly(rng: np.random.Generator) -> np.ndarray:
 
 
 def test_the_bench_names_a_missing_station_sequence_in_one_line(tmp_path, capsys):
-    from allo_mrad_ros.benchmarks.stations_bench import main
+    from benchmarks.stations_bench import main
 
     assert main([str(tmp_path), "--split", "val"]) == 2
     assert "station sequence missing" in capsys.readouterr().err
 
 
 def test_generation_refuses_a_station_folder_holding_other_files(tmp_path):
-    from allo_mrad_ros.benchmarks.stations import generate_bench
+    from benchmarks.stations import generate_bench
 
     folder = tmp_path / "bench" / "val" / "station"
     folder.mkdir(parents=True)

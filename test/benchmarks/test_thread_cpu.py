@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from allo_mrad_ros.benchmarks import thread_cpu
 from allo_mrad_ros.ros.process_tuning import name_this_thread
+from benchmarks import thread_cpu
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc is Linux's")
 

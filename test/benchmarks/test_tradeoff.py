@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from allo_mrad_ros.benchmarks.tradeoff_report import (
+from allo_mrad_ros.detector import profile
+from allo_mrad_ros.geometry import look_at
+from benchmarks.tradeoff_report import (
     choose_default,
     choose_mask,
     describe_speedup_tier,
     most_accurate_with_speedup,
     pareto_front,
 )
-from allo_mrad_ros.benchmarks.tradeoff_settings import Outcome, Setting, perturbed, sweep_settings
-from allo_mrad_ros.detector import profile
-from allo_mrad_ros.geometry import look_at
+from benchmarks.tradeoff_settings import Outcome, Setting, perturbed, sweep_settings
 
 
 def row(name, latency, p_ap, conforms=True):

@@ -6,7 +6,8 @@ import itertools
 import numpy as np
 import pytest
 
-from allo_mrad_ros.benchmarks.trajectory import (
+from allo_mrad_ros.geometry import look_at
+from benchmarks.trajectory import (
     MAX_ANGULAR_DEG_S,
     MAX_LINEAR_M_S,
     ArmSweep,
@@ -16,7 +17,6 @@ from allo_mrad_ros.benchmarks.trajectory import (
     speeds,
     top_speed_path,
 )
-from allo_mrad_ros.geometry import look_at
 
 
 @pytest.mark.parametrize("rate_hz", [30.0, 60.0])

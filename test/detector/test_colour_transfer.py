@@ -10,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from allo_mrad_ros.benchmarks.perturbations import agx_like, filmic
 from allo_mrad_ros.detector import MradParams, detect, profile
 from allo_mrad_ros.detector.colour_transfer import (
     ColourTransferError,
@@ -19,6 +18,7 @@ from allo_mrad_ros.detector.colour_transfer import (
     fit_colour_transfer,
 )
 from allo_mrad_ros.detector.pipeline import transfer_colours
+from harness.perturbations import agx_like, filmic
 
 WIDTHS = (256, 64, 32, 16, 8, 4)
 EDGE_LEVELS = 48.0

@@ -52,14 +52,3 @@ def test_detect_reports_the_rule_it_was_given(pair):
     assert by_area.image_score == by_area.area
     assert by_map.image_score != by_map.area
     assert by_map.anomalous == by_area.anomalous  # the flag is the mask's either way
-
-
-def test_benchmark_candidates_include_the_area_and_the_map_maximum(pair):
-    from allo_mrad_ros.benchmarks.image_score import candidates
-
-    params = profile("default")
-    result = detect(pair.query, pair.reference, params)
-    scores = candidates(result, params)
-    assert scores["area"] == result.area
-    assert scores["map maximum"] == pytest.approx(float(result.score.max()))
-    assert scores["map maximum"] >= scores["map top 0.0001"] >= scores["map top 0.001"]

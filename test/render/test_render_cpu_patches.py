@@ -17,7 +17,6 @@ import pytest
 import trimesh
 from PIL import Image
 
-from allo_mrad_ros.benchmarks.render import BODIES, SUN_CENTRE, viewpoints
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.geometry import euler_zyx_to_matrix, look_at, optical_to_opengl_pose
 from allo_mrad_ros.render import DEFAULT_SCALE, ReferenceRenderer, choose_backend, shader_patches
@@ -25,6 +24,7 @@ from allo_mrad_ros.render.backend import import_pyrender
 from allo_mrad_ros.render.gl_patches import install_patches, plain_pyrender
 from allo_mrad_ros.render.shader_patches import _PCF_PYRENDER, shared_read_pcf
 from allo_mrad_ros.render.uniforms import UniformSetter
+from harness.scene import BODIES, SUN_CENTRE, viewpoints
 
 
 def _programs(renderer: ReferenceRenderer) -> list:

@@ -22,8 +22,8 @@ from rclpy.parameter import Parameter
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.ros.feed import CameraFeed
 from allo_mrad_ros.ros.node import MradDetectorNode
+from harness.feed import CameraFeed
 
 pytestmark = pytest.mark.ros
 

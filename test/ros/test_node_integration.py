@@ -15,8 +15,9 @@ from sensor_msgs.msg import Image
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
-from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
 from allo_mrad_ros.ros.messages import fill_image
+from allo_mrad_ros.ros.node_process import start_node, stop_node
+from harness.feed import CameraFeed
 
 pytestmark = pytest.mark.ros
 

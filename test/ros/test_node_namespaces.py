@@ -18,7 +18,8 @@ from visualization_msgs.msg import ImageMarker
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
-from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
+from allo_mrad_ros.ros.node_process import start_node, stop_node
+from harness.feed import CameraFeed
 
 pytestmark = pytest.mark.ros
 

@@ -24,7 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE.parent)]
+sys.path[:0] = [str(HERE), str(HERE.parent), str(HERE.parent.parent)]  # the root: harness/
 REPO = HERE.parent.parent
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 os.environ.setdefault(

@@ -2,7 +2,7 @@
 
 Start-up cases run the node process with an invalid parameter and read its exit and its
 output. Running cases share one node process (``allo_mrad_ros.ros.node``) driven by a
-:class:`~allo_mrad_ros.ros.feed.CameraFeed` in this process: each case publishes its bad input,
+:class:`~harness.feed.CameraFeed` in this process: each case publishes its bad input,
 waits for the node to count it in ``/diagnostics``, and then checks that a good frame is
 still processed. The node's log is a file; a case reads what the node wrote during it.
 """
@@ -25,7 +25,8 @@ from sweep_verdicts import CLEAN, CRASH, SILENT, TRACEBACK, UNCLEAR, Outcome, cl
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.ros.feed import CameraFeed, start_node, stop_node
+from allo_mrad_ros.ros.node_process import start_node, stop_node
+from harness.feed import CameraFeed
 
 INTRINSICS = CameraIntrinsics(320, 180, 222.2, 222.2, 160.0, 90.0)
 POSE = look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])

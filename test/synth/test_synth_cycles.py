@@ -17,7 +17,6 @@ import pytest
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
-from allo_mrad_ros.benchmarks.cycles_silhouettes import silhouette_iou
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer
@@ -31,6 +30,7 @@ from allo_mrad_ros.synth.generator import generate
 from allo_mrad_ros.synth.objects import build_anomaly
 from allo_mrad_ros.synth.realism_config import RealismConfig
 from allo_mrad_ros.synth.surfaces import worn_object
+from harness.silhouettes import silhouette_iou
 
 needs_bpy = pytest.mark.skipif(
     importlib.util.find_spec("bpy") is None, reason="optional bpy not installed"
