@@ -27,7 +27,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from allo_mrad_ros.ros.messages import stamp_to_ns
 from benchmarks import finish, machine_facts
-from benchmarks.node import SUN, _frames, _node_session
+from benchmarks.node_session import SUN, node_session, still_frames
 
 LEVELS = {
     DiagnosticStatus.OK: "OK",
@@ -72,9 +72,9 @@ def peak_growth(samples: list[tuple[float, float]], duration_s: float) -> dict:
 
 def flood(minutes: float, rate_hz: float, log_path: Path) -> dict:
     """Drive the node for ``minutes`` at ``rate_hz``, then stop and watch it say "no image"."""
-    pose, images = _frames()
+    pose, images = still_frames()
     duration = 60.0 * minutes
-    with _node_session(log_path, {}) as (feed, node):
+    with node_session(log_path, {}) as (feed, node):
         warm = time.monotonic()
         while not feed.arrival["mask"] and time.monotonic() - warm < 120.0:
             feed.publish_frame(time.time_ns(), images[0], pose, SUN)

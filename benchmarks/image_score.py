@@ -27,7 +27,7 @@ from allo_mrad_ros.metrics import roc_auc
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
 from benchmarks import finish
-from benchmarks.tradeoff import Sweep, _split
+from benchmarks.tradeoff import Sweep, split_frames
 from benchmarks.tradeoff_settings import render_settings
 from harness.perturbations import PERTURBATIONS
 
@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("reports/image_score.json"))
     args = parser.parse_args(argv)
     sequence = read_sequence(args.sequence)
-    frames = _split(sequence, args.split, args.limit)
+    frames = split_frames(sequence, args.split, args.limit)
     params = profile(args.profile)
     perturbations = {"none": lambda image: image, **{p: PERTURBATIONS[p] for p in PERTURBED}}
     scores: dict[str, list[dict[str, float]]] = {p: [] for p in perturbations}

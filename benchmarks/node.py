@@ -21,7 +21,8 @@ Usage: ``python -m benchmarks.node --frames 1000 --out reports/bench_node.json``
 ``--compare-serial`` runs, per mode, the serial node and then the pipelined one back to back,
 so both are measured under the same machine load.
 
-``--compare-outputs`` measures instead what each output costs (:mod:`.node_outputs`).
+``--compare-outputs`` measures instead what each output costs (:mod:`.node_outputs`); both
+start the node and the feed with :func:`.node_session.node_session`.
 """
 
 from __future__ import annotations
@@ -31,23 +32,18 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import psutil
 import rclpy
 
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
-from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
-from allo_mrad_ros.resources import share_path
-from allo_mrad_ros.ros.node_process import start_node, stop_node
-from allo_mrad_ros.ros.process_tuning import keep_freed_memory
 from benchmarks import finish, thread_cpu
+from benchmarks.node_outputs import compare_outputs, outputs_table
+from benchmarks.node_session import SUN, node_session, still_frames
 from benchmarks.trajectory import (
     MAX_ANGULAR_DEG_S,
     MAX_LINEAR_M_S,
@@ -59,9 +55,6 @@ from benchmarks.trajectory import (
 )
 from harness.feed import CameraFeed
 
-SUN = (0.3, -0.5, 0.8)
-
-
 # Camera modes measured: name -> (width, height, frame rate in Hz). The first is reported at
 # the top level of the JSON report (the keys of earlier reports), the others under their name.
 MODES = {"1080p30": (1920, 1080, 30.0), "720p60": (1280, 720, 60.0)}
@@ -70,40 +63,6 @@ MODES = {"1080p30": (1920, 1080, 30.0), "720p60": (1280, 720, 60.0)}
 def camera_of(width: int, height: int) -> CameraIntrinsics:
     """The ALLO camera's field of view at ``width`` x ``height``."""
     return ALLO_INTRINSICS.scaled(width / ALLO_INTRINSICS.width)
-
-
-def _frames(camera: CameraIntrinsics = ALLO_INTRINSICS) -> tuple[np.ndarray, list[np.ndarray]]:
-    pose = look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])
-    with ReferenceRenderer(None, camera, scale=1.0) as renderer:
-        clean = renderer.render(pose, SUN).rgb
-    with_object, _ = paste_object(clean, seed=1, centre=(0.5, 0.15), size=0.08)
-    return pose, [clean, with_object]
-
-
-@contextmanager
-def _node_session(
-    log_path: Path, feed_options: dict, *node_args: str, camera: CameraIntrinsics = ALLO_INTRINSICS
-) -> Iterator[tuple[CameraFeed, psutil.Process]]:
-    """Start the node and a camera feed on loopback DDS; stop both whatever happens."""
-    os.environ.setdefault(
-        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
-    )
-    # The feed stands for a camera driver and a viewer, C++ programs that reuse their
-    # buffers; without this its Python receives would fault in pages the node competes for.
-    keep_freed_memory(512)
-    rclpy.init()
-    feed = CameraFeed(camera, keep_messages=False, **feed_options)
-    process = start_node(log_path, *node_args)
-    try:
-        if not feed.wait_for_node(60.0):
-            raise RuntimeError(f"node did not subscribe; see {log_path}")
-        yield feed, psutil.Process(process.pid)
-        if process.poll() is not None:
-            raise RuntimeError(f"node exited with {process.returncode}; see {log_path}")
-    finally:
-        stop_node(process)
-        feed.node.destroy_node()
-        rclpy.shutdown()
 
 
 @dataclass(frozen=True)
@@ -148,7 +107,7 @@ def plan_feed(trajectory: str, rate_hz: float, camera: CameraIntrinsics) -> Feed
     would compete with the node for the two cores.
     """
     if trajectory == "still":
-        pose, images = _frames(camera)
+        pose, images = still_frames(camera)
         return FeedPlan(trajectory, [pose, pose], images, rate_hz)
     poses = segment_poses(trajectory, rate_hz, SEGMENT_S)
     images = []
@@ -210,7 +169,7 @@ def run(
     plan = plan or plan_feed(trajectory, rate_hz, camera)
     node_args = (f"pipelined:={str(pipelined).lower()}", *node_parameters)
     load_before = list(os.getloadavg())
-    with _node_session(log_path, {}, *node_args, camera=camera) as (feed, node):
+    with node_session(log_path, {}, *node_args, camera=camera) as (feed, node):
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
             feed.publish_frame(time.time_ns(), plan.images[0], plan.poses[0], SUN)
@@ -283,7 +242,8 @@ SUMMARY_HEADER = (
 )
 
 
-def _summary_line(name: str, report: dict) -> str:
+def summary_line(name: str, report: dict) -> str:
+    """One run's row under :data:`SUMMARY_HEADER`."""
     growth = report["rss_growth_percent"]
     renders = report.get("renders_per_frame")
     return (
@@ -347,9 +307,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     log_dir = Path(tempfile.mkdtemp(prefix="bench_node_"))
     if args.compare_outputs:
-        # Here, not at the top: that module builds on this one's node session and frames.
-        from benchmarks.node_outputs import compare_outputs, outputs_table
-
         log = log_dir / "node.log"
         load = os.getloadavg()[0]
         report = compare_outputs(args.rounds, args.block, log, args.idle_seconds)
@@ -404,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                     args.frames, rate, log, args.timeout, camera, pipelined, parameters, plan=plan
                 )
                 results[name, trajectory, pipelined] = report
-                print(_summary_line(name, report), flush=True)
+                print(summary_line(name, report), flush=True)
                 print(thread_cpu.summary(report.get("thread_cpu_ms_per_frame")), flush=True)
             del plan
     first, main_variant = modes[0], variants[-1]

@@ -29,7 +29,7 @@ from rcl_interfaces.srv import SetParameters
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.ros.outputs import vision_msgs_module
-from benchmarks.node import SUN, _frames, _node_session
+from benchmarks.node_session import SUN, node_session, still_frames
 from harness.feed import OUTPUT_TYPES, CameraFeed
 
 
@@ -130,13 +130,13 @@ def _subscribe_set(feed: CameraFeed, outputs: tuple[str, ...]) -> None:
 def compare_outputs(rounds: int, block: int, log_path: Path, idle_seconds: float = 20.0) -> dict:
     """CPU seconds per frame of the node for each of :data:`OUTPUT_SETS`, interleaved; then
     the node's CPU with nobody subscribed (:func:`idle_cpu_percent`)."""
-    pose, images = _frames()
+    pose, images = still_frames()
     cpu: dict[str, list[float]] = {name: [] for name in OUTPUT_SETS}
     options = {"outputs": ("mask",)}
     extra = ("publish_reference:=true", "publish_overlay:=true")
     idle: dict = {}
     full_resolution = False
-    with _node_session(log_path, options, *extra) as (feed, node):
+    with node_session(log_path, options, *extra) as (feed, node):
         for _ in range(rounds):
             for name, (outputs, full) in OUTPUT_SETS.items():
                 if full != full_resolution:

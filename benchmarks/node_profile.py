@@ -31,7 +31,7 @@ from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.view import View
 from benchmarks import finish, machine_facts
-from benchmarks.node import SUN, _frames
+from benchmarks.node_session import SUN, still_frames
 
 
 class _Listened:
@@ -56,7 +56,7 @@ def _outputs(node: object, subscribed: tuple[str, ...]) -> Outputs:
 
 def profile_frames(frames: int, subscribed: tuple[str, ...]) -> tuple[pstats.Stats, dict]:
     """Profile ``frames`` frames of decode, render, detect and publish; stats and stage ms."""
-    pose, images = _frames()
+    pose, images = still_frames()
     msgs = [messages.fill_image(Image(), None, rgb, interface.RGB8) for rgb in images]
     rclpy.init()
     node = rclpy.create_node("mrad_profile")

@@ -24,7 +24,7 @@ from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
-from benchmarks.tradeoff import Sweep, _split
+from benchmarks.tradeoff import Sweep, split_frames
 from benchmarks.tradeoff_settings import PREVIOUS_DEFAULT, render_settings
 from harness.perturbations import PERTURBATIONS
 
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("reports/photometric.json"))
     args = parser.parse_args(argv)
     sequence = read_sequence(args.sequence)
-    frames = _split(sequence, args.split, args.limit)
+    frames = split_frames(sequence, args.split, args.limit)
     detectors = variants()
     perturbations = {"none": lambda im: im, **PERTURBATIONS}
     tallies = {(v, p): Tally() for v in detectors for p in perturbations}

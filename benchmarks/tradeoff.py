@@ -47,15 +47,15 @@ from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence
 from allo_mrad_ros.view import View
 from benchmarks.tradeoff_report import (
-    _describe_default_on_test,
-    _describe_gap,
-    _gap_to_baseline,
-    _gap_with_interval,
-    _most_accurate,
     choose_default,
     choose_mask,
+    describe_default_on_test,
+    describe_gap,
     describe_speedup_tier,
     format_table,
+    gap_to_baseline,
+    gap_with_interval,
+    most_accurate,
     plot_pareto,
     plot_robustness,
     reprint,
@@ -124,7 +124,9 @@ class Sweep:
         self._providers.clear()
 
 
-def _split(sequence: AlloSequence, name: str, limit: int | None) -> list[Frame]:
+def split_frames(sequence: AlloSequence, name: str, limit: int | None) -> list[Frame]:
+    """The frames of split ``name``, or ``limit`` of them evenly spaced over it; exits with a
+    message when the split is empty."""
     frames = list(sequence.split(name))
     if not frames:
         raise SystemExit(f"{sequence.root}: no {name!r} frames; generate the bench preset")
@@ -172,7 +174,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     sequence = read_sequence(args.sequence)
     validation = read_sequence(args.validation) if args.validation else sequence
-    val, test = _split(validation, "val", args.limit), _split(sequence, "test", args.limit)
+    val, test = (
+        split_frames(validation, "val", args.limit),
+        split_frames(sequence, "test", args.limit),
+    )
     settings = sweep_settings(profile("default"))
     sweep = Sweep(sequence)
     val_sweep = Sweep(validation) if args.validation else sweep
@@ -184,8 +189,8 @@ def main(argv: list[str] | None = None) -> int:
         map_choice = choose_default(val_rows, args.ap_margin)
         default = choose_mask(val_rows, map_choice)
         chosen = next(s for s in settings if s.name == default["setting"])
-        val_best = _most_accurate(val_rows)
-        val_gap = _gap_with_interval(val_outcomes, default["setting"], val_best["setting"])
+        val_best = most_accurate(val_rows)
+        val_gap = gap_with_interval(val_outcomes, default["setting"], val_best["setting"])
         print(
             f"validation split ({validation.root.name}): {len(val)} frames "
             f"({sum(f.is_anomalous for f in val)} anomalous)"
@@ -198,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(
             f"* chosen default: {default['setting']}; "
-            f"{_describe_gap(val_gap['points'], val_gap['interval_95'], val_best['setting'])}\n"
+            f"{describe_gap(val_gap['points'], val_gap['interval_95'], val_best['setting'])}\n"
         )
         del val_outcomes
 
@@ -210,10 +215,10 @@ def main(argv: list[str] | None = None) -> int:
         test_outcomes = sweep.run(test, [*settings, *baselines], label="test")
         test_rows = [o.row() for o in test_outcomes]
         mrad_test = [r for r in test_rows if r["method"] == "MRAD"]
-        best = _most_accurate(mrad_test)
+        best = most_accurate(mrad_test)
         on_test = next(r for r in mrad_test if r["setting"] == default["setting"])
-        test_gap = _gap_with_interval(test_outcomes, default["setting"], best["setting"])
-        leads = {m: _gap_to_baseline(test_outcomes, default["setting"], m) for m in ("PAD", "RXD")}
+        test_gap = gap_with_interval(test_outcomes, default["setting"], best["setting"])
+        leads = {m: gap_to_baseline(test_outcomes, default["setting"], m) for m in ("PAD", "RXD")}
         del test_outcomes
         print(f"test split: {len(test)} frames ({sum(f.is_anomalous for f in test)} anomalous)")
         print(format_table(test_rows, default["setting"]))
@@ -225,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             "ap_gap_interval_95": test_gap["interval_95"],
             "speedup_vs_best": best["latency_ms_median"] / on_test["latency_ms_median"],
         }
-        print(_describe_default_on_test(test_summary))
+        print(describe_default_on_test(test_summary))
         for method, lead in leads.items():
             test_summary[f"ap_lead_over_{method.lower()}"] = lead
             low, high = lead["interval_95"]

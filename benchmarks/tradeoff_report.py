@@ -32,7 +32,7 @@ def _candidates(rows: Iterable[dict]) -> list[dict]:
     return [r for r in rows if r["conforms_to_mrad_md"] and r["method"] == "MRAD"]
 
 
-def _most_accurate(rows: Sequence[dict]) -> dict:
+def most_accurate(rows: Sequence[dict]) -> dict:
     """The candidate row with the highest P.AP."""
     return max(_candidates(rows), key=lambda r: r["p_ap"])
 
@@ -40,7 +40,7 @@ def _most_accurate(rows: Sequence[dict]) -> dict:
 def most_accurate_with_speedup(rows: Sequence[dict], speedup: float) -> dict | None:
     """The most accurate candidate row at least ``speedup`` times faster than the most
     accurate candidate of all (None if no row is that fast)."""
-    best = _most_accurate(rows)
+    best = most_accurate(rows)
     fast = [
         r
         for r in _candidates(rows)
@@ -51,7 +51,7 @@ def most_accurate_with_speedup(rows: Sequence[dict], speedup: float) -> dict | N
 
 def describe_speedup_tier(rows: Sequence[dict], speedup: float) -> str:
     """One line naming :func:`most_accurate_with_speedup` and its P.AP gap."""
-    best, fast = _most_accurate(rows), most_accurate_with_speedup(rows, speedup)
+    best, fast = most_accurate(rows), most_accurate_with_speedup(rows, speedup)
     if fast is None:
         return f"no setting is {speedup:g}x faster than the most accurate ({best['setting']})"
     return (
@@ -70,7 +70,7 @@ def reprint(report: dict, speedup: float) -> None:
     print(f"* chosen default ({report['choice_rule']}): {default}\n")
     print(f"test ({report['sequence']}, test split)")
     print(format_table(report["test_rows"], default))
-    print(_describe_default_on_test(report["test_summary"]))
+    print(describe_default_on_test(report["test_summary"]))
     mrad_test = [r for r in report["test_rows"] if r["method"] == "MRAD"]
     print(describe_speedup_tier(mrad_test, speedup))
 
@@ -202,7 +202,7 @@ def plot_robustness(rows: Sequence[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def _gap_with_interval(outcomes: Sequence[Outcome], setting: str, reference: str) -> dict:
+def gap_with_interval(outcomes: Sequence[Outcome], setting: str, reference: str) -> dict:
     """P.AP points by which ``setting`` trails ``reference``, with a paired bootstrap 95 %
     interval over frames (coarse bins of 1/2: the interval, not the point, uses them)."""
     by_name = {o.setting.name: o for o in outcomes if o.setting.method == "MRAD"}
@@ -213,7 +213,7 @@ def _gap_with_interval(outcomes: Sequence[Outcome], setting: str, reference: str
     return {"points": points, "interval_95": [float(low), float(high)]}
 
 
-def _gap_to_baseline(outcomes: Sequence[Outcome], setting: str, method: str) -> dict:
+def gap_to_baseline(outcomes: Sequence[Outcome], setting: str, method: str) -> dict:
     """P.AP points by which MRAD's ``setting`` leads ``method`` (continuous map) on the same
     references, with a paired bootstrap 95 % interval over frames."""
     ours = next(o for o in outcomes if o.setting.name == setting and o.setting.method == "MRAD")
@@ -228,7 +228,8 @@ def _gap_to_baseline(outcomes: Sequence[Outcome], setting: str, method: str) -> 
     return {"points": points, "interval_95": [float(low), float(high)]}
 
 
-def _describe_gap(points: float, interval_95: Sequence[float], reference: str) -> str:
+def describe_gap(points: float, interval_95: Sequence[float], reference: str) -> str:
+    """A P.AP gap to the most accurate setting and its interval, as one phrase."""
     low, high = interval_95
     return (
         f"{points:.1f} P.AP points below the most accurate setting ({reference}; "
@@ -236,9 +237,9 @@ def _describe_gap(points: float, interval_95: Sequence[float], reference: str) -
     )
 
 
-def _describe_default_on_test(summary: dict) -> str:
+def describe_default_on_test(summary: dict) -> str:
     """The summary line of the default on test, from the report's ``test_summary``."""
-    gap = _describe_gap(
+    gap = describe_gap(
         summary["ap_gap_points"], summary["ap_gap_interval_95"], summary["best_setting"]
     )
     return (

@@ -49,6 +49,6 @@ def test_the_summary_line_says_n_a_for_unknown_renders():
         "load_average_before": [1.0, 0, 0],
         "load_average_after": [2.0, 0, 0],
     }
-    assert " n/a " in bench._summary_line("1080p30", report)
+    assert " n/a " in bench.summary_line("1080p30", report)
     report["renders_per_frame"] = 0.2
-    assert " 0.20 " in bench._summary_line("1080p30", report)
+    assert " 0.20 " in bench.summary_line("1080p30", report)
