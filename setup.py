@@ -15,6 +15,8 @@ def _files(pattern: str) -> list[str]:
 setup(
     name=PACKAGE,
     version="0.2.0",
+    # The node's package and the bag tools only: benchmarks/, harness/ and test/ stay in the
+    # repository (colcon and pip install nothing of them on a robot).
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*", "rosbag_tools", "rosbag_tools.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

@@ -97,3 +97,16 @@ def test_installed_package_finds_its_share_directory_through_the_ament_index(ins
     assert (
         Path(out.stdout.strip()) == installed / "share" / "allo_mrad_ros" / "meshes" / "station.glb"
     )
+
+
+def test_colcon_installs_no_benchmark_or_harness_and_no_psutil(installed):
+    site = next(installed.glob("lib/python3*/site-packages"))
+    top_level = {path.name for path in site.iterdir()}
+    assert {"allo_mrad_ros", "rosbag_tools"} <= top_level
+    assert not top_level & {"benchmarks", "harness", "test"}, sorted(top_level)
+    assert not (site / "allo_mrad_ros" / "benchmarks").exists()
+    # The robot needs no psutil: only the benchmarks and the tests read process figures.
+    requires = next(site.glob("*.egg-info/requires.txt"), None)
+    assert requires is None or "psutil" not in requires.read_text()
+    manifest = (installed / "share" / "allo_mrad_ros" / "package.xml").read_text()
+    assert "<exec_depend>python3-psutil</exec_depend>" not in manifest
