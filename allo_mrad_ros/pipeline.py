@@ -21,7 +21,7 @@ import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import METHODS, PROFILES, DetectionResult, MradParams, profile
-from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, BackendError, select_backend
+from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, ArrayBackendError, select_backend
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
 from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.errors import InvalidInput
@@ -319,7 +319,7 @@ class Pipeline:
         self._cache = cache or ReferenceCache()
         try:
             self._backend = select_backend(config.array_backend)
-        except BackendError as error:
+        except ArrayBackendError as error:
             raise ProcessingError(str(error)) from None
         # What the methods run with when no one reads the score map (see detect()). The
         # map_top image score is taken from the map, so then the map is made anyway.

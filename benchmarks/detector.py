@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector import MradParams, detect
-from allo_mrad_ros.detector.backends import BackendError, select_backend
+from allo_mrad_ros.detector.backends import ArrayBackendError, select_backend
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.pipeline import params_from
@@ -65,7 +65,7 @@ def compare_backends(
     for spec in specs:
         try:
             backend = select_backend(spec)
-        except BackendError as error:
+        except ArrayBackendError as error:
             figures[spec] = {"unavailable": str(error)}
             continue
         backends[backend.name] = backend

@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from allo_mrad_ros.errors import InvalidInput
+
 __all__ = [
     "BENCH_SPLITS",
     "STATIONS",
@@ -37,7 +39,7 @@ __all__ = [
 ]
 
 
-class StationError(ValueError):
+class StationError(InvalidInput):
     """A station model cannot be prepared."""
 
 

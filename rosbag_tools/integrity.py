@@ -22,6 +22,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from allo_mrad_ros.errors import InvalidInput
+
 try:  # rosbags' own chunk decompressors ('', lz4, zstd); older releases: uncompressed only
     from rosbags.rosbag2.storage_mcap import DECOMPRESSORS
 except ImportError:  # pragma: no cover - depends on the rosbags release
@@ -36,7 +38,7 @@ _CHUNK, _CHANNEL, _MESSAGE, _DATA_END, _FOOTER = 0x06, 0x04, 0x05, 0x0F, 0x02
 _CRC_OFFSET = 1 + 8 + 24  # opcode, record length, start/end time, uncompressed size
 
 
-class IntegrityError(ValueError):
+class IntegrityError(InvalidInput):
     """An MCAP file cannot be walked (a record runs past the end of the file)."""
 
 

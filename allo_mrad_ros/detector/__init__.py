@@ -6,7 +6,8 @@ Pipeline stages, each in one place:
 2. scaling and threshold -- :mod:`.postprocess` (``scale_scores``, ``threshold_scores``)
 3. noise removal and blur -- :mod:`.postprocess` (``remove_noise``, ``blur_scores``)
 4. seeds -- :mod:`.regions` (``find_seeds``)
-5. region growing -- :mod:`.regions` (``grow_regions``)
+5. region growing and the regions as records -- :mod:`.regions` (``grow_hysteresis``,
+   ``grow_regions``, ``extract_regions``: :class:`Region`)
 6. decision and image score -- :mod:`.decision` (``decide``, ``image_score``)
 
 :mod:`.pipeline` composes them in :func:`detect`; stage 0, the colour transfer, is
@@ -23,6 +24,7 @@ from allo_mrad_ros.detector.pipeline import (
     detect_pad,
     detect_rxd,
 )
+from allo_mrad_ros.detector.regions import Region
 
 __all__ = [
     "METHODS",
@@ -30,6 +32,7 @@ __all__ = [
     "DetectionResult",
     "Detector",
     "MradParams",
+    "Region",
     "decide",
     "detect",
     "detect_pad",

@@ -27,13 +27,18 @@ from allo_mrad_ros.detector.images import to_float32
 from allo_mrad_ros.detector.photometric import cell_quantiles
 from allo_mrad_ros.detector.quadratic import PixelQuadratic, evaluate_quadratics
 from allo_mrad_ros.detector.statistics import CellStatistics, cell_statistics
+from allo_mrad_ros.errors import InvalidInput
 
 ARRAY_BACKENDS = ("numpy", "torch", "torch:cuda", "torch:cpu")
 DEFAULT_BACKEND = "numpy"
 
 
-class BackendError(ValueError):
-    """An array backend is unknown or cannot run here (library or device missing)."""
+class ArrayBackendError(InvalidInput):
+    """An array backend is unknown or cannot run here (library or device missing).
+
+    Named apart from :class:`allo_mrad_ros.errors.BackendError` (a resource failing while it
+    works): the choice of backend is an option the user can change, so it is invalid input.
+    """
 
 
 class PixelBackend(Protocol):
@@ -93,17 +98,19 @@ def select_backend(spec: str = DEFAULT_BACKEND) -> PixelBackend:
 
     Raises
     ------
-    BackendError
+    ArrayBackendError
         For an unknown name, PyTorch not installed, or ``torch:cuda`` with no CUDA device.
     """
     if spec not in ARRAY_BACKENDS:
-        raise BackendError(f"array_backend must be one of {list(ARRAY_BACKENDS)}, got {spec!r}")
+        raise ArrayBackendError(
+            f"array_backend must be one of {list(ARRAY_BACKENDS)}, got {spec!r}"
+        )
     if spec == "numpy":
         return NUMPY
     try:
         import torch  # noqa: F401  (only to tell a missing library from other errors)
     except ImportError as error:
-        raise BackendError(
+        raise ArrayBackendError(
             f"array_backend {spec!r} needs PyTorch, which is not importable here ({error}); "
             "install the build for this machine's GPU (https://pytorch.org) or use 'numpy'"
         ) from error

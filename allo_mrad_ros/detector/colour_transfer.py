@@ -35,6 +35,7 @@ import numpy as np
 from allo_mrad_ros.detector.grid import cell_edges
 from allo_mrad_ros.detector.images import area_downscale, to_float32
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.errors import InvalidInput
 
 __all__ = [
     "ColourTransfer",
@@ -62,7 +63,7 @@ smallest stride that fits (medians need no more, and the fit's cost follows the 
 _OFFSET_SPAN = 512
 
 
-class ColourTransferError(ValueError):
+class ColourTransferError(InvalidInput):
     """The colour transfer cannot run with these inputs or parameters."""
 
 

@@ -24,6 +24,7 @@ from scipy.ndimage import median_filter
 from allo_mrad_ros.detector.grid import cell_index_map, cell_slices
 from allo_mrad_ros.detector.images import area_downscale, to_float32
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.errors import InvalidInput
 
 QUANTILES = np.linspace(0.1, 0.9, 9)
 SATURATED = 250.0
@@ -34,7 +35,7 @@ _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)[:, :, None]
 _MIN_SPREAD = 4.0
 
 
-class PhotometricError(ValueError):
+class PhotometricError(InvalidInput):
     """The photometric fit cannot run on these inputs."""
 
 

@@ -40,6 +40,8 @@ from allo_mrad_ros.detector.postprocess import (
 )
 from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.detector.regions import (
+    Region,
+    extract_regions,
     find_seeds,
     grow_hysteresis,
     grow_regions,
@@ -69,6 +71,11 @@ class DetectionResult:
     image_score : float
         The frame's anomaly score that image-level metrics rank (see
         :attr:`MradParams.image_score`).
+    regions : tuple of Region
+        The connected regions of the mask (``connectivity`` of the parameters), in the
+        raster order of their first pixel: boxes in the image's and the processing
+        resolution's pixels, area, centroid, peak and mean evidence and a score in [0, 1]
+        (see :class:`~allo_mrad_ros.detector.regions.Region`).
     timings_ms : dict
         Milliseconds per stage, in pipeline order, plus ``total``.
     masked_score : bool
@@ -87,6 +94,7 @@ class DetectionResult:
     area: int
     anomalous: bool
     image_score: float
+    regions: tuple[Region, ...]
     timings_ms: dict[str, float] = field(default_factory=dict)
     masked_score: bool = False
     work_query: np.ndarray | None = None
@@ -233,6 +241,8 @@ def detect(
             mask = grow_regions(
                 blurred, seeds, params.tolerance, params.min_score, params.connectivity
             )
+    with timer.stage("regions"):
+        regions = extract_regions(mask, blurred, full_shape, params.connectivity)
     with timer.stage("pixel_score"):
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
     with timer.stage("decision"):
@@ -240,16 +250,16 @@ def detect(
         full_mask = _restore_resolution(mask, full_shape)
         area, anomalous = decide(full_mask, params.area_threshold)
         frame_score = image_score(score, area, params)
-    masked = params.pixel_score == "regions"
     return DetectionResult(
-        score,
-        raw,
-        full_mask,
-        area,
-        anomalous,
-        frame_score,
-        timer.finish(),
-        masked,
+        work_score=score,
+        raw_score=raw,
+        mask=full_mask,
+        area=area,
+        anomalous=anomalous,
+        image_score=frame_score,
+        regions=regions,
+        timings_ms=timer.finish(),
+        masked_score=params.pixel_score == "regions",
         work_query=seen,
         work_mask=mask,
     )
@@ -370,17 +380,20 @@ def _threshold_only(
     with timer.stage("scale_threshold"):
         score = scale_scores(raw, params.score_scaling, params.score_ref)
         mask = cv2.compare(threshold_scores(score.copy(), params.min_score), 0.0, cv2.CMP_GT)
+    with timer.stage("regions"):
+        regions = extract_regions(mask, score, mask.shape, params.connectivity)
     with timer.stage("decision"):
         area, anomalous = decide(mask, params.area_threshold)
         frame_score = image_score(score, area, params)
     return DetectionResult(
-        score,
-        raw,
-        mask,
-        area,
-        anomalous,
-        frame_score,
-        timer.finish(),
+        work_score=score,
+        raw_score=raw,
+        mask=mask,
+        area=area,
+        anomalous=anomalous,
+        image_score=frame_score,
+        regions=regions,
+        timings_ms=timer.finish(),
         work_query=query,
         work_mask=mask,
     )

@@ -34,12 +34,12 @@ class TorchBackend:
 
     def __init__(self, device: str | None = None) -> None:
         # Imported here so that a missing or broken PyTorch is the selector's error.
-        from allo_mrad_ros.detector.backends import BackendError
+        from allo_mrad_ros.detector.backends import ArrayBackendError
 
         if device is None:
             device = "cuda" if torch.cuda.is_available() else "cpu"
         if device.startswith("cuda") and not torch.cuda.is_available():
-            raise BackendError(
+            raise ArrayBackendError(
                 f"array_backend 'torch:{device}' needs a CUDA GPU, and PyTorch "
                 f"{torch.__version__} sees none here; use 'torch:cpu' or 'numpy'"
             )

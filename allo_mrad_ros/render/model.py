@@ -17,13 +17,27 @@ import numpy as np
 import trimesh
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
-from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.errors import InvalidInput, one_line
 
 _LOG = logging.getLogger(__name__)
 # A station spanning more than this is probably in millimetres or centimetres.
 _SUSPICIOUS_EXTENT_M = 2000.0
 
 ModelSource = str | PathLike | trimesh.Trimesh | trimesh.Scene
+
+MESH_FORMATS: dict[str, str] = {
+    "glb": "glTF binary (GLB)",
+    "gltf": "glTF",
+    "obj": "OBJ",
+    "stl": "STL",
+    "ply": "PLY",
+    "off": "OFF",
+    "3mf": "3MF",
+    "dae": "COLLADA (DAE)",
+}
+"""The model formats the documents list, by file suffix, with their names for messages.
+What trimesh's readers of them import (a decoder of text that is not UTF-8, lxml, pycollada)
+is declared on both install routes (test/render/test_mesh_formats.py checks it)."""
 
 
 @dataclass(frozen=True)
@@ -123,10 +137,41 @@ def _as_scene(source: ModelSource) -> trimesh.Scene:
     path = Path(source)
     if not path.is_file():
         raise InvalidInput(f"station model file not found: {path}")
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in trimesh.available_formats():
+        known = ", ".join(MESH_FORMATS.values())
+        raise InvalidInput(
+            f"cannot load station model {path}: its suffix ({path.suffix or 'none'}) names "
+            f"no model format read here ({known}, ...)"
+        )
+    label = format_name(path)
+    if path.stat().st_size == 0:
+        raise InvalidInput(f"cannot load station model {path}: the {label} file is empty")
     try:
         return trimesh.load(path, force="scene")
+    except ImportError as error:  # a reader's dependency missing: the installation's fault
+        missing = f"module {error.name!r} is missing" if error.name else one_line(error)
+        raise InvalidInput(
+            f"cannot load station model {path}: this installation cannot read {label} files "
+            f"({missing}; install the package's requirements)"
+        ) from error
     except Exception as error:  # trimesh raises many types for unreadable files
-        raise InvalidInput(f"cannot load station model {path}: {error}") from error
+        raise InvalidInput(
+            f"cannot load station model {path}: not a readable {label} file ({_reason(error)})"
+        ) from error
+
+
+def format_name(path: str | PathLike) -> str:
+    """The name of a model file's format for messages, from its suffix (``OBJ``, ...)."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    return MESH_FORMATS.get(suffix, suffix.upper() or "model")
+
+
+def _reason(error: BaseException) -> str:
+    """What a reader said, on one line; its type where the text alone says little (a
+    missing key or member names only the key)."""
+    text = one_line(error)
+    return text if " " in text else f"{type(error).__name__}: {text or 'no detail'}"
 
 
 def _merge(name: str, parts: Sequence[dict]) -> MeshGroup:
@@ -178,6 +223,7 @@ def load_model(
     """
     if isinstance(sources, (str, PathLike, trimesh.Trimesh, trimesh.Scene)):
         sources = [sources]
+    sources = list(sources)
     groups: dict[tuple, list[dict]] = {}
     names: dict[tuple, str] = {}
     for source in sources:
@@ -200,6 +246,10 @@ def load_model(
             groups.setdefault(key, []).append(part)
             names.setdefault(key, (material.name if material is not None else None) or "default")
     if not groups:
+        files = [s for s in sources if isinstance(s, (str, PathLike))]
+        if files:  # a reader that skips what it does not understand finds nothing in garbage
+            read = ", ".join(f"{Path(f)} ({format_name(f)})" for f in files)
+            raise InvalidInput(f"cannot load station model: no triangles in {read}")
         raise InvalidInput("station model contains no triangles")
     merged = [_merge(names[key], parts) for key, parts in groups.items()]
     extent = float(np.ptp(np.vstack([g.positions for g in merged]), axis=0).max())

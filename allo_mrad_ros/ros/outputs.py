@@ -10,15 +10,18 @@ image's size (8.3 MB at 1080p) and ``~/score/camera_info`` is the image's camera
 so a flag can be matched to its image; ``~/reference/camera_info`` describes the 1/8-size
 reference. Every publisher accepts QoS overrides (``qos_overrides.<topic>.publisher.*``).
 
-``~/detections`` (vision_msgs/Detection2DArray: one detection per region, its box and an
-``anomaly`` hypothesis scored with the region's peak score) exists where vision_msgs is
-installed (every ROS distro; no pip wheel). :func:`detection_array` builds it from any class
-with vision_msgs' fields, so it is tested with a stand-in of the message definitions.
+``~/result``, ``~/regions`` and ``~/detections`` format the detector's regions
+(``DetectionResult.regions``, grown and labelled with ``mrad.connectivity``); nothing here
+labels the mask again. ``~/detections`` (vision_msgs/Detection2DArray: one detection per
+region, its box and an ``anomaly`` hypothesis scored with the region's score in [0, 1])
+exists where vision_msgs is installed (every ROS distro; no pip wheel).
+:func:`detection_array` builds it from any class with vision_msgs' fields, so it is tested
+with a stand-in of the message definitions.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import cv2
@@ -33,6 +36,7 @@ from visualization_msgs.msg import ImageMarker
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.visualise import outline
@@ -53,74 +57,14 @@ def vision_msgs_module() -> Any | None:
     return msg
 
 
-def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, tuple[int, int]]:
-    """8-connected regions of ``mask`` inside the bounding box of its non-zero pixels:
-    ``(count with the background, labels of the box, stats in mask pixels, box origin)``.
-
-    Labelling only the box gives the same regions: labelling a whole 1080p mask costs about
-    20 ms on one core, its bounding box 0.3 ms, and an anomaly covers a small part of it.
-    """
-    foreground = mask if mask.dtype == np.uint8 else (mask > 0).astype(np.uint8)
-    x, y, width, height = cv2.boundingRect(foreground)
-    if width == 0 or height == 0:
-        return 1, np.zeros((0, 0), np.int32), np.zeros((1, 5), np.int32), (x, y)
-    box = foreground[y : y + height, x : x + width]
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(box, connectivity=8)
-    stats[:, 0] += x
-    stats[:, 1] += y
-    return count, labels, stats, (x, y)
-
-
-def region_peaks(
-    mask: np.ndarray, score: np.ndarray
-) -> list[tuple[tuple[int, int, int, int], float]]:
-    """``((x, y, width, height), peak score)`` of each 8-connected region of a mask.
-
-    ``score`` may be smaller than the mask (the detector's processing-resolution map): a
-    region's peak is then the largest map value at the map pixels its pixels fall in
-    (each mask pixel's centre scaled to the map), so no full-size map is needed. A score
-    of neither size gives each region the peak 0.
-    """
-    count, labels, stats, (x, y) = _components(mask)
-    if count <= 1:
-        return []
-    peaks = np.full(count, -np.inf)
-    values = np.asarray(score)
-    if values.shape == mask.shape[:2]:
-        inside = labels > 0  # the regions' pixels only
-        box = values[y : y + labels.shape[0], x : x + labels.shape[1]]
-        np.maximum.at(peaks, labels[inside], box[inside].astype(np.float64))
-    elif values.ndim == 2 and all(
-        0 < s <= m for s, m in zip(values.shape, mask.shape[:2], strict=True)
-    ):
-        rows, columns = np.nonzero(labels)
-        # The map pixel each mask pixel's centre lies in (OpenCV's resize geometry).
-        map_rows = _scaled_index(rows + y, values.shape[0] / mask.shape[0], values.shape[0])
-        map_columns = _scaled_index(columns + x, values.shape[1] / mask.shape[1], values.shape[1])
-        np.maximum.at(
-            peaks, labels[rows, columns], values[map_rows, map_columns].astype(np.float64)
-        )
-    else:  # no score map of a usable size: the region's score is unknown
-        peaks[:] = 0.0
-    return [
-        (tuple(int(v) for v in stats[i, :4]), float(peaks[i]) if np.isfinite(peaks[i]) else 0.0)
-        for i in range(1, count)
-    ]
-
-
-def _scaled_index(index: np.ndarray, ratio: float, size: int) -> np.ndarray:
-    """The index, in an axis ``ratio`` times as long, of the pixel holding each pixel centre."""
-    return np.minimum(((index + 0.5) * ratio).astype(np.intp), size - 1)
-
-
-def detection_array(
-    msg: Any, header: object, regions: list[tuple[tuple[int, int, int, int], float]]
-) -> Any:
-    """A vision_msgs/Detection2DArray of ``regions``: per region a Detection2D with the image
-    header, the box (centre and size in pixels) and one ObjectHypothesisWithPose
-    (class ``anomaly``, the region's score). ``msg`` is the module of the message classes."""
+def detection_array(msg: Any, header: object, regions: Sequence[Region]) -> Any:
+    """A vision_msgs/Detection2DArray of the detector's ``regions``: per region a Detection2D
+    with the image header, the box (centre and size in the image's pixels) and one
+    ObjectHypothesisWithPose (class ``anomaly``, the region's score in [0, 1], see
+    :attr:`Region.score`). ``msg`` is the module of the message classes."""
     detections = []
-    for index, ((x, y, w, h), score) in enumerate(regions):
+    for index, region in enumerate(regions):
+        x, y, w, h = region.box
         detection = msg.Detection2D()
         detection.header = header
         detection.id = str(index)
@@ -131,7 +75,7 @@ def detection_array(
         detection.bbox.size_y = float(h)
         hypothesis = msg.ObjectHypothesisWithPose()
         hypothesis.hypothesis.class_id = ANOMALY_CLASS
-        hypothesis.hypothesis.score = float(score)
+        hypothesis.hypothesis.score = float(region.score)
         detection.results = [hypothesis]
         detections.append(detection)
     array = msg.Detection2DArray()
@@ -140,21 +84,16 @@ def detection_array(
     return array
 
 
-def connected_boxes(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
-    """``(x, y, width, height)`` of each 8-connected region of a mask, in pixels."""
-    count, _, stats, _ = _components(mask)
-    return [tuple(int(v) for v in stats[i, :4]) for i in range(1, count)]
-
-
-def region_marker(header: object, boxes: list[tuple[int, int, int, int]]) -> ImageMarker:
-    """One ``LINE_LIST`` ImageMarker outlining each ``(x, y, width, height)`` box in pixels."""
+def region_marker(header: object, regions: Sequence[Region]) -> ImageMarker:
+    """One ``LINE_LIST`` ImageMarker outlining each region's box in the image's pixels."""
     marker = ImageMarker(header=header, ns="mrad_regions", id=0)
     marker.type = ImageMarker.LINE_LIST
     marker.action = ImageMarker.ADD
     marker.scale = REGION_LINE_WIDTH
     marker.outline_color = REGION_COLOUR
     points = []
-    for x, y, w, h in boxes:
+    for region in regions:
+        x, y, w, h = region.box
         corners = [(x, y), (x + w, y), (x + w, y + h), (x, y + h)]
         for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1], strict=True):
             points += [Point(x=float(x0), y=float(y0)), Point(x=float(x1), y=float(y1))]
@@ -167,12 +106,12 @@ def result_status(
     anomalous: bool,
     area: int,
     pixels: int,
-    boxes: list,
+    regions: Sequence[Region],
     image_score: float,
     hardware_id: str = "",
 ) -> DiagnosticStatus:
-    """The frame's result as a status: WARN when anomalous; area, image score and boxes as
-    values. ``hardware_id`` empty: the package's default."""
+    """The frame's result as a status: WARN when anomalous; area, image score and the
+    regions' boxes (image pixels) as values. ``hardware_id`` empty: the package's default."""
     status = DiagnosticStatus(
         name=f"{node_name}: result",
         hardware_id=hardware_id or interface.HARDWARE_ID,
@@ -184,8 +123,8 @@ def result_status(
         "area_px": str(int(area)),
         "area_fraction": f"{area / max(pixels, 1):.6f}",
         "image_score": f"{image_score:.3f}",
-        "regions": str(len(boxes)),
-        "boxes_xywh": ";".join(f"{x},{y},{w},{h}" for x, y, w, h in boxes),
+        "regions": str(len(regions)),
+        "boxes_xywh": ";".join("{},{},{},{}".format(*region.box) for region in regions),
     }
     status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
     return status
@@ -280,24 +219,22 @@ class Outputs:
             )
             info.header = header
             self.score_info.publish(info)
+        # The detector's own regions (its connectivity), formatted: no second labelling.
         if self.detections is not None and self.detections.get_subscription_count():
-            regions = region_peaks(result.mask, result.work_score)
-            self.detections.publish(detection_array(self._vision, header, regions))
-        if self.result.get_subscription_count() or self.regions.get_subscription_count():
-            boxes = connected_boxes(result.mask)
-            if self.regions.get_subscription_count():
-                self.regions.publish(region_marker(header, boxes))
-            if self.result.get_subscription_count():
-                status = result_status(
-                    self._node.get_fully_qualified_name().lstrip("/"),
-                    result.anomalous,
-                    result.area,
-                    result.mask.size,
-                    boxes,
-                    result.image_score,
-                    self._hardware_id or getattr(header, "frame_id", ""),
-                )
-                self.result.publish(DiagnosticArray(header=header, status=[status]))
+            self.detections.publish(detection_array(self._vision, header, result.regions))
+        if self.regions.get_subscription_count():
+            self.regions.publish(region_marker(header, result.regions))
+        if self.result.get_subscription_count():
+            status = result_status(
+                self._node.get_fully_qualified_name().lstrip("/"),
+                result.anomalous,
+                result.area,
+                result.mask.size,
+                result.regions,
+                result.image_score,
+                self._hardware_id or getattr(header, "frame_id", ""),
+            )
+            self.result.publish(DiagnosticArray(header=header, status=[status]))
         if publish_reference:
             if self.reference.get_subscription_count():
                 self.reference.publish(fill(Image(), header, frame.reference, interface.RGB8))

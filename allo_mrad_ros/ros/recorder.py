@@ -22,6 +22,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Bool
 
 from allo_mrad_ros import interface
+from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.ros.messages import stamp_to_ns
 
 
@@ -36,7 +37,7 @@ class RecordedFrame:
     latency_ms: float | None
 
 
-class RecorderError(ValueError):
+class RecorderError(InvalidInput):
     """A ``~/result`` message without a numeric ``image_score`` value."""
 
 

@@ -8,7 +8,7 @@ import pytest
 from allo_mrad_ros.detector import detect
 from allo_mrad_ros.detector.backends import (
     NUMPY,
-    BackendError,
+    ArrayBackendError,
     resolve_backend,
     select_backend,
 )
@@ -21,7 +21,7 @@ def test_numpy_is_the_default_and_one_object_serves_every_caller():
 
 
 def test_an_unknown_backend_is_named_with_the_choices():
-    with pytest.raises(BackendError, match=r"array_backend must be one of .*'cupy'"):
+    with pytest.raises(ArrayBackendError, match=r"array_backend must be one of .*'cupy'"):
         select_backend("cupy")
 
 
@@ -30,7 +30,7 @@ def test_pytorch_missing_is_the_reason_given(monkeypatch):
     monkeypatch.setitem(sys.modules, "torch", None)
     select_backend.cache_clear()
     try:
-        with pytest.raises(BackendError, match=r"'torch:cpu' needs PyTorch"):
+        with pytest.raises(ArrayBackendError, match=r"'torch:cpu' needs PyTorch"):
             select_backend("torch:cpu")
     finally:
         select_backend.cache_clear()
@@ -40,7 +40,7 @@ def test_a_cuda_backend_without_a_gpu_is_refused():
     torch = pytest.importorskip("torch")
     if torch.cuda.is_available():
         pytest.skip("this machine has a CUDA GPU")
-    with pytest.raises(BackendError, match="needs a CUDA GPU"):
+    with pytest.raises(ArrayBackendError, match="needs a CUDA GPU"):
         select_backend("torch:cuda")
     # Plain "torch" falls back to the CPU where no GPU is visible.
     assert select_backend("torch").name == "torch:cpu"

@@ -15,6 +15,7 @@ STAGES = [
     "noise_removal",
     "blur",
     "region_growing",
+    "regions",
     "pixel_score",
     "decision",
     "total",

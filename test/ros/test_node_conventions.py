@@ -11,7 +11,6 @@ import sys
 import types
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 import pytest
 import rclpy
@@ -22,11 +21,12 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.regions import extract_regions
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.node import MradDetectorNode, camera_info_topic
-from allo_mrad_ros.ros.outputs import detection_array, region_peaks, result_status
+from allo_mrad_ros.ros.outputs import detection_array, result_status
 from allo_mrad_ros.ros.pose_source import PoseSource
 
 pytestmark = pytest.mark.ros
@@ -275,25 +275,35 @@ STAND_IN_VISION_MSGS = types.SimpleNamespace(
 )
 
 
-def test_detections_carry_one_box_and_anomaly_hypothesis_per_region():
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_detections_carry_one_box_and_anomaly_hypothesis_per_region(connectivity):
     mask = np.zeros((20, 30), np.uint8)
     mask[2:6, 3:9] = 255
     mask[10:20, 20:25] = 255
-    score = np.zeros((20, 30), np.float32)
-    score[4, 5] = 80.0
-    score[15, 22] = 200.0
+    mask[6, 9] = 255  # touches the first region at a corner: joins it 8-connected only
+    evidence = np.zeros((20, 30), np.float32)
+    evidence[4, 5] = 80.0
+    evidence[15, 22] = 200.0
+    evidence[6, 9] = 30.0
     header = Header(frame_id="cam_optical_frame")
-    regions = region_peaks(mask, score)
+    regions = extract_regions(mask, evidence, mask.shape, connectivity)
     array = detection_array(STAND_IN_VISION_MSGS, header, regions)
-    assert array.header is header and len(array.detections) == 2
-    first, second = array.detections
+    assert array.header is header and len(array.detections) == len(regions)
+    first, *middle, last = array.detections
     assert first.header is header
-    assert (first.bbox.center.position.x, first.bbox.center.position.y) == (6.0, 4.0)
-    assert (first.bbox.size_x, first.bbox.size_y) == (6.0, 4.0)
+    width, height = (6, 4) if connectivity == 4 else (7, 5)
+    centre = first.bbox.center.position
+    assert (centre.x, centre.y) == (3 + width / 2, 2 + height / 2)
+    assert (first.bbox.size_x, first.bbox.size_y) == (width, height)
     (hypothesis,) = first.results
-    assert hypothesis.hypothesis.class_id == "anomaly" and hypothesis.hypothesis.score == 80.0
-    assert second.results[0].hypothesis.score == 200.0
-    assert (second.bbox.size_x, second.bbox.size_y) == (5.0, 10.0)
+    # vision_msgs' score lies in [0, 1]: the region's score, its peak evidence / 255.
+    assert hypothesis.hypothesis.class_id == "anomaly"
+    assert hypothesis.hypothesis.score == 80.0 / 255
+    assert last.results[0].hypothesis.score == 200.0 / 255
+    assert (last.bbox.size_x, last.bbox.size_y) == (5.0, 10.0)
+    assert [d.results[0].hypothesis.score for d in middle] == (
+        [30.0 / 255] if connectivity == 4 else []
+    )
 
 
 # --- diagnostics ---------------------------------------------------------------------------
@@ -402,50 +412,3 @@ def test_the_camera_frame_follows_the_optical_frame_convention():
     from allo_mrad_ros import interface
 
     assert f"{interface.HARDWARE_ID}_optical_frame" == interface.CAMERA_FRAME
-
-
-def test_region_peaks_on_the_processing_resolution_map():
-    # A 60x40 mask and its 15x10 map (process_scale 0.25).
-    mask = np.zeros((40, 60), np.uint8)
-    mask[8:16, 20:28] = 255  # map rows 2-3, columns 5-6
-    mask[30:32, 50:52] = 255  # map row 7, column 12
-    small = np.zeros((10, 15), np.float32)
-    small[0, 0] = 250.0  # outside every region
-    small[3, 6] = 70.0
-    small[2, 5] = 40.0
-    small[7, 12] = 9.0
-    regions = region_peaks(mask, small)
-    assert regions == [((20, 8, 8, 8), 70.0), ((50, 30, 2, 2), 9.0)]
-    # The same as the peaks on the map upscaled by nearest neighbour to the mask's size.
-    upscaled = cv2.resize(small, (60, 40), interpolation=cv2.INTER_NEAREST)
-    assert regions == region_peaks(mask, upscaled)
-
-
-def test_region_peaks_on_a_map_of_another_ratio_take_the_pixel_each_centre_falls_in():
-    rng = np.random.default_rng(4)
-    mask = (rng.random((27, 48)) > 0.8).astype(np.uint8) * 255
-    small = rng.random((7, 13)).astype(np.float32)
-    count, labels = cv2.connectedComponents(mask, connectivity=8)
-    expected = np.full(count, -np.inf)
-    for row, column in zip(*np.nonzero(labels), strict=True):
-        y = min(int((row + 0.5) * 7 / 27), 6)
-        x = min(int((column + 0.5) * 13 / 48), 12)
-        expected[labels[row, column]] = max(expected[labels[row, column]], float(small[y, x]))
-    assert [peak for _, peak in region_peaks(mask, small)] == list(expected[1:])
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_regions_labelled_in_the_mask_bounding_box_equal_the_whole_mask_labelling(seed):
-    rng = np.random.default_rng(seed)
-    mask = np.zeros((90, 160), np.uint8)
-    for _ in range(rng.integers(1, 6)):
-        y, x = rng.integers(0, 90), rng.integers(0, 160)
-        mask[y : y + rng.integers(1, 20), x : x + rng.integers(1, 30)] = 255
-    score = rng.random((90, 160)).astype(np.float32)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    expected = []
-    for i in range(1, count):
-        peak = float(score[labels == i].max())
-        expected.append((tuple(int(v) for v in stats[i, :4]), peak))
-    assert sorted(region_peaks(mask, score)) == sorted(expected)
-    assert region_peaks(np.zeros_like(mask), score) == []

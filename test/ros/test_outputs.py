@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 import rclpy
@@ -11,14 +12,15 @@ from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.pipeline import DetectionResult
+from allo_mrad_ros.detector.regions import extract_regions
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros import outputs as outputs_module
 from allo_mrad_ros.ros.outputs import (
     OVERLAY_COLOUR,
     Outputs,
-    connected_boxes,
     region_marker,
 )
 from allo_mrad_ros.visualise import outline
@@ -72,9 +74,10 @@ IMAGE_CAMERA = CameraIntrinsics(160, 90, 100.0, 100.0, 80.0, 45.0)
 
 
 def frame() -> ProcessedFrame:
-    mask = np.zeros((90, 160), np.uint8)
-    mask[10:20, 30:50] = 255
-    mask[60:62, 100:101] = 255
+    work_mask = np.zeros((45, 80), np.uint8)
+    work_mask[5:10, 15:25] = 255
+    work_mask[30, 50] = 255
+    mask = cv2.resize(work_mask, (160, 90), interpolation=cv2.INTER_NEAREST)
     work_score = np.zeros((45, 80), np.float32)
     work_score[6, 20] = 90.0  # inside the first region (rows 10-19, columns 30-49)
     result = DetectionResult(
@@ -84,6 +87,7 @@ def frame() -> ProcessedFrame:
         area=int(np.count_nonzero(mask)),
         anomalous=True,
         image_score=40.0,
+        regions=extract_regions(work_mask, work_score, (90, 160), 8),
     )
     return ProcessedFrame(reference=np.zeros((45, 80, 3), np.uint8), results={"MRAD": result})
 
@@ -165,7 +169,7 @@ def test_the_overlay_at_either_resolution_outlines_the_mask_on_the_image(outputs
     # Every outline pixel lies around one of the two regions, and the first is outlined.
     scale = width / 160
     near = np.zeros((height, width), bool)
-    for top, bottom, left, right in ((10, 20, 30, 50), (60, 62, 100, 101)):
+    for top, bottom, left, right in ((10, 20, 30, 50), (60, 62, 100, 102)):
         near[
             max(0, int(top * scale) - 3) : int(bottom * scale) + 3,
             max(0, int(left * scale) - 3) : int(right * scale) + 3,
@@ -205,11 +209,11 @@ def test_every_subscribed_output_is_published_with_the_image_header(outputs):
     values = {kv.key: kv.value for kv in status.values}
     assert values == {
         "anomalous": "true",
-        "area_px": "202",
-        "area_fraction": f"{202 / (90 * 160):.6f}",
+        "area_px": "204",
+        "area_fraction": f"{204 / (90 * 160):.6f}",
         "image_score": "40.000",
         "regions": "2",
-        "boxes_xywh": "30,10,20,10;100,60,1,2",
+        "boxes_xywh": "30,10,20,10;100,60,2,2",
     }
 
 
@@ -241,17 +245,62 @@ def test_wanted_only_with_a_subscriber_to_an_enabled_output(outputs):
         assert outputs.wanted(False, False), name
 
 
-def test_connected_boxes_and_their_outline_marker():
-    mask = np.zeros((20, 30), np.uint8)
-    mask[2:5, 3:9] = 255
-    mask[10, 20] = 255
-    mask[11, 21] = 255  # diagonal neighbour: one 8-connected region
-    boxes = connected_boxes(mask)
-    assert sorted(boxes) == [(3, 2, 6, 3), (20, 10, 2, 2)]
-    assert connected_boxes(mask > 0) == boxes == connected_boxes(mask.astype(np.float32) / 255)
-    marker = region_marker(Header(frame_id="cam"), [(3, 2, 6, 3)])
+def test_the_outline_marker_draws_each_region_box():
+    regions = extract_regions(
+        np.pad(np.full((3, 6), 255, np.uint8), ((2, 0), (3, 0))),
+        np.zeros((5, 9), np.float32),
+        (5, 9),
+        8,
+    )
+    marker = region_marker(Header(frame_id="cam"), regions)
     segments = [
         ((a.x, a.y), (b.x, b.y))
         for a, b in zip(marker.points[::2], marker.points[1::2], strict=True)
     ]
     assert segments == [((3, 2), (9, 2)), ((9, 2), (9, 5)), ((9, 5), (3, 5)), ((3, 5), (3, 2))]
+
+
+# Two squares touching at one corner: one region for 8-connectivity, two for 4.
+DIAGONAL = np.zeros((24, 32), np.uint8)
+DIAGONAL[4:10, 4:10] = 255
+DIAGONAL[10:16, 10:16] = 255
+
+
+def diagonal_result(connectivity: int) -> DetectionResult:
+    """A real detection of the two corner-touching squares (a pasted object in each)."""
+    reference = np.full((24, 32, 3), 90, np.uint8)
+    query = reference.copy()
+    query[DIAGONAL > 0] = (250, 20, 20)
+    params = MradParams(
+        grid=1,
+        process_scale=1.0,
+        blur_sigma=0.0,
+        noise_removal="none",
+        colour_transfer="none",
+        photometric="none",
+        connectivity=connectivity,
+    )
+    return detect(query, reference, params)
+
+
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_published_boxes_are_the_detectors_regions_with_its_connectivity(outputs, connectivity):
+    result = diagonal_result(connectivity)
+    np.testing.assert_array_equal(result.mask, DIAGONAL)
+    boxes = [region.box for region in result.regions]
+    # 8-connected, the squares are one region; 4-connected, two (a second, 8-connected
+    # labelling of the mask would merge them).
+    eight = [(4, 4, 12, 12)]
+    assert boxes == ([(4, 4, 6, 6), (10, 10, 6, 6)] if connectivity == 4 else eight)
+    assert (boxes != eight) == (connectivity == 4)
+    fakes = subscribe(outputs, *NAMES)
+    processed = ProcessedFrame(reference=np.zeros((3, 4, 3), np.uint8), results={"MRAD": result})
+    header = Header(frame_id="cam")
+    outputs.publish(header, np.zeros((24, 32, 3), np.uint8), processed, None, False, False)
+    status = {kv.key: kv.value for kv in fakes["result"].sent[0].status[0].values}
+    assert status["boxes_xywh"] == ";".join("{},{},{},{}".format(*box) for box in boxes)
+    assert status["regions"] == str(len(boxes))
+    points = [(p.x, p.y) for p in fakes["regions"].sent[0].points]
+    assert len(points) == 8 * len(boxes)
+    assert {(x, y) for x, y, _, _ in boxes} <= set(points)
+    assert {(x + w, y + h) for x, y, w, h in boxes} <= set(points)

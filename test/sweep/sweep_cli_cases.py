@@ -695,3 +695,64 @@ def cli_cases() -> list[CliCase]:
         CliCase("allo-synth", "no command", (), "(?i)command"),
     ]
     return cases
+
+
+# --- station models in the formats meshes/README.md lists ---------------------------------
+# A block of its own: cli_cases() above gains these cases at the end of its list.
+
+
+def latin1_obj(ws: Path, fx: dict) -> None:
+    """A valid OBJ whose exporter wrote a Latin-1 comment (not UTF-8)."""
+    (ws / "m.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n# caf\xe9\n")
+
+
+def garbage_model(suffix: str):
+    def prepare(ws: Path, fx: dict) -> None:
+        (ws / f"garbage.{suffix}").write_bytes(bytes(range(256)) * 8)
+
+    return prepare
+
+
+def has_metrics(ws: Path, fx: dict) -> str | None:
+    found = json.loads((ws / "report" / "metrics.json").read_text())
+    return None if found.get("methods") else "a report without metrics"
+
+
+def mesh_format_cases() -> list[CliCase]:
+    """A Latin-1 OBJ loads; a garbage file of each listed format is refused in one line that
+    names the file and the format."""
+    b = "allo-bag evaluate"
+    out = ("--out", "{ws}/report")
+    cases = [
+        CliCase(
+            b,
+            "Latin-1 OBJ --mesh",
+            (*EVAL, "{bag}", *out, "--mesh", "{ws}/m.obj"),
+            expect_error=False,
+            prepare=latin1_obj,
+            outputs=("report",),
+            check=has_metrics,
+            quick=True,
+        )
+    ]
+    formats = {"obj": "OBJ", "stl": "STL", "ply": "PLY", "off": "OFF", "3mf": "3MF"}
+    formats |= {"gltf": "glTF", "glb": "GLB", "dae": "DAE"}
+    for suffix, name in formats.items():
+        cases.append(
+            CliCase(
+                b,
+                f"garbage {suffix} --mesh",
+                (*EVAL, "{bag}", *out, "--mesh", f"{{ws}}/garbage.{suffix}"),
+                rf"garbage\.{suffix}.*{name}",
+                prepare=garbage_model(suffix),
+            )
+        )
+    return cases
+
+
+_cli_cases_before_mesh_formats = cli_cases
+
+
+def cli_cases() -> list[CliCase]:
+    """Every command-line case of the sweep (the list above and the model formats')."""
+    return [*_cli_cases_before_mesh_formats(), *mesh_format_cases()]
