@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from os import PathLike
 from typing import Any
@@ -20,9 +19,12 @@ from typing import Any
 import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
-from allo_mrad_ros.detector import METHODS, PROFILES, DetectionResult, MradParams, profile
+from allo_mrad_ros.detector import METHODS, DetectionResult, MradParams
 from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, BackendError, select_backend
-from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
+
+# For the benchmarks until they import it from its module: the parameters' text conversion
+# lives with the parameters.
+from allo_mrad_ros.detector.params import params_from  # noqa: F401
 from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import look_at
@@ -37,68 +39,6 @@ UNREAD_PIXEL_SCORE = "blurred"
 
 class ProcessingError(InvalidInput):
     """A frame or a configuration cannot be processed (image size, method name, option)."""
-
-
-def coerce_value(name: str, spec: ParameterSpec, value: Any) -> Any:
-    """``value`` as ``spec``'s type, from text (command lines) or a number (YAML, ROS).
-
-    An integer becomes a float for a float parameter; text is parsed as the parameter's
-    type. The value is then validated against the spec.
-
-    Raises
-    ------
-    ProcessingError
-        Naming the parameter and the value.
-    """
-    if isinstance(value, str) and spec.kind in (int, float):
-        try:
-            value = spec.kind(value.strip())
-        except ValueError:
-            raise ProcessingError(
-                f"{name}: {value!r} is not a valid {spec.kind.__name__}"
-            ) from None
-    if isinstance(value, str) and spec.kind is bool:
-        text = value.strip().lower()
-        if text not in ("true", "false"):
-            raise ProcessingError(f"{name}: {value!r} is not true or false")
-        value = text == "true"
-    if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
-    try:
-        spec.check(name, value)
-    except ValueError as error:
-        raise ProcessingError(str(error)) from None
-    return value
-
-
-def params_from(profile_name: str, changes: Mapping[str, Any] | Sequence[str] = ()) -> MradParams:
-    """Detector parameters: a profile with changes, as a mapping or ``KEY=VALUE`` texts.
-
-    Raises
-    ------
-    ProcessingError
-        For an unknown profile or key, or a value of the wrong type or range.
-    """
-    if profile_name not in PROFILES:
-        raise ProcessingError(f"unknown profile {profile_name!r}; choose from {sorted(PROFILES)}")
-    if not isinstance(changes, Mapping):
-        pairs = {}
-        for text in changes:
-            key, sep, value = text.partition("=")
-            if not sep or key.strip() not in PARAMETER_SPECS:
-                raise ProcessingError(
-                    f"expected KEY=VALUE with KEY one of {sorted(PARAMETER_SPECS)}; got {text!r}"
-                )
-            pairs[key.strip()] = value.strip()
-        changes = pairs
-    unknown = sorted(set(changes) - set(PARAMETER_SPECS))
-    if unknown:
-        raise ProcessingError(f"unknown MRAD parameter(s) {unknown}")
-    coerced = {k: coerce_value(k, PARAMETER_SPECS[k], v) for k, v in changes.items()}
-    try:
-        return profile(profile_name, **coerced)
-    except ValueError as error:
-        raise ProcessingError(str(error)) from None
 
 
 @dataclass(frozen=True)

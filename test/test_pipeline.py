@@ -14,7 +14,6 @@ from allo_mrad_ros.pipeline import (
     ProcessingError,
     ReferenceProvider,
     RenderSettings,
-    params_from,
 )
 from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
 from allo_mrad_ros.sky import with_sun
@@ -127,21 +126,7 @@ def test_a_frame_names_the_camera_its_reference_was_rendered_for(renderers, pose
     assert supplied.reference_camera is None  # a supplied reference's camera is not known
 
 
-def test_parameters_from_text_and_numbers_have_one_coercion():
-    assert params_from("accurate", ["grid=3", "tolerance=30"]) == MradParams(
-        process_scale=1.0, grid=3, tolerance=30.0
-    )
-    assert params_from("default", {"tolerance": 30}).tolerance == 30.0
-    for bad, message in (
-        (["grid=two"], "not a valid int"),
-        (["nope=1"], "KEY=VALUE"),
-        (["grid=0"], "grid"),
-        ({"grid": 2.5}, "integer"),
-    ):
-        with pytest.raises(ProcessingError, match=message):
-            params_from("default", bad)
-    with pytest.raises(ProcessingError, match="unknown profile"):
-        params_from("x")
+def test_config_replace_reaches_the_render_settings():
     config = PipelineConfig().replace(reference_scale=0.25, methods=("PAD",))
     assert config.render.reference_scale == 0.25 and config.methods == ("PAD",)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Literal
 
@@ -438,3 +439,60 @@ def profile(name: str, **overrides: Any) -> MradParams:
     if name not in PROFILES:
         raise ParamsError(f"unknown MRAD profile {name!r}; choose one of {sorted(PROFILES)}")
     return PROFILES[name].replace(**overrides) if overrides else PROFILES[name]
+
+
+# --- parameters from text: command lines, YAML and ROS parameters -------------------------
+
+
+def coerce_value(name: str, spec: ParameterSpec, value: Any) -> Any:
+    """``value`` as ``spec``'s type, from text (command lines) or a number (YAML, ROS).
+
+    Text is parsed as the parameter's type (``"8"``, ``"0.5"``, ``"true"``); a number is
+    taken as :meth:`ParameterSpec.validated` takes it.
+
+    Raises
+    ------
+    ParamsError
+        Naming the parameter and the value.
+    """
+    if isinstance(value, str) and spec.kind in (int, float):
+        try:
+            value = spec.kind(value.strip())
+        except ValueError:
+            raise ParamsError(f"{name}: {value!r} is not a valid {spec.kind.__name__}") from None
+    if isinstance(value, str) and spec.kind is bool:
+        text = value.strip().lower()
+        if text not in ("true", "false"):
+            raise ParamsError(f"{name}: {value!r} is not true or false")
+        value = text == "true"
+    return spec.validated(name, value)
+
+
+def params_from(profile_name: str, changes: Mapping[str, Any] | Sequence[str] = ()) -> MradParams:
+    """:func:`profile` for command lines: the changes as ``KEY=VALUE`` texts (or a mapping
+    of texts or numbers), each value read as its parameter's type by :func:`coerce_value`.
+
+    ``params_from("paper", ["grid=6"]) == profile("paper", grid=6)``.
+
+    Raises
+    ------
+    ParamsError
+        For an unknown profile or key, a text that is not ``KEY=VALUE``, or a value of the
+        wrong type or range.
+    """
+    if not isinstance(changes, Mapping):
+        pairs = {}
+        for text in changes:
+            key, sep, value = text.partition("=")
+            if not sep or key.strip() not in PARAMETER_SPECS:
+                raise ParamsError(
+                    f"expected KEY=VALUE with KEY one of {sorted(PARAMETER_SPECS)}; got {text!r}"
+                )
+            pairs[key.strip()] = value.strip()
+        changes = pairs
+    unknown = sorted(set(changes) - set(PARAMETER_SPECS))
+    if unknown:
+        raise ParamsError(f"unknown MRAD parameter(s) {unknown}")
+    return profile(
+        profile_name, **{k: coerce_value(k, PARAMETER_SPECS[k], v) for k, v in changes.items()}
+    )

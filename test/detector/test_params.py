@@ -7,7 +7,14 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParamsError
+from allo_mrad_ros.detector.params import (
+    PARAMETER_SPECS,
+    MradParams,
+    ParamsError,
+    coerce_value,
+    params_from,
+    profile,
+)
 
 
 @pytest.mark.parametrize("integer", [np.int64(8), np.int32(8), np.uint8(8), np.intp(8)])
@@ -72,3 +79,33 @@ def test_every_default_has_its_parameter_type():
     params = MradParams()
     for name, spec in PARAMETER_SPECS.items():
         assert type(getattr(params, name)) is spec.kind, name
+
+
+def test_parameters_from_text_and_numbers_have_one_coercion():
+    assert params_from("accurate", ["grid=3", "tolerance=30"]) == MradParams(
+        process_scale=1.0, grid=3, tolerance=30.0
+    )
+    assert params_from("paper", ["grid=6"]) == profile("paper", grid=6)
+    assert params_from("default", {"tolerance": 30}).tolerance == 30.0
+    assert params_from("default", ["transfer_gain=False"]).transfer_gain is False
+    for bad, message in (
+        (["grid=two"], "not a valid int"),
+        (["nope=1"], "KEY=VALUE"),
+        (["grid=0"], "grid"),
+        ({"grid": 2.5}, "integer"),
+        (["transfer_gain=1"], "not true or false"),
+        (["connectivity=8.0"], "not a valid int"),
+    ):
+        with pytest.raises(ParamsError, match=message):
+            params_from("default", bad)
+    with pytest.raises(ParamsError, match="unknown MRAD profile 'x'"):
+        params_from("x")
+
+
+def test_coerce_value_returns_the_parameter_type():
+    spec = PARAMETER_SPECS["tolerance"]
+    assert type(coerce_value("mrad.tolerance", spec, 30)) is float  # a ROS integer
+    assert coerce_value("mrad.tolerance", spec, " 30 ") == 30.0
+    assert type(coerce_value("mrad.grid", PARAMETER_SPECS["grid"], np.int64(4))) is int
+    with pytest.raises(ParamsError, match=r"mrad.grid must be an integer in \[1, 64\], got 0"):
+        coerce_value("mrad.grid", PARAMETER_SPECS["grid"], "0")
