@@ -10,7 +10,6 @@ running one.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field, fields, replace
 from os import PathLike
@@ -28,58 +27,17 @@ from allo_mrad_ros.detector.params import params_from  # noqa: F401
 from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
-from allo_mrad_ros.render.reuse import ReferenceReuse, ReuseBounds
+from allo_mrad_ros.render import ReferenceRenderer
+from allo_mrad_ros.render.reuse import ReferenceReuse
+from allo_mrad_ros.render.settings import RenderSettings
 from allo_mrad_ros.view import View
 
-RENDER_BACKENDS = ("", "osmesa", "egl")
 # The cheapest score map of MradParams.pixel_score, made when no one reads the map.
 UNREAD_PIXEL_SCORE = "blurred"
 
 
 class ProcessingError(InvalidInput):
     """A frame or a configuration cannot be processed (image size, method name, option)."""
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """How the reference is rendered.
-
-    Parameters
-    ----------
-    reference_scale : float
-        Linear scale of the rendered reference, (0, 1].
-    shadows : bool
-        Directional shadows from the Sun.
-    cull_bodies : bool
-        Draw celestial bodies only when in view (False exists to measure what culling saves).
-    render_backend : str
-        ``osmesa``, ``egl``, or empty to choose.
-    reuse : ReuseBounds or None
-        Warp the last rendered reference to a later view while these bounds allow
-        (:mod:`allo_mrad_ros.render.reuse`); None renders every view. Frames must then
-        come in their time order.
-    """
-
-    reference_scale: float = DEFAULT_SCALE
-    shadows: bool = DEFAULT_SHADOWS
-    cull_bodies: bool = True
-    render_backend: str = ""
-    reuse: ReuseBounds | None = None
-
-    def __post_init__(self) -> None:
-        scale = self.reference_scale
-        if isinstance(scale, bool) or not isinstance(scale, int | float):
-            raise ProcessingError(f"reference_scale must be a number, got {scale!r}")
-        if not (math.isfinite(scale) and 0 < scale <= 1):
-            raise ProcessingError(f"reference_scale must be in (0, 1], got {scale!r}")
-        if self.render_backend not in RENDER_BACKENDS:
-            raise ProcessingError(
-                f"render_backend must be one of {list(RENDER_BACKENDS)}, "
-                f"got {self.render_backend!r}"
-            )
-        if self.reuse is not None and not isinstance(self.reuse, ReuseBounds):
-            raise ProcessingError(f"reuse must be ReuseBounds or None, got {self.reuse!r}")
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from allo_mrad_ros.pipeline import (
     RenderSettings,
 )
 from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
+from allo_mrad_ros.render.settings import RenderSettingsError
 from allo_mrad_ros.sky import with_sun
 from allo_mrad_ros.view import View
 
@@ -78,7 +79,7 @@ def test_wrong_image_size_and_unknown_method_are_named(renderers, pose):
         PipelineConfig(methods=("MRAD", "YOLO"))
     with pytest.raises(ProcessingError, match="render settings"):
         Pipeline(reference_renderer, PipelineConfig())
-    with pytest.raises(ProcessingError, match="reference_scale"):
+    with pytest.raises(RenderSettingsError, match="reference_scale"):
         RenderSettings(reference_scale=0.0)
 
 

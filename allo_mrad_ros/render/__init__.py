@@ -7,6 +7,7 @@ when a :class:`ReferenceRenderer` is built.
 from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
 from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render.settings import RenderSettings
 from allo_mrad_ros.render.values import (
     LABEL_ANOMALY,
     LABEL_SPACE,
@@ -25,6 +26,7 @@ __all__ = [
     "ExtraObject",
     "ReferenceRenderer",
     "RenderResult",
+    "RenderSettings",
     "RendererError",
     "choose_backend",
 ]
