@@ -11,6 +11,7 @@ running one.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, fields, replace
 from os import PathLike
 from typing import Any
@@ -165,6 +166,8 @@ class ReferenceProvider:
 class ProcessedFrame:
     """The reference used and each method's detection for one frame.
 
+    What :meth:`Pipeline.process` and :meth:`Pipeline.detect` return.
+
     Attributes
     ----------
     reference : numpy.ndarray
@@ -187,22 +190,48 @@ class ProcessedFrame:
         """The first method's result (MRAD for the node)."""
         return next(iter(self.results.values()))
 
+    def with_render(self, render_ms: float, reference_camera: CameraIntrinsics) -> ProcessedFrame:
+        """This frame with the time its reference took to render and the camera it was
+        rendered for (the node renders on one thread and detects on another)."""
+        methods = {name: self.timings_ms[name] for name in self.results}
+        total = render_ms + sum(methods.values())
+        return replace(
+            self,
+            timings_ms={"render": render_ms, **methods, "total": total},
+            reference_camera=reference_camera,
+        )
+
+    def __iter__(self) -> Iterator[dict[str, Any]]:
+        # Unpacks as ``results, timings_ms``, what Pipeline.detect returned before it
+        # returned this; only until the benchmarks read the fields by name.
+        return iter((self.results, self.timings_ms))
+
 
 class Pipeline:
     """Render-then-detect for a stream of frames from one camera: render once, detect many.
+
+    Build one with :meth:`open`, and close it (or use it in a ``with`` block) to release its
+    renderer::
+
+        with Pipeline.open(camera, mesh="station.glb", config=config) as pipeline:
+            frame = pipeline.process(image, view)
 
     Parameters
     ----------
     provider : ReferenceProvider
         Renders the references; shared by pipelines built with :meth:`with_config`.
-    config : PipelineConfig
-        Parameters and methods (its render settings are the provider's).
+    config : PipelineConfig, optional
+        Parameters and methods (its render settings are the provider's); default: the
+        provider's render settings and the default detector parameters.
+    cache : ReferenceCache, optional
+        What the methods derived from the reference in use (:meth:`with_config` shares it).
     """
 
     def __init__(
         self,
         provider: ReferenceProvider,
         config: PipelineConfig | None = None,
+        *,
         cache: ReferenceCache | None = None,
     ) -> None:
         config = config or PipelineConfig(render=provider.settings)
@@ -229,6 +258,58 @@ class Pipeline:
             else params.replace(pixel_score=UNREAD_PIXEL_SCORE)
         )
 
+    @classmethod
+    def open(
+        cls,
+        camera: CameraIntrinsics,
+        *,
+        mesh: str | PathLike[str] | Any | None = None,
+        config: PipelineConfig | None = None,
+    ) -> Pipeline:
+        """A pipeline with a renderer of its own for ``camera``'s frames.
+
+        Its references are rendered as ``config.render`` says; nothing else repeats it.
+        The renderer's OpenGL context belongs to the calling thread: build, use and close
+        the pipeline there.
+
+        Parameters
+        ----------
+        camera : CameraIntrinsics
+            Full-resolution intrinsics of the camera whose frames are processed.
+        mesh : path-like, trimesh object or None
+            Station model in metres in the station frame (None: the package's model).
+        config : PipelineConfig, optional
+            Render settings, detector parameters, methods and array backend (default:
+            :class:`PipelineConfig`'s defaults).
+
+        Raises
+        ------
+        allo_mrad_ros.render.RendererError
+            When no OpenGL context can be made.
+        ProcessingError
+            For an array backend this machine cannot run.
+        ValueError
+            For a model that cannot be loaded.
+        """
+        config = config or PipelineConfig()
+        provider = ReferenceProvider(mesh, camera, config.render)
+        try:
+            return cls(provider, config)
+        except Exception:
+            provider.close()
+            raise
+
+    def close(self) -> None:
+        """Release the renderer (its OpenGL context), which the pipelines :meth:`with_config`
+        made share: close one of them when done with all. Closing twice is harmless."""
+        self._provider.close()
+
+    def __enter__(self) -> Pipeline:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
     @property
     def provider(self) -> ReferenceProvider:
         """The reference provider."""
@@ -241,7 +322,7 @@ class Pipeline:
 
     def with_config(self, config: PipelineConfig) -> Pipeline:
         """A pipeline with another configuration sharing this one's provider."""
-        return Pipeline(self._provider, config, self._cache)
+        return Pipeline(self._provider, config, cache=self._cache)
 
     def warm_up(self) -> None:
         """Render once and run every method on a blank frame, so the first camera frame does
@@ -258,10 +339,16 @@ class Pipeline:
         """What the methods derived from the reference in use (hits and misses counted)."""
         return self._cache
 
+    def render(self, view: View, *, time_s: float | None = None) -> np.ndarray:
+        """The reference RGB image of ``view`` at the reference scale, the first half of
+        :meth:`process` (see :meth:`ReferenceProvider.render`)."""
+        return self._provider.render(view, time_s)
+
     def detect(
-        self, image: np.ndarray, reference: np.ndarray, score_map: bool = True
-    ) -> tuple[dict[str, DetectionResult], dict[str, float]]:
-        """Run every method on ``image`` against ``reference``; results and ms per method.
+        self, image: np.ndarray, reference: np.ndarray, *, score_map: bool = True
+    ) -> ProcessedFrame:
+        """Run every method on ``image`` against ``reference``, the second half of
+        :meth:`process`; the frame's ``render`` time is 0 and its reference camera None.
 
         ``score_map=False`` when no one reads the results' ``score`` (the node with no
         ``~/score`` subscriber): the methods then make the cheapest map,
@@ -271,19 +358,21 @@ class Pipeline:
         ranking map (a second photometric model in the cross score) is skipped.
         """
         params = self._config.params if score_map else self._params_without_map
-        results, timings = {}, {}
+        results, timings = {}, {"render": 0.0}
         for name in self._config.methods:
             start = time.perf_counter()
             results[name] = METHODS[name](
                 image, reference, params, backend=self._backend, cache=self._cache
             )
             timings[name] = 1e3 * (time.perf_counter() - start)
-        return results, timings
+        timings["total"] = sum(timings.values())
+        return ProcessedFrame(reference, results, timings)
 
     def process(
         self,
         image: np.ndarray,
         view: View,
+        *,
         reference: np.ndarray | None = None,
         time_s: float | None = None,
     ) -> ProcessedFrame:
@@ -311,7 +400,6 @@ class Pipeline:
         ValueError
             From the detector (malformed image) or the renderer (invalid pose, lighting).
         """
-        start = time.perf_counter()
         camera = self._provider.camera
         expected = (camera.height, camera.width)
         if getattr(image, "shape", (None, None))[:2] != expected:
@@ -319,13 +407,9 @@ class Pipeline:
                 f"image size {getattr(image, 'shape', None)} differs from the camera's "
                 f"{expected[1]}x{expected[0]}"
             )
-        timings: dict[str, float] = {"render": 0.0}
-        reference_camera = None
-        if reference is None:
-            reference = self._provider.render(view, time_s)
-            reference_camera = self._provider.reference_camera
-            timings["render"] = 1e3 * (time.perf_counter() - start)
-        results, detect_ms = self.detect(image, reference)
-        timings.update(detect_ms)
-        timings["total"] = 1e3 * (time.perf_counter() - start)
-        return ProcessedFrame(reference, results, timings, reference_camera)
+        if reference is not None:
+            return self.detect(image, reference)
+        start = time.perf_counter()
+        reference = self.render(view, time_s=time_s)
+        render_ms = 1e3 * (time.perf_counter() - start)
+        return self.detect(image, reference).with_render(render_ms, self._provider.reference_camera)
