@@ -1,11 +1,11 @@
 """One camera frame in, detections out: render the reference of a view once, run every detector.
 
-The node, ``allo-bag evaluate``/``ablate`` and the trade-off benchmark all build a
-:class:`PipelineConfig` (render settings, :class:`~allo_mrad_ros.detector.MradParams`,
-methods, array backend) and run frames through a :class:`Pipeline`, so what is measured
-offline is what runs online. A :class:`Pipeline` is immutable: a change of parameters builds
-a new one that shares the :class:`ReferenceProvider` (the GL context), it never mutates a
-running one.
+The node, ``allo-bag evaluate``/``ablate`` and the benchmarks all build a
+:class:`PipelineConfig` (:class:`RenderSettings`, :class:`~allo_mrad_ros.detector.MradParams`,
+methods, array backend) and run frames through a :class:`Pipeline` (:meth:`Pipeline.open`
+makes one), so what is measured offline is what runs online. A :class:`Pipeline` is
+immutable: a change of parameters builds a new one that shares the
+:class:`ReferenceProvider` (the GL context), it never mutates a running one.
 """
 
 from __future__ import annotations

@@ -425,6 +425,10 @@ PROFILES: dict[str, MradParams] = {
 def profile(name: str, **overrides: Any) -> MradParams:
     """Return a named parameter profile, optionally with overrides.
 
+    :class:`MradParams` itself is the way to make parameters; a profile is another starting
+    point than the defaults: ``profile(name, **f) == PROFILES[name].replace(**f)``, and
+    ``profile("default", **f) == MradParams(**f)``.
+
     Parameters
     ----------
     name : str
