@@ -6,6 +6,7 @@ when a :class:`ReferenceRenderer` is built.
 
 from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.render.provider import ReferenceProvider
 from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
 from allo_mrad_ros.render.settings import RenderSettings
 from allo_mrad_ros.render.values import (
@@ -24,6 +25,7 @@ __all__ = [
     "LABEL_STATION",
     "CelestialBody",
     "ExtraObject",
+    "ReferenceProvider",
     "ReferenceRenderer",
     "RenderResult",
     "RenderSettings",
