@@ -27,9 +27,9 @@ import numpy as np
 
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.backends import ArrayBackendError, select_backend
+from allo_mrad_ros.detector.params import params_from
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
-from allo_mrad_ros.pipeline import params_from
 from allo_mrad_ros.render import DEFAULT_SCALE
 from benchmarks import finish
 

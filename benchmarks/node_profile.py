@@ -75,7 +75,7 @@ def profile_frames(frames: int, subscribed: tuple[str, ...]) -> tuple[pstats.Sta
             t1 = time.perf_counter()
             reference = provider.render(view)
             t2 = time.perf_counter()
-            results, _ = pipeline.detect(image, reference, score_map=score_map)
+            results = pipeline.detect(image, reference, score_map=score_map).results
             t3 = time.perf_counter()
             frame = type("Frame", (), {})()
             frame.primary, frame.reference = next(iter(results.values())), reference

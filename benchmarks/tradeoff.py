@@ -106,8 +106,8 @@ class Sweep:
                 render_ms[key] = 1e3 * (time.perf_counter() - start)
             for outcome, pipeline in zip(outcomes, pipelines, strict=True):
                 s = outcome.setting
-                results, detect_ms = pipeline.detect(image, references[s.render])
-                result, detect = results[s.method], detect_ms[s.method]
+                detected = pipeline.detect(image, references[s.render])
+                result, detect = detected.results[s.method], detected.timings_ms[s.method]
                 outcome.render_ms.append(render_ms[s.render])
                 outcome.detect_ms.append(detect)
                 outcome.latency_ms.append(render_ms[s.render] + detect)

@@ -228,7 +228,8 @@ def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)
     CliError
         For an unknown profile, method or parameter, or a value out of range.
     """
-    from allo_mrad_ros.pipeline import PipelineConfig, ProcessingError, RenderSettings, params_from
+    from allo_mrad_ros.detector.params import params_from
+    from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings
     from allo_mrad_ros.render.reuse import ReuseBounds
 
     try:
@@ -242,7 +243,7 @@ def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)
             tuple(methods),
             args.array_backend,
         )
-    except ProcessingError as error:
+    except ValueError as error:  # InvalidInput, or the detector's ParamsError
         raise CliError(str(error)) from None
 
 

@@ -11,12 +11,12 @@ from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.pipeline import (
     Pipeline,
     PipelineConfig,
+    ProcessedFrame,
     ProcessingError,
-    ReferenceProvider,
     RenderSettings,
-    params_from,
 )
-from allo_mrad_ros.render import ExtraObject, ReferenceRenderer
+from allo_mrad_ros.render import ExtraObject, ReferenceRenderer, RendererError
+from allo_mrad_ros.render.settings import RenderSettingsError
 from allo_mrad_ros.sky import with_sun
 from allo_mrad_ros.view import View
 
@@ -27,10 +27,9 @@ SUN = (0.3, -0.5, 0.8)
 @pytest.fixture(scope="module")
 def renderers():
     camera = ReferenceRenderer(None, INTRINSICS, scale=1.0, shadows=False)
-    reference = ReferenceProvider(None, INTRINSICS, RenderSettings(0.5, shadows=False))
-    yield camera, reference
-    camera.close()
-    reference.close()
+    config = PipelineConfig(RenderSettings(0.5, shadows=False))
+    with camera, Pipeline.open(INTRINSICS, config=config) as pipeline:
+        yield camera, pipeline
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +38,7 @@ def pose():
 
 
 def test_object_absent_from_the_model_is_detected(renderers, pose):
-    camera, reference_renderer = renderers
+    camera, pipeline = renderers
     # A 1.2 m gold-coloured box floating 8 m in front of the camera, seen against the sky.
     box = trimesh.creation.box((1.2, 1.2, 1.2))
     box.visual.face_colors = (230, 180, 40, 255)
@@ -47,8 +46,7 @@ def test_object_absent_from_the_model_is_detected(renderers, pose):
     object_pose[:3, 3] = pose[:3, 3] + 8.0 * pose[:3, 2] + 0.8 * pose[:3, 0] - 2.5 * pose[:3, 1]
     frame = camera.render(pose, SUN, extra_objects=[ExtraObject(box, object_pose)], labels=True)
     clean = camera.render(pose, SUN)
-    config = PipelineConfig(reference_renderer.settings, methods=("MRAD", "PAD", "RXD"))
-    processor = Pipeline(reference_renderer, config)
+    processor = pipeline.with_config(pipeline.config.replace(methods=("MRAD", "PAD", "RXD")))
     found = processor.process(frame.rgb, View(pose, SUN))
     assert set(found.results) == {"MRAD", "PAD", "RXD"}
     assert found.reference.shape == (180, 320, 3)
@@ -63,34 +61,33 @@ def test_object_absent_from_the_model_is_detected(renderers, pose):
 
 
 def test_supplied_reference_skips_rendering(renderers, pose):
-    camera, reference_renderer = renderers
+    camera, pipeline = renderers
     image = camera.render(pose, SUN).rgb
-    processor = Pipeline(reference_renderer)
-    given = reference_renderer.render(View(pose, SUN))
-    out = processor.process(image, View(pose, SUN), reference=given)
+    given = pipeline.render(View(pose, SUN))
+    out = pipeline.process(image, View(pose, SUN), reference=given)
     assert out.timings_ms["render"] == 0.0 and out.reference is given
 
 
 def test_wrong_image_size_and_unknown_method_are_named(renderers, pose):
-    _, reference_renderer = renderers
+    _, pipeline = renderers
     with pytest.raises(ProcessingError, match="differs from the camera's 640x360"):
-        Pipeline(reference_renderer).process(np.zeros((10, 10, 3), np.uint8), View(pose, SUN))
+        pipeline.process(np.zeros((10, 10, 3), np.uint8), View(pose, SUN))
     with pytest.raises(ProcessingError, match="unknown detection method"):
         PipelineConfig(methods=("MRAD", "YOLO"))
     with pytest.raises(ProcessingError, match="render settings"):
-        Pipeline(reference_renderer, PipelineConfig())
-    with pytest.raises(ProcessingError, match="reference_scale"):
+        Pipeline(pipeline.provider, PipelineConfig())
+    with pytest.raises(RenderSettingsError, match="reference_scale"):
         RenderSettings(reference_scale=0.0)
 
 
 def test_sun_disc_is_added_to_the_reference_only_when_in_view(renderers):
-    _, provider = renderers
-    reference_renderer = provider.renderer
+    _, pipeline = renderers
+    reference_renderer = pipeline.provider.renderer
     sun = np.array([0.2, -0.3, 0.93])
     sun /= np.linalg.norm(sun)
     eye = 100.0 * sun  # outside the station, on its sunny side
     towards_sun = look_at(eye, 200.0 * sun, up=(1.0, 0.0, 0.0))
-    reference = provider.render(View(towards_sun, sun))
+    reference = pipeline.render(View(towards_sun, sun))
     assert reference[87:93, 157:163].max() > 200  # the disc (about 1 px radius here), ahead
     rendered = reference_renderer.render(towards_sun, sun, bodies=with_sun([], sun))
     assert rendered.bodies_in_view == ("sun",)
@@ -102,13 +99,12 @@ def test_sun_disc_is_added_to_the_reference_only_when_in_view(renderers):
 
 
 def test_a_new_config_swaps_the_pipeline_and_leaves_the_old_one_as_it_was(renderers, pose):
-    camera, provider = renderers
+    camera, first = renderers
     image = camera.render(pose, SUN).rgb
-    first = Pipeline(provider)
     coarse = first.config.replace(params=first.config.params.replace(grid=2))
     second = first.with_config(coarse)
     assert second.provider is first.provider and first.config.params.grid == MradParams().grid
-    reference = provider.render(View(pose, SUN))
+    reference = first.render(View(pose, SUN))
     one = first.process(image, View(pose, SUN), reference=reference).primary
     two = second.process(image, View(pose, SUN), reference=reference).primary
     again = first.process(image, View(pose, SUN), reference=reference).primary
@@ -117,9 +113,8 @@ def test_a_new_config_swaps_the_pipeline_and_leaves_the_old_one_as_it_was(render
 
 
 def test_a_frame_names_the_camera_its_reference_was_rendered_for(renderers, pose):
-    camera, provider = renderers
+    camera, pipeline = renderers
     image = camera.render(pose, SUN).rgb
-    pipeline = Pipeline(provider)
     rendered = pipeline.process(image, View(pose, SUN))
     assert rendered.reference_camera == INTRINSICS.scaled(0.5)
     assert rendered.reference.shape[:2] == (180, 320)
@@ -127,21 +122,7 @@ def test_a_frame_names_the_camera_its_reference_was_rendered_for(renderers, pose
     assert supplied.reference_camera is None  # a supplied reference's camera is not known
 
 
-def test_parameters_from_text_and_numbers_have_one_coercion():
-    assert params_from("accurate", ["grid=3", "tolerance=30"]) == MradParams(
-        process_scale=1.0, grid=3, tolerance=30.0
-    )
-    assert params_from("default", {"tolerance": 30}).tolerance == 30.0
-    for bad, message in (
-        (["grid=two"], "not a valid int"),
-        (["nope=1"], "KEY=VALUE"),
-        (["grid=0"], "grid"),
-        ({"grid": 2.5}, "integer"),
-    ):
-        with pytest.raises(ProcessingError, match=message):
-            params_from("default", bad)
-    with pytest.raises(ProcessingError, match="unknown profile"):
-        params_from("x")
+def test_config_replace_reaches_the_render_settings():
     config = PipelineConfig().replace(reference_scale=0.25, methods=("PAD",))
     assert config.render.reference_scale == 0.25 and config.methods == ("PAD",)
 
@@ -168,8 +149,8 @@ def test_with_no_reader_of_the_score_map_the_mask_stays_and_the_ranking_map_is_s
         "cross_scores",
         lambda *a: models.append(len(a[5])) or cross_scores(*a),
     )
-    mapped = processor.detect(pair.query, reference)[0]["MRAD"]
-    unmapped = processor.detect(pair.query, reference, score_map=False)[0]["MRAD"]
+    mapped = processor.detect(pair.query, reference).results["MRAD"]
+    unmapped = processor.detect(pair.query, reference, score_map=False).results["MRAD"]
     assert models == [2, 1]  # the map's own photometric model is skipped
     assert mapped.anomalous and unmapped.anomalous and mapped.area == unmapped.area
     np.testing.assert_array_equal(mapped.mask, unmapped.mask)
@@ -189,26 +170,27 @@ def test_the_map_top_image_score_keeps_the_map_even_without_a_reader():
     config = PipelineConfig(RenderSettings(0.5, shadows=False))
     assert config.params.image_score == "map_top"
     processor = Pipeline(SimpleNamespace(settings=config.render), config)
-    mapped = processor.detect(pair.query, pair.reference)[0]["MRAD"]
-    unmapped = processor.detect(pair.query, pair.reference, score_map=False)[0]["MRAD"]
+    mapped = processor.detect(pair.query, pair.reference).results["MRAD"]
+    unmapped = processor.detect(pair.query, pair.reference, score_map=False).results["MRAD"]
     assert unmapped.image_score == mapped.image_score
 
 
 @pytest.mark.parametrize("backend", ARRAY_BACKENDS)
 def test_every_array_backend_finds_the_same_object_as_numpy(renderers, pose, backend):
     skip_unless_runnable(backend)
-    camera, reference_renderer = renderers
+    camera, pipeline = renderers
     box = trimesh.creation.box((1.2, 1.2, 1.2))
     box.visual.face_colors = (230, 180, 40, 255)
     object_pose = pose.copy()
     object_pose[:3, 3] = pose[:3, 3] + 8.0 * pose[:3, 2] + 0.8 * pose[:3, 0] - 2.5 * pose[:3, 1]
     frame = camera.render(pose, SUN, extra_objects=[ExtraObject(box, object_pose)])
     methods = ("MRAD", "PAD", "RXD")
-    base = PipelineConfig(reference_renderer.settings, methods=methods)
-    reference = reference_renderer.render(View(pose, SUN))
-    expected = Pipeline(reference_renderer, base).process(frame.rgb, View(pose, SUN), reference)
+    base = pipeline.config.replace(methods=methods)
+    reference = pipeline.render(View(pose, SUN))
+    view = View(pose, SUN)
+    expected = pipeline.with_config(base).process(frame.rgb, view, reference=reference)
     config = base.replace(array_backend=backend)
-    found = Pipeline(reference_renderer, config).process(frame.rgb, View(pose, SUN), reference)
+    found = pipeline.with_config(config).process(frame.rgb, view, reference=reference)
     for method in methods:
         ours, theirs = found.results[method], expected.results[method]
         # float32 sums in another order: equal up to rounding of the largest raw score.
@@ -222,3 +204,53 @@ def test_every_array_backend_finds_the_same_object_as_numpy(renderers, pose, bac
 def test_an_unknown_or_unrunnable_array_backend_is_named():
     with pytest.raises(ProcessingError, match="array_backend must be one of"):
         PipelineConfig(array_backend="cupy")
+
+
+def test_open_renders_as_the_config_says_and_closing_releases_the_renderer(pose):
+    config = PipelineConfig(RenderSettings(0.25, shadows=False), profile("paper"))
+    with Pipeline.open(INTRINSICS, config=config) as pipeline:
+        assert pipeline.config is config and pipeline.provider.settings == config.render
+        reference = pipeline.render(View(pose, SUN))
+        assert reference.shape == (90, 160, 3)
+        renderer = pipeline.provider.renderer
+    with pytest.raises(RendererError, match="closed"):
+        renderer.render(pose, SUN)
+    pipeline.close()  # a second close is harmless
+
+
+def test_open_takes_the_package_model_and_the_default_config():
+    with Pipeline.open(INTRINSICS) as pipeline:
+        assert pipeline.config == PipelineConfig()
+        assert pipeline.provider.renderer.triangle_count > 0
+
+
+def test_detect_returns_a_processed_frame_as_process_does(renderers, pose):
+    camera, pipeline = renderers
+    image = camera.render(pose, SUN).rgb
+    reference = pipeline.render(View(pose, SUN))
+    detected = pipeline.detect(image, reference)
+    processed = pipeline.process(image, View(pose, SUN), reference=reference)
+    assert isinstance(detected, ProcessedFrame) and detected.reference is reference
+    assert detected.reference_camera is None and detected.timings_ms["render"] == 0.0
+    assert list(detected.results) == list(processed.results) == ["MRAD"]
+    np.testing.assert_array_equal(detected.primary.mask, processed.primary.mask)
+    np.testing.assert_array_equal(detected.primary.score, processed.primary.score)
+    assert detected.timings_ms["total"] >= detected.timings_ms["MRAD"] > 0
+    # A reference rendered apart (the node's render thread) takes its time and camera.
+    rendered = detected.with_render(5.0, INTRINSICS.scaled(0.5))
+    assert rendered.timings_ms["render"] == 5.0 and rendered.reference_camera.width == 320
+    assert rendered.timings_ms["total"] == 5.0 + detected.timings_ms["MRAD"]
+
+
+def test_options_are_keyword_only(renderers, pose):
+    camera, pipeline = renderers
+    image = camera.render(pose, SUN).rgb
+    reference = pipeline.render(View(pose, SUN))
+    with pytest.raises(TypeError):
+        pipeline.process(image, View(pose, SUN), reference)
+    with pytest.raises(TypeError):
+        pipeline.detect(image, reference, False)
+    with pytest.raises(TypeError):
+        pipeline.render(View(pose, SUN), 0.0)
+    with pytest.raises(TypeError):
+        Pipeline.open(INTRINSICS, None)

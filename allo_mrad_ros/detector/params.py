@@ -9,10 +9,15 @@ decided by measurement (see docs/detector.md, "Parameters").
 from __future__ import annotations
 
 import math
+import numbers
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Literal
 
+import numpy as np
+
 from allo_mrad_ros.detector.colour_transfer import DIRECTIONS as TRANSFER_DIRECTIONS
+from allo_mrad_ros.errors import InvalidInput
 
 ScoreScaling = Literal["fixed", "per_image"]
 NoiseRemoval = Literal["local_std", "cell_spread", "none"]
@@ -23,6 +28,10 @@ ImageScore = Literal["area", "map_top"]
 ColourTransferDirection = Literal["none", "reference", "query"]
 
 SCORE_RANGE = 255.0
+
+
+class ParamsError(InvalidInput):
+    """A detector parameter of the wrong type or out of range, or an unknown name or profile."""
 
 
 @dataclass(frozen=True)
@@ -165,14 +174,16 @@ class MradParams:
     structure_weight: float = 0.0
 
     def __post_init__(self) -> None:
+        # Stored as plain int, float, bool and str, so a numpy scalar given here does not
+        # reach the stages (nor a JSON report) as one.
         for name, spec in PARAMETER_SPECS.items():
-            spec.check(name, getattr(self, name))
+            object.__setattr__(self, name, spec.validated(name, getattr(self, name)))
 
     def replace(self, **changes: Any) -> MradParams:
         """Return a copy with ``changes`` applied (validated)."""
         unknown = set(changes) - {f.name for f in fields(self)}
         if unknown:
-            raise ValueError(f"unknown MRAD parameter(s): {sorted(unknown)}")
+            raise ParamsError(f"unknown MRAD parameter(s): {sorted(unknown)}")
         return replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
@@ -197,23 +208,57 @@ class ParameterSpec:
     choices: tuple[Any, ...] = ()
 
     def check(self, name: str, value: object) -> None:
-        """Raise ValueError naming ``name`` and ``value`` if the value is invalid."""
+        """Raise :class:`ParamsError` naming ``name`` and ``value`` if the value is invalid."""
+        self.validated(name, value)
+
+    def validated(self, name: str, value: object) -> Any:
+        """``value`` checked and as the parameter's own Python type (``int``, ``float``,
+        ``bool`` or ``str``).
+
+        Any integer type (``numpy.int64`` too) is accepted where an integer is meant, any
+        real type (an integer too) where a real is meant; a bool is neither. A bool parameter
+        takes only ``True`` or ``False`` (``numpy.bool_`` too), a choice only a value of its
+        own type (``connectivity=8.0`` and ``transfer_gain=1`` are refused).
+
+        Raises
+        ------
+        ParamsError
+            Naming ``name``, the value and what is allowed.
+        """
+        if self.kind is bool:
+            if not isinstance(value, bool | np.bool_):
+                raise ParamsError(f"{name} must be true or false, got {value!r}")
+            return bool(value)
+        if self.kind is str:
+            if not isinstance(value, str):
+                allowed = f"one of {list(self.choices)}" if self.choices else "a string"
+                raise ParamsError(f"{name} must be {allowed}, got {value!r}")
+            value = str(value)
+        elif self.kind is int:
+            # bool is an Integral too, but True for a grid size is a mistake.
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                what = f"one of {list(self.choices)}" if self.choices else f"in {self.interval()}"
+                raise ParamsError(f"{name} must be an integer {what}, got {value!r}")
+            value = int(value)
+        elif self.kind is float:
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ParamsError(f"{name} must be a number, got {value!r}")
+            value = float(value)
         if self.choices:
+            # The type matched above, so this compares like with like (8 is not 8.0 here).
             if value not in self.choices:
-                raise ValueError(f"{name} must be one of {list(self.choices)}, got {value!r}")
-            return
-        if self.kind is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ValueError(f"{name} must be an integer in {self.interval()}, got {value!r}")
-        elif isinstance(value, bool) or not isinstance(value, int | float):
-            raise ValueError(f"{name} must be a number, got {value!r}")
+                raise ParamsError(f"{name} must be one of {list(self.choices)}, got {value!r}")
+            return value
+        if self.kind not in (int, float):
+            return value  # free text, or a kind the caller checks (the node's vectors)
         if not math.isfinite(value):
-            raise ValueError(f"{name} must be finite, got {value!r}")
+            raise ParamsError(f"{name} must be finite, got {value!r}")
         too_low = value <= self.low if self.low_open else value < self.low
         too_high = value >= self.high if self.high_open else value > self.high
         if too_low or too_high:
             what = "an integer in" if self.kind is int else "in"
-            raise ValueError(f"{name} must be {what} {self.interval()}, got {value!r}")
+            raise ParamsError(f"{name} must be {what} {self.interval()}, got {value!r}")
+        return value
 
     def interval(self) -> str:
         """The valid range in interval notation, e.g. ``(0, 1]``."""
@@ -381,6 +426,10 @@ PROFILES: dict[str, MradParams] = {
 def profile(name: str, **overrides: Any) -> MradParams:
     """Return a named parameter profile, optionally with overrides.
 
+    :class:`MradParams` itself is the way to make parameters; a profile is another starting
+    point than the defaults: ``profile(name, **f) == PROFILES[name].replace(**f)``, and
+    ``profile("default", **f) == MradParams(**f)``.
+
     Parameters
     ----------
     name : str
@@ -393,5 +442,62 @@ def profile(name: str, **overrides: Any) -> MradParams:
     MradParams
     """
     if name not in PROFILES:
-        raise ValueError(f"unknown MRAD profile {name!r}; choose one of {sorted(PROFILES)}")
+        raise ParamsError(f"unknown MRAD profile {name!r}; choose one of {sorted(PROFILES)}")
     return PROFILES[name].replace(**overrides) if overrides else PROFILES[name]
+
+
+# --- parameters from text: command lines, YAML and ROS parameters -------------------------
+
+
+def coerce_value(name: str, spec: ParameterSpec, value: Any) -> Any:
+    """``value`` as ``spec``'s type, from text (command lines) or a number (YAML, ROS).
+
+    Text is parsed as the parameter's type (``"8"``, ``"0.5"``, ``"true"``); a number is
+    taken as :meth:`ParameterSpec.validated` takes it.
+
+    Raises
+    ------
+    ParamsError
+        Naming the parameter and the value.
+    """
+    if isinstance(value, str) and spec.kind in (int, float):
+        try:
+            value = spec.kind(value.strip())
+        except ValueError:
+            raise ParamsError(f"{name}: {value!r} is not a valid {spec.kind.__name__}") from None
+    if isinstance(value, str) and spec.kind is bool:
+        text = value.strip().lower()
+        if text not in ("true", "false"):
+            raise ParamsError(f"{name}: {value!r} is not true or false")
+        value = text == "true"
+    return spec.validated(name, value)
+
+
+def params_from(profile_name: str, changes: Mapping[str, Any] | Sequence[str] = ()) -> MradParams:
+    """:func:`profile` for command lines: the changes as ``KEY=VALUE`` texts (or a mapping
+    of texts or numbers), each value read as its parameter's type by :func:`coerce_value`.
+
+    ``params_from("paper", ["grid=6"]) == profile("paper", grid=6)``.
+
+    Raises
+    ------
+    ParamsError
+        For an unknown profile or key, a text that is not ``KEY=VALUE``, or a value of the
+        wrong type or range.
+    """
+    if not isinstance(changes, Mapping):
+        pairs = {}
+        for text in changes:
+            key, sep, value = text.partition("=")
+            if not sep or key.strip() not in PARAMETER_SPECS:
+                raise ParamsError(
+                    f"expected KEY=VALUE with KEY one of {sorted(PARAMETER_SPECS)}; got {text!r}"
+                )
+            pairs[key.strip()] = value.strip()
+        changes = pairs
+    unknown = sorted(set(changes) - set(PARAMETER_SPECS))
+    if unknown:
+        raise ParamsError(f"unknown MRAD parameter(s) {unknown}")
+    return profile(
+        profile_name, **{k: coerce_value(k, PARAMETER_SPECS[k], v) for k, v in changes.items()}
+    )

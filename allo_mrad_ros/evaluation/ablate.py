@@ -127,13 +127,15 @@ def _ablate_frame(frame: EvalFrame) -> tuple[bool, float, list[MethodOutcome]]:
         reference, render_ms = frame.reference, 0.0
         if reference is None:
             start = time.perf_counter()
-            reference = _PIPELINES[0].provider.render(frame.view)
+            reference = _PIPELINES[0].render(frame.view)
             render_ms = 1e3 * (time.perf_counter() - start)
         outcomes = []
         for pipeline in _PIPELINES:
-            results, timings = pipeline.detect(frame.image, reference)
+            detected = pipeline.detect(frame.image, reference)
             outcomes.append(
-                MethodOutcome.of(results["MRAD"], frame.mask, {"total": timings["MRAD"]})
+                MethodOutcome.of(
+                    detected.results["MRAD"], frame.mask, {"total": detected.timings_ms["MRAD"]}
+                )
             )
     except (ValueError, RuntimeError) as error:
         raise AblationError(f"frame {frame.name} (index {frame.index}): {error}") from None

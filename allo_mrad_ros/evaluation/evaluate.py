@@ -48,7 +48,7 @@ from allo_mrad_ros.metrics import (
     Curve,
     MetricsAccumulator,
 )
-from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
 from allo_mrad_ros.staging import hold_point
 
 ALL_METHODS = ("MRAD", "PAD", "RXD")
@@ -108,9 +108,7 @@ _STATE: dict[str, Any] = {}
 def start_worker(setup: WorkerSetup) -> Pipeline:
     """Build this process's pipeline (one reference provider per process)."""
     release_worker_state()
-    pipeline = Pipeline(
-        ReferenceProvider(setup.mesh, setup.camera, setup.config.render), setup.config
-    )
+    pipeline = Pipeline.open(setup.camera, mesh=setup.mesh, config=setup.config)
     _STATE["pipeline"] = pipeline
     return pipeline
 
@@ -121,11 +119,11 @@ def worker_pipeline() -> Pipeline:
 
 
 def release_worker_state() -> None:
-    """Close this process's reference provider (after an in-process run)."""
+    """Close this process's pipeline (after an in-process run)."""
     pipeline = _STATE.pop("pipeline", None)
     _STATE.clear()
     if pipeline is not None:
-        pipeline.provider.close()
+        pipeline.close()
 
 
 def _small(array: np.ndarray, interpolation: int) -> np.ndarray:

@@ -6,7 +6,9 @@ when a :class:`ReferenceRenderer` is built.
 
 from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.render.provider import ReferenceProvider
 from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render.settings import RenderSettings
 from allo_mrad_ros.render.values import (
     LABEL_ANOMALY,
     LABEL_SPACE,
@@ -23,8 +25,10 @@ __all__ = [
     "LABEL_STATION",
     "CelestialBody",
     "ExtraObject",
+    "ReferenceProvider",
     "ReferenceRenderer",
     "RenderResult",
+    "RenderSettings",
     "RendererError",
     "choose_backend",
 ]

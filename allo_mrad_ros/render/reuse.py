@@ -77,6 +77,10 @@ class View(Protocol):
     sun_strength: float
     bodies: Sequence[CelestialBody]
 
+    @property
+    def sky_bodies(self) -> Sequence[CelestialBody]:
+        """Every body the reference shows: :attr:`bodies` plus the Sun's disc."""
+
 
 @dataclass(frozen=True)
 class ReuseBounds:

@@ -21,10 +21,10 @@ import yaml
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, DEFAULT_BACKEND, select_backend
-from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
+from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec, coerce_value
 from allo_mrad_ros.errors import InvalidInput, one_line
 from allo_mrad_ros.geometry import unit_vector
-from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, coerce_value
+from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.render.reuse import ReuseBounds
 

@@ -1,7 +1,7 @@
 """The node's processing threads: render the reference, detect, publish.
 
 GL contexts are bound to the thread that made them, so one thread (the render stage) builds
-the :class:`~allo_mrad_ros.pipeline.ReferenceProvider` as soon as ``camera_info`` is known,
+the :class:`~allo_mrad_ros.pipeline.Pipeline` (its renderer) as soon as ``camera_info`` is known,
 rebuilds it when the camera changes, renders with it and closes it: OpenGL is only ever
 called from that thread. A parameter change never mutates the running pipeline: the render
 stage sees a new :class:`~allo_mrad_ros.ros.parameters.NodeConfig` snapshot and swaps in a
@@ -30,7 +30,7 @@ import numpy as np
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.backends import select_backend
-from allo_mrad_ros.pipeline import Pipeline, ProcessedFrame, ReferenceProvider
+from allo_mrad_ros.pipeline import Pipeline, ProcessedFrame
 from allo_mrad_ros.render import RendererError
 from allo_mrad_ros.ros import messages, process_tuning
 from allo_mrad_ros.ros.buffers import HandOver, LatestSlot
@@ -187,7 +187,7 @@ class ProcessingWorker:
                     self._report_failure(item, error)
         finally:
             if pipeline is not None:
-                pipeline.provider.close()
+                pipeline.close()
 
     def _detect_loop(self) -> None:
         while self._running:
@@ -226,15 +226,15 @@ class ProcessingWorker:
 
     # --- stages -------------------------------------------------------------------------
 
-    def _provider(self, intrinsics: CameraIntrinsics, config: NodeConfig) -> ReferenceProvider:
-        provider = ReferenceProvider(config.mesh or None, intrinsics, config.pipeline.render)
-        renderer, reference = provider.renderer, provider.reference_camera
+    def _open(self, intrinsics: CameraIntrinsics, config: NodeConfig) -> Pipeline:
+        pipeline = Pipeline.open(intrinsics, mesh=config.mesh or None, config=config.pipeline)
+        renderer, reference = pipeline.provider.renderer, pipeline.provider.reference_camera
         self._logger.info(
             f"renderer ready: {renderer.backend}, {renderer.triangle_count} triangles, reference "
             f"{reference.width}x{reference.height}; detector "
             f"arrays on {select_backend(config.pipeline.array_backend).name}"
         )
-        return provider
+        return pipeline
 
     def _warm_up(self, pipeline: Pipeline) -> None:
         """Render and detect once before any frame: the first frame would otherwise take
@@ -258,11 +258,10 @@ class ProcessingWorker:
         if wanted != built_for:
             built_for = wanted
             if pipeline is not None:
-                pipeline.provider.close()
+                pipeline.close()
                 pipeline = None
             try:
-                provider = self._provider(state.intrinsics, state.config)
-                pipeline = Pipeline(provider, state.config.pipeline)
+                pipeline = self._open(state.intrinsics, state.config)
             except (RendererError, ValueError) as error:
                 self._diagnostics.report(
                     MessageError("renderer", f"cannot build the renderer: {error}")
@@ -328,16 +327,14 @@ class ProcessingWorker:
     def _detect_and_publish(self, rendered: RenderedFrame) -> None:
         try:
             score_map = self._score_wanted()
-            results, detect_ms = rendered.pipeline.detect(
+            detected = rendered.pipeline.detect(
                 rendered.image, rendered.reference, score_map=score_map
             )
         except ValueError as error:
             self._diagnostics.report(MessageError("processing", f"frame rejected: {error}"))
             return
-        timings = {"render": rendered.render_ms, **detect_ms}
-        timings["total"] = sum(timings.values())
-        frame = ProcessedFrame(
-            rendered.reference, results, timings, rendered.pipeline.provider.reference_camera
+        frame = detected.with_render(
+            rendered.render_ms, rendered.pipeline.provider.reference_camera
         )
         with self._publishing:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
@@ -347,7 +344,7 @@ class ProcessingWorker:
         self._diagnostics.stages.record(
             {
                 "render": rendered.render_ms,
-                "detect": next(iter(detect_ms.values())),
+                "detect": frame.timings_ms[next(iter(frame.results))],
                 "receive_to_publish": 1e3 * (time.monotonic() - rendered.received),
             }
         )

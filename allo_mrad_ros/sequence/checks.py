@@ -24,22 +24,25 @@ from .table import format_float
 _COLUMN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-def _vector(values: object, length: int, name: str) -> np.ndarray:
+def checked_vector(values: object, length: int, name: str) -> np.ndarray:
+    """``values`` as a float array of ``length`` finite numbers (SequenceError naming it)."""
     return finite_vector(values, length, name, SequenceError)
 
 
-def _unit(values: object, length: int, name: str) -> np.ndarray:
-    array = _vector(values, length, name)
+def checked_unit_vector(values: object, length: int, name: str) -> np.ndarray:
+    """:func:`checked_vector` of norm 1 (within the sequence format's tolerance)."""
+    array = checked_vector(values, length, name)
     norm = float(np.linalg.norm(array))
     if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
         raise SequenceError(f"{name} must be a unit vector, got norm {norm:.6f}")
     return array
 
 
-def _body(values: object, name: str) -> np.ndarray | None:
+def checked_body(values: object, name: str) -> np.ndarray | None:
+    """A body's ``(x, y, z, radius)`` with a positive radius, or None for no body."""
     if values is None:
         return None
-    array = _vector(values, 4, name)
+    array = checked_vector(values, 4, name)
     if array[3] <= 0:
         raise SequenceError(f"{name} radius must be positive, got {array[3]}")
     return array

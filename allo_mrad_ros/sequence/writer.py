@@ -18,9 +18,9 @@ from types import TracebackType
 import numpy as np
 
 from .checks import (
-    _body,
-    _unit,
-    _vector,
+    checked_body,
+    checked_unit_vector,
+    checked_vector,
     extra_columns,
     frame_label,
 )
@@ -295,13 +295,13 @@ class SequenceWriter:
                 f"stamp_ns must increase strictly and stay below 2**31 s: {stamp_ns} after "
                 f"{self._last_stamp}"
             )
-        position = _vector(position, 3, "position")
-        quaternion = _unit(quaternion, 4, "quaternion")
-        sun_direction = _unit(sun_direction, 3, "sun_direction")
+        position = checked_vector(position, 3, "position")
+        quaternion = checked_unit_vector(quaternion, 4, "quaternion")
+        sun_direction = checked_unit_vector(sun_direction, 3, "sun_direction")
         if not math.isfinite(sun_strength) or sun_strength < 0:
             raise SequenceError(f"sun_strength must be finite and >= 0, got {sun_strength!r}")
-        earth = _body(earth, "earth")
-        moon = _body(moon, "moon")
+        earth = checked_body(earth, "earth")
+        moon = checked_body(moon, "moon")
         label = frame_label(label, anomaly, mask)
         extra_text = extra_columns(extra or {})
         # Validate every input before writing any file, so a rejected frame leaves nothing.

@@ -16,7 +16,7 @@ from types import MappingProxyType
 
 from allo_mrad_ros.sequence import SPLITS
 from allo_mrad_ros.synth.realism_config import RealismConfig
-from allo_mrad_ros.synth.validation import SynthError, _count, _finite, _pair
+from allo_mrad_ros.synth.validation import SynthError, finite_number, integer_at_least, number_pair
 
 __all__ = [
     "PRESETS",
@@ -46,9 +46,9 @@ class SplitSpec:
     cameras: int
 
     def __post_init__(self) -> None:
-        _count(self.normal, "normal")
-        _count(self.anomalous, "anomalous")
-        _count(self.cameras, "cameras", 1)
+        integer_at_least(self.normal, "normal")
+        integer_at_least(self.anomalous, "anomalous")
+        integer_at_least(self.cameras, "cameras", 1)
         if self.normal + self.anomalous == 0:
             raise SynthError("a split needs at least one frame")
 
@@ -208,31 +208,31 @@ class SynthConfig:
         # A plain dict (in split order) keeps the settings picklable for worker processes.
         ordered = {s: self.splits[s] for s in SPLITS if s in self.splits}
         object.__setattr__(self, "splits", ordered)
-        _count(self.width, "width", 16)
-        _count(self.height, "height", 16)
+        integer_at_least(self.width, "width", 16)
+        integer_at_least(self.height, "height", 16)
         if self.width > 8192 or self.height > 8192:
             raise SynthError(f"image size {self.width}x{self.height} is above 8192")
-        _finite(self.position_sigma_m, "position_sigma_m", 0.0, 10.0)
-        _finite(self.rotation_sigma_rad, "rotation_sigma_rad", 0.0, math.pi)
-        _finite(self.pose_error_m, "pose_error_m", 0.0, 1.0)
-        _finite(self.pose_error_rad, "pose_error_rad", 0.0, 0.2)
-        _finite(self.object_distance_m, "object_distance_m", 0.5, 100.0)
-        _finite(self.box_half_width_m, "box_half_width_m", 0.0, 10.0)
+        finite_number(self.position_sigma_m, "position_sigma_m", 0.0, 10.0)
+        finite_number(self.rotation_sigma_rad, "rotation_sigma_rad", 0.0, math.pi)
+        finite_number(self.pose_error_m, "pose_error_m", 0.0, 1.0)
+        finite_number(self.pose_error_rad, "pose_error_rad", 0.0, 0.2)
+        finite_number(self.object_distance_m, "object_distance_m", 0.5, 100.0)
+        finite_number(self.box_half_width_m, "box_half_width_m", 0.0, 10.0)
         if not isinstance(self.depths_m, tuple) or not self.depths_m:
             raise SynthError(f"depths_m must be a non-empty tuple, got {self.depths_m!r}")
         for depth in self.depths_m:
-            _finite(depth, "depths_m", -self.object_distance_m + 0.5)
-        _count(self.max_retries, "max_retries", 1)
-        _count(self.camera_attempts, "camera_attempts", 1)
-        _finite(self.min_anomaly_fraction, "min_anomaly_fraction", 0.0, 0.5)
-        _finite(self.max_occluded_fraction, "max_occluded_fraction", 0.0, 1.0)
+            finite_number(depth, "depths_m", -self.object_distance_m + 0.5)
+        integer_at_least(self.max_retries, "max_retries", 1)
+        integer_at_least(self.camera_attempts, "camera_attempts", 1)
+        finite_number(self.min_anomaly_fraction, "min_anomaly_fraction", 0.0, 0.5)
+        finite_number(self.max_occluded_fraction, "max_occluded_fraction", 0.0, 1.0)
         self._check_sun()
-        _finite(self.colour_probability, "colour_probability", 0.0, 1.0)
-        _finite(self.scale_probability, "scale_probability", 0.0, 1.0)
+        finite_number(self.colour_probability, "colour_probability", 0.0, 1.0)
+        finite_number(self.scale_probability, "scale_probability", 0.0, 1.0)
         if not isinstance(self.scales, tuple) or not self.scales:
             raise SynthError(f"scales must be a non-empty tuple, got {self.scales!r}")
         for scale in self.scales:
-            _finite(scale, "scales", 0.05, 1.0)
+            finite_number(scale, "scales", 0.05, 1.0)
         if self.anomaly_types is not None:
             from allo_mrad_ros.synth.objects import KNOWN_TYPES
 
@@ -245,9 +245,9 @@ class SynthConfig:
                 )
         self._check_dark_background()
         object.__setattr__(
-            self, "camera_distance_m", _pair(self.camera_distance_m, "camera_distance_m", 1.0)
+            self, "camera_distance_m", number_pair(self.camera_distance_m, "camera_distance_m", 1.0)
         )
-        _finite(self.min_camera_clearance_m, "min_camera_clearance_m", 0.5, 100.0)
+        finite_number(self.min_camera_clearance_m, "min_camera_clearance_m", 0.5, 100.0)
         if (
             not isinstance(self.days, tuple)
             or len(self.days) != 2
@@ -257,7 +257,7 @@ class SynthConfig:
             raise SynthError(f"days must be (first, last) within 1..365, got {self.days!r}")
         if not isinstance(self.references, bool) or not isinstance(self.shadows, bool):
             raise SynthError("references and shadows must be bools")
-        _finite(self.reference_scale, "reference_scale", 0.05, 1.0)
+        finite_number(self.reference_scale, "reference_scale", 0.05, 1.0)
         if not isinstance(self.realism, RealismConfig):
             raise SynthError(f"realism must be a RealismConfig, got {self.realism!r}")
         if self.query_renderer not in QUERY_RENDERERS:
@@ -267,7 +267,7 @@ class SynthConfig:
             )
         if not isinstance(self.camera_effects, bool):
             raise SynthError(f"camera_effects must be a bool, got {self.camera_effects!r}")
-        _count(self.cycles_samples, "cycles_samples", 1)
+        integer_at_least(self.cycles_samples, "cycles_samples", 1)
         if not isinstance(self.cycles_view_transforms, tuple) or not all(
             isinstance(name, str) and name in VIEW_TRANSFORMS
             for name in self.cycles_view_transforms
@@ -276,12 +276,12 @@ class SynthConfig:
                 f"cycles_view_transforms must be a tuple of {', '.join(VIEW_TRANSFORMS)}, "
                 f"got {self.cycles_view_transforms!r}"
             )
-        low_ev, high_ev = _pair(self.cycles_exposure_ev, "cycles_exposure_ev", -10.0)
+        low_ev, high_ev = number_pair(self.cycles_exposure_ev, "cycles_exposure_ev", -10.0)
         if high_ev > 10.0:
             raise SynthError(f"cycles_exposure_ev must lie in [-10, 10], got {(low_ev, high_ev)}")
         if isinstance(self.jpeg_quality, bool) or self.jpeg_quality not in range(101):
             raise SynthError(f"jpeg_quality must be 0-100, got {self.jpeg_quality!r}")
-        _finite(self.rate_hz, "rate_hz", 1e-3, 1e4)
+        finite_number(self.rate_hz, "rate_hz", 1e-3, 1e4)
         if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
             raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
 
@@ -296,7 +296,7 @@ class SynthConfig:
             raise SynthError(
                 f"unknown dark_background_types {unknown}; known: {', '.join(KNOWN_TYPES)}"
             )
-        _finite(self.dark_background_level, "dark_background_level", 0.0, 1.0)
+        finite_number(self.dark_background_level, "dark_background_level", 0.0, 1.0)
 
     def _check_sun(self) -> None:
         strengths, weights = self.sun_strengths, self.sun_weights
@@ -305,9 +305,9 @@ class SynthConfig:
         if not isinstance(weights, tuple) or len(weights) != len(strengths):
             raise SynthError("sun_weights must be a tuple as long as sun_strengths")
         for value in strengths:
-            _finite(value, "sun_strengths", 0.0, 100.0)
+            finite_number(value, "sun_strengths", 0.0, 100.0)
         for value in weights:
-            _finite(value, "sun_weights", 0.0)
+            finite_number(value, "sun_weights", 0.0)
         if sum(weights) <= 0:
             raise SynthError("sun_weights must not all be zero")
 
@@ -329,7 +329,7 @@ class SynthConfig:
 
         Every split keeps its share and its normal/anomalous ratio, with at least one frame.
         """
-        _count(frames, "frames", 1)
+        integer_at_least(frames, "frames", 1)
         total = self.frames
         splits = {}
         for split, spec in self.splits.items():

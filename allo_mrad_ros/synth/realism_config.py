@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from allo_mrad_ros.synth.validation import SynthError, _finite, _pair
+from allo_mrad_ros.synth.validation import SynthError, finite_number, number_pair
 
 
 @dataclass(frozen=True)
@@ -112,30 +112,32 @@ class RealismConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
             raise SynthError(f"realism enabled must be a bool, got {self.enabled!r}")
-        _finite(self.exposure_sigma, "exposure_sigma", 0.0, 1.0)
-        _finite(self.read_noise_dn, "read_noise_dn", 0.0, 50.0)
-        _finite(self.shot_noise_dn, "shot_noise_dn", 0.0, 50.0)
-        object.__setattr__(self, "noise_gain", _pair(self.noise_gain, "noise_gain", 0.0))
-        _finite(self.blur_sigma, "blur_sigma", 0.0, 10.0)
-        _finite(self.vignetting, "vignetting", 0.0, 0.9)
-        _finite(self.bloom, "bloom", 0.0, 1.0)
-        _finite(self.glare, "glare", 0.0, 10.0)
-        _finite(self.material_variation, "material_variation", 0.0, 0.5)
-        _finite(self.part_variation, "part_variation", 0.0, 0.5)
-        _finite(self.texture_contrast, "texture_contrast", 0.0, 0.5)
-        _finite(self.texture_tile_m, "texture_tile_m", 0.05, 100.0)
-        _finite(self.seam_darkening, "seam_darkening", 0.0, 0.9)
-        tone = _pair(self.tone_contrast, "tone_contrast", 0.5)
+        finite_number(self.exposure_sigma, "exposure_sigma", 0.0, 1.0)
+        finite_number(self.read_noise_dn, "read_noise_dn", 0.0, 50.0)
+        finite_number(self.shot_noise_dn, "shot_noise_dn", 0.0, 50.0)
+        object.__setattr__(self, "noise_gain", number_pair(self.noise_gain, "noise_gain", 0.0))
+        finite_number(self.blur_sigma, "blur_sigma", 0.0, 10.0)
+        finite_number(self.vignetting, "vignetting", 0.0, 0.9)
+        finite_number(self.bloom, "bloom", 0.0, 1.0)
+        finite_number(self.glare, "glare", 0.0, 10.0)
+        finite_number(self.material_variation, "material_variation", 0.0, 0.5)
+        finite_number(self.part_variation, "part_variation", 0.0, 0.5)
+        finite_number(self.texture_contrast, "texture_contrast", 0.0, 0.5)
+        finite_number(self.texture_tile_m, "texture_tile_m", 0.05, 100.0)
+        finite_number(self.seam_darkening, "seam_darkening", 0.0, 0.9)
+        tone = number_pair(self.tone_contrast, "tone_contrast", 0.5)
         if tone[1] > 3.0:
             raise SynthError(f"tone_contrast must be <= 3, got {self.tone_contrast!r}")
         object.__setattr__(self, "tone_contrast", tone)
-        saturation = _pair(self.saturation, "saturation", 0.0)
+        saturation = number_pair(self.saturation, "saturation", 0.0)
         if saturation[1] > 2.0:
             raise SynthError(f"saturation must be <= 2, got {self.saturation!r}")
         object.__setattr__(self, "saturation", saturation)
-        _finite(self.white_balance_sigma, "white_balance_sigma", 0.0, 0.3)
-        _finite(self.sun_strength_sigma, "sun_strength_sigma", 0.0, 1.0)
-        _finite(self.sun_direction_sigma_deg, "sun_direction_sigma_deg", 0.0, 20.0)
-        object.__setattr__(self, "ambient_gain", _pair(self.ambient_gain, "ambient_gain", 0.0))
-        object.__setattr__(self, "spot_gain", _pair(self.spot_gain, "spot_gain", 0.0))
-        _finite(self.anomaly_albedo_sigma, "anomaly_albedo_sigma", 0.0, 0.5)
+        finite_number(self.white_balance_sigma, "white_balance_sigma", 0.0, 0.3)
+        finite_number(self.sun_strength_sigma, "sun_strength_sigma", 0.0, 1.0)
+        finite_number(self.sun_direction_sigma_deg, "sun_direction_sigma_deg", 0.0, 20.0)
+        object.__setattr__(
+            self, "ambient_gain", number_pair(self.ambient_gain, "ambient_gain", 0.0)
+        )
+        object.__setattr__(self, "spot_gain", number_pair(self.spot_gain, "spot_gain", 0.0))
+        finite_number(self.anomaly_albedo_sigma, "anomaly_albedo_sigma", 0.0, 0.5)

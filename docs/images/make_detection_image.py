@@ -16,7 +16,7 @@ import numpy as np
 from PIL import Image
 
 from allo_mrad_ros.evaluation.sources import open_sequence
-from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider, RenderSettings
+from allo_mrad_ros.pipeline import Pipeline
 from allo_mrad_ros.visualise import outline
 
 
@@ -31,13 +31,8 @@ def main() -> None:
     source = open_sequence(args.sequence)
     index = next(i for i, f in enumerate(source.sequence.frames) if f.name == args.frame)
     frame = next(source.frames([index]))
-    render = RenderSettings()
-    provider = ReferenceProvider(source.mesh, source.camera, render)
-    try:
-        result = Pipeline(provider, PipelineConfig(render=render)).process(frame.image, frame.view)
-    finally:
-        provider.close()
-    mrad = result.primary
+    with Pipeline.open(source.camera, mesh=source.mesh) as pipeline:
+        mrad = pipeline.process(frame.image, frame.view).primary
 
     height = round(frame.image.shape[0] * args.width / frame.image.shape[1])
     size = (args.width, height)

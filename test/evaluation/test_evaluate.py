@@ -15,12 +15,13 @@ from rosbag_fixtures import write_tiny_sequence
 
 from allo_mrad_ros.detector import METHODS as DETECTORS
 from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.detector.params import params_from
 from allo_mrad_ros.evaluation.ablate import ablate, sweep_points
 from allo_mrad_ros.evaluation.parallel import ParallelError, run_frames
 from allo_mrad_ros.evaluation.sources import FrameSourceError, spread
 from allo_mrad_ros.localisation import object_overlap, summarise
 from allo_mrad_ros.metrics import MetricsAccumulator
-from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings, params_from
+from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.sequence import SequenceWriter, read_sequence
 from allo_mrad_ros.sky import with_sun

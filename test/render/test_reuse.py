@@ -9,8 +9,8 @@ import pytest
 
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.pipeline import ReferenceProvider, RenderSettings
 from allo_mrad_ros.render.bodies import CelestialBody
+from allo_mrad_ros.render.provider import ReferenceProvider
 from allo_mrad_ros.render.reuse import (
     Keyframe,
     ReferenceReuse,
@@ -19,6 +19,7 @@ from allo_mrad_ros.render.reuse import (
     decide,
     keyframe_of,
 )
+from allo_mrad_ros.render.settings import RenderSettings
 from allo_mrad_ros.render.warp import relative_motion, widened
 from allo_mrad_ros.view import View
 

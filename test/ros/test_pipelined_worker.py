@@ -14,6 +14,7 @@ import rclpy  # noqa: F401 - the worker's diagnostics need rclpy (skipped on the
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import worker as worker_module
 from allo_mrad_ros.ros.buffers import HandOver, LatestSlot
 from allo_mrad_ros.ros.messages import fill_image, stamp_to_ns
@@ -84,6 +85,13 @@ class Stages:
             def __init__(self, provider, config):
                 self.provider, self.config = provider, config
 
+            @classmethod
+            def open(cls, camera, *, mesh, config):
+                return cls(Provider(mesh, camera, config.render), config)
+
+            def close(self):
+                self.provider.close()
+
             def with_config(self, config):
                 return Pipeline(self.provider, config)
 
@@ -96,9 +104,9 @@ class Stages:
                 stages.detecting.set()
                 stages.gate.wait(30)
                 time.sleep(seconds(stages.detect_s))
-                return {"MRAD": types.SimpleNamespace(anomalous=False)}, {"MRAD": 0.0}
+                result = types.SimpleNamespace(anomalous=False)
+                return ProcessedFrame(reference, {"MRAD": result}, {"render": 0.0, "MRAD": 0.0})
 
-        monkeypatch.setattr(worker_module, "ReferenceProvider", Provider)
         monkeypatch.setattr(worker_module, "Pipeline", Pipeline)
 
 

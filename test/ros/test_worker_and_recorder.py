@@ -11,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import worker as worker_module
 from allo_mrad_ros.ros.buffers import LatestSlot
 from allo_mrad_ros.ros.diagnostics import _MAX_LOGGED_KINDS, Diagnostics
@@ -49,10 +50,14 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monk
             reuse=None,
         )
 
+        def close(self):
+            pass
+
         def detect(self, image, reference, score_map=True):
             entered.set()
             release.wait(30)
-            return {"MRAD": types.SimpleNamespace(anomalous=False)}, {"MRAD": 0.0}
+            result = types.SimpleNamespace(anomalous=False)
+            return ProcessedFrame(reference, {"MRAD": result}, {"render": 0.0, "MRAD": 0.0})
 
     monkeypatch.setattr(
         ProcessingWorker, "_pipeline_for", lambda self, state, p, b: (SlowPipeline(), b)

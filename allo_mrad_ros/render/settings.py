@@ -1,0 +1,57 @@
+"""How references are rendered: :class:`RenderSettings`, validated when built."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS
+from allo_mrad_ros.render.reuse import ReuseBounds
+
+RENDER_BACKENDS = ("", "osmesa", "egl")
+
+
+class RenderSettingsError(InvalidInput):
+    """An invalid render setting (scale, backend, reuse bounds)."""
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How the reference is rendered.
+
+    Parameters
+    ----------
+    reference_scale : float
+        Linear scale of the rendered reference, (0, 1].
+    shadows : bool
+        Directional shadows from the Sun.
+    cull_bodies : bool
+        Draw celestial bodies only when in view (False exists to measure what culling saves).
+    render_backend : str
+        ``osmesa``, ``egl``, or empty to choose.
+    reuse : ReuseBounds or None
+        Warp the last rendered reference to a later view while these bounds allow
+        (:mod:`allo_mrad_ros.render.reuse`); None renders every view. Frames must then
+        come in their time order.
+    """
+
+    reference_scale: float = DEFAULT_SCALE
+    shadows: bool = DEFAULT_SHADOWS
+    cull_bodies: bool = True
+    render_backend: str = ""
+    reuse: ReuseBounds | None = None
+
+    def __post_init__(self) -> None:
+        scale = self.reference_scale
+        if isinstance(scale, bool) or not isinstance(scale, int | float):
+            raise RenderSettingsError(f"reference_scale must be a number, got {scale!r}")
+        if not (math.isfinite(scale) and 0 < scale <= 1):
+            raise RenderSettingsError(f"reference_scale must be in (0, 1], got {scale!r}")
+        if self.render_backend not in RENDER_BACKENDS:
+            raise RenderSettingsError(
+                f"render_backend must be one of {list(RENDER_BACKENDS)}, "
+                f"got {self.render_backend!r}"
+            )
+        if self.reuse is not None and not isinstance(self.reuse, ReuseBounds):
+            raise RenderSettingsError(f"reuse must be ReuseBounds or None, got {self.reuse!r}")
