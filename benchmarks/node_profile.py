@@ -29,9 +29,13 @@ from allo_mrad_ros.camera import ALLO_INTRINSICS
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.outputs import Outputs
+from allo_mrad_ros.ros.parameters import default_config
 from allo_mrad_ros.view import View
 from benchmarks import finish, machine_facts
 from benchmarks.node_session import SUN, still_frames
+
+# The node's default output settings: the overlay published, the reference not.
+CONFIG = default_config()
 
 
 class _Listened:
@@ -79,7 +83,7 @@ def profile_frames(frames: int, subscribed: tuple[str, ...]) -> tuple[pstats.Sta
             t3 = time.perf_counter()
             frame = type("Frame", (), {})()
             frame.primary, frame.reference = next(iter(results.values())), reference
-            outputs.publish(msg.header, image, frame, None, False, True, score_map)
+            outputs.publish(msg.header, image, frame, config=CONFIG, score_map=score_map)
             t4 = time.perf_counter()
             if record:
                 for name, (a, b) in zip(

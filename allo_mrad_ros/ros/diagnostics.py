@@ -22,6 +22,7 @@ from rclpy.node import Node
 from allo_mrad_ros import interface
 from allo_mrad_ros.ros.buffers import StageStatistics
 from allo_mrad_ros.ros.messages import MessageError
+from allo_mrad_ros.ros.parameters import NodeConfig
 
 # Distinct error kinds logged once each; beyond this many a cause is only counted.
 _MAX_LOGGED_KINDS = 200
@@ -39,51 +40,51 @@ class Diagnostics:
     Parameters
     ----------
     node : rclpy.node.Node
-        Publishes ``/diagnostics`` on a timer of ``period_s``.
-    period_s : float
-        Publishing period.
+        Publishes ``/diagnostics`` on a timer of ``config.diagnostics_period_s``.
+    config : NodeConfig
+        Read at construction (every field used is read-only): ``diagnostics_period_s``,
+        ``input_timeout_s`` (no image for this long while an output is subscribed: level
+        ERROR), ``hardware_id`` (empty: the frame id of the latest image), ``expected_rate_hz``
+        and ``rate_tolerance`` (the input rate status' target, 0: none, and its accepted
+        relative deviation), ``max_stamp_delay_s`` (the input stamp status' largest accepted
+        stamp age on arrival).
     received : callable
         Returns the number of images received so far.
-    pose_source : str
-        Reported as a value.
-    input_timeout_s : float
-        No image for this long while an output is subscribed: level ERROR.
-    hardware_id : str
-        ``hardware_id`` of the status; empty: the frame id of the latest image.
-    expected_rate_hz, rate_tolerance : float
-        The input rate status' target (0: none) and its accepted relative deviation.
-    max_stamp_delay_s : float
-        The input stamp status' largest accepted stamp age on arrival.
+    pose_source : callable
+        Returns the pose source in use, reported as a value.
+    idle : callable
+        Returns why the node processes nothing on purpose ("" when it should be processing).
+    inputs_subscribed : callable
+        Returns whether the node is subscribed to the image now.
+    worker_alive : callable
+        Returns whether the processing thread runs.
     """
 
     def __init__(
         self,
         node: Node,
-        period_s: float,
+        config: NodeConfig,
+        *,
         received: Callable[[], int],
-        pose_source: str,
-        input_timeout_s: float = 2.0,
-        hardware_id: str = "",
-        expected_rate_hz: float = 0.0,
-        rate_tolerance: float = 0.1,
-        max_stamp_delay_s: float = 1.0,
+        pose_source: Callable[[], str],
+        idle: Callable[[], str] = lambda: "",
+        inputs_subscribed: Callable[[], bool] = lambda: True,
+        worker_alive: Callable[[], bool] = lambda: True,
     ) -> None:
         self._node = node
         self._received = received
-        self.pose_source = pose_source
-        self.input_timeout_s = input_timeout_s
-        self.window_s = max(5.0, 5.0 * period_s)
-        self._hardware_id = hardware_id
+        self._pose_source = pose_source
+        self._idle = idle
+        self._inputs_subscribed = inputs_subscribed
+        self._worker_alive = worker_alive
+        self.input_timeout_s = config.input_timeout_s
+        self.window_s = max(5.0, 5.0 * config.diagnostics_period_s)
+        self._hardware_id = config.hardware_id
         self._frame_id = ""
         self._last_input: float | None = None
-        self.worker_alive: Callable[[], bool] = lambda: True
-        # Why the node processes nothing on purpose ("" when it should be processing).
-        self.idle: Callable[[], str] = lambda: ""
-        # Whether the node is subscribed to the image now.
-        self.inputs_subscribed: Callable[[], bool] = lambda: True
-        self.expected_rate_hz = expected_rate_hz
-        self.rate_tolerance = rate_tolerance
-        self.max_stamp_delay_s = max_stamp_delay_s
+        self.expected_rate_hz = config.expected_rate_hz
+        self.rate_tolerance = config.rate_tolerance
+        self.max_stamp_delay_s = config.max_stamp_delay_s
         self._arrivals: deque[float] = deque(maxlen=100_000)
         self._arrivals_total = 0
         # Stamp delays (s) of images since the last publication: TimeStampStatus' window.
@@ -98,7 +99,7 @@ class Diagnostics:
         self._lock = threading.Lock()
         self.stages = StageStatistics(window=1000)
         self._publisher = node.create_publisher(DiagnosticArray, interface.DIAGNOSTICS_TOPIC, 10)
-        node.create_timer(period_s, self.publish)
+        node.create_timer(config.diagnostics_period_s, self.publish)
 
     def input_seen(self, frame_id: str, stamp_ns: int = 0, now_ns: int = 0) -> None:
         """Note that an image arrived now (its frame names the hardware); ``now_ns - stamp_ns``
@@ -153,16 +154,16 @@ class Diagnostics:
             recent = self._recent_counts(now)
             last_input, frame_id = self._last_input, self._frame_id
         counters["frames_received"] = self._received()
-        idle = self.idle()
+        idle = self._idle()
         status = DiagnosticStatus(
             name=self._name("pipeline"),
             hardware_id=self._hardware_id or frame_id or interface.HARDWARE_ID,
         )
         values = {
             "rate_hz": f"{self.stages.rate_hz(self.window_s):.2f}",
-            "pose_source": self.pose_source,
+            "pose_source": self._pose_source(),
             "window_s": f"{self.window_s:g}",
-            "inputs_subscribed": str(self.inputs_subscribed()).lower(),
+            "inputs_subscribed": str(self._inputs_subscribed()).lower(),
         }
         for stage, (p50, p95) in self.stages.percentiles().items():
             values[f"latency_{stage}_ms_p50"] = f"{p50:.1f}"
@@ -173,7 +174,7 @@ class Diagnostics:
             k for k in recent if k.startswith("errors_") or k == "pose_lookup_failures"
         )
         silent_s = None if last_input is None else now - last_input
-        if not self.worker_alive():
+        if not self._worker_alive():
             status.level = DiagnosticStatus.ERROR
             status.message = "processing thread stopped: no frames are processed"
         elif idle:
@@ -281,7 +282,7 @@ class Diagnostics:
 
     def statuses(self) -> list[DiagnosticStatus]:
         """The pipeline status first, then the input rate and input stamp statuses."""
-        idle = self.idle()
+        idle = self._idle()
         return [self.status(), self.frequency_status(idle), self.timestamp_status(idle)]
 
     def publish(self) -> None:

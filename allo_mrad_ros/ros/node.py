@@ -46,24 +46,26 @@ from sensor_msgs.msg import CompressedImage, Image
 from allo_mrad_ros import interface
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import process_tuning
+from allo_mrad_ros.ros.arguments import (
+    check_command_line,
+    check_params_files,
+    command_line_parameters,
+    keys_for_other_nodes,
+    unknown_parameters,
+)
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.inputs import NodeInputs
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import (
     NodeParameter,
     ParameterError,
-    check_command_line,
     check_mesh,
-    check_params_files,
-    command_line_parameters,
-    detector_parameters,
-    keys_for_other_nodes,
+    declared_parameters,
     node_config_from,
-    node_parameters,
-    unknown_parameters,
     validate,
 )
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
+from allo_mrad_ros.ros.rclpy_compat import parameter_overrides
 from allo_mrad_ros.ros.worker import ProcessingWorker
 
 # Exit status when a parameter value is invalid (as for a command-line usage error).
@@ -130,7 +132,7 @@ class MradDetectorNode(Node):
             super().__init__(interface.NODE_NAME, **kwargs)
         self._managed = managed
         self._command_line = command_line or {}
-        self._declared = {**node_parameters(tf2_available()), **detector_parameters()}
+        self._declared = declared_parameters(tf2_available())
         try:
             self._values = self._declare_all()
         except ParameterError:
@@ -163,16 +165,15 @@ class MradDetectorNode(Node):
                 super().destroy_node()
             raise
 
+        # The callbacks read what is built below; /diagnostics is first published on spin.
         self._diagnostics = Diagnostics(
             self,
-            config.diagnostics_period_s,
-            lambda: self._inputs.images.received,
-            "",
-            config.input_timeout_s,
-            config.hardware_id,
-            config.expected_rate_hz,
-            config.rate_tolerance,
-            config.max_stamp_delay_s,
+            config,
+            received=lambda: self._inputs.images.received,
+            pose_source=lambda: self._pose_source.kind,
+            idle=self._inputs.idle_reason,
+            inputs_subscribed=lambda: bool(self._inputs.subscriptions),
+            worker_alive=lambda: self._worker is None or self._worker.is_alive(),
         )
         state = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
         self._setup_io(state)
@@ -191,9 +192,6 @@ class MradDetectorNode(Node):
             self._diagnostics.report,
         )
         self._inputs.pose_source = self._pose_source
-        self._diagnostics.pose_source = self._pose_source.kind
-        self._diagnostics.idle = self._inputs.idle_reason
-        self._diagnostics.inputs_subscribed = lambda: bool(self._inputs.subscriptions)
         self._worker = ProcessingWorker(
             self._inputs.images,
             self._inputs.snapshot,
@@ -204,7 +202,6 @@ class MradDetectorNode(Node):
             config.pipelined,
             lambda: self._outputs.score.get_subscription_count() > 0,
         )
-        self._diagnostics.worker_alive = self._worker.is_alive
         self.get_logger().info(self._tuning)
         self.get_logger().info(
             f"MRAD detector ready: pose from {self._pose_source.kind}, reference scale "
@@ -242,7 +239,7 @@ class MradDetectorNode(Node):
                 requested = self.declare_parameter(name, parameter.default, descriptor).value
                 declared = True
             except ParameterException:
-                override = self._parameter_overrides.get(name)
+                override = parameter_overrides(self).get(name)
                 requested = None if override is None else override.value
                 declared = False
             try:
@@ -272,7 +269,7 @@ class MradDetectorNode(Node):
         if problems:
             raise ParameterError("invalid parameter value: " + "; ".join(dict.fromkeys(problems)))
         # A misspelt parameter would otherwise be ignored without a word (rclpy's rule).
-        given = {*self._parameter_overrides, *self._command_line}
+        given = {*parameter_overrides(self), *self._command_line}
         for warning in unknown_parameters(given, self._declared):
             self.get_logger().warning(warning)
         return values
@@ -311,13 +308,12 @@ class MradDetectorNode(Node):
         # image topic, so remapping the image moves both.
         self._info_topic = camera_info_topic(base)
         self._inputs.open(image_type, self._image_topic, self._info_topic, state, self._diagnostics)
-        self._outputs = Outputs(self, self._config.hardware_id, qos_overriding)
+        self._outputs = Outputs(self, overriding=qos_overriding)
         self._inputs.subscribe()  # once at start: declares the inputs' QoS override parameters
 
     def _outputs_wanted(self) -> bool:
         """Whether any output has a subscriber (if not, no input is needed)."""
-        config = self._config
-        return self._outputs.wanted(config.publish_reference, config.publish_overlay)
+        return self._outputs.wanted(self._config)
 
     def _check_qos_overrides(self) -> None:
         """Refuse a ``qos_overrides.*`` parameter that no publisher or subscription applied
@@ -330,7 +326,7 @@ class MradDetectorNode(Node):
         """
         unused = sorted(
             name
-            for name in {*self._parameter_overrides, *self._command_line}
+            for name in {*parameter_overrides(self), *self._command_line}
             if name.startswith("qos_overrides.") and not self.has_parameter(name)
         )
         if unused:
@@ -339,11 +335,7 @@ class MradDetectorNode(Node):
                 "policy of this node and would not be applied; the node's topics: "
                 + ", ".join(
                     sorted(
-                        {
-                            n.split(".")[1]
-                            for n in self._parameters
-                            if n.startswith("qos_overrides.")
-                        }
+                        {n.split(".")[0] for n in self.get_parameters_by_prefix("qos_overrides")}
                     )
                 )
             )
@@ -363,14 +355,11 @@ class MradDetectorNode(Node):
             msg.header,
             image,
             frame,
-            reference_camera,
-            config.publish_reference,
-            config.publish_overlay,
-            score_map,
+            config=config,
+            reference_camera=reference_camera,
             # The camera_info the frame was processed with (paired by stamp, as the worker did).
-            self._inputs.camera_info_of(msg),
-            config.score_full_resolution,
-            config.overlay_full_resolution,
+            camera_info=self._inputs.camera_info_of(msg),
+            score_map=score_map,
         )
 
     def destroy_node(self) -> None:

@@ -39,6 +39,7 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
+from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.visualise import outline
 
 OVERLAY_COLOUR = (255, 40, 40)
@@ -136,12 +137,10 @@ class Outputs:
     def __init__(
         self,
         node: Node,
-        hardware_id: str = "",
+        *,
         overriding: Callable[[], QoSOverridingOptions] = QoSOverridingOptions.with_default_policies,
     ) -> None:
         self._node = node
-        # The parameter; empty: each result names the image's frame_id, as /diagnostics does.
-        self._hardware_id = hardware_id
 
         def publisher(kind: type, topic: str, depth: int):
             return node.create_publisher(kind, topic, depth, qos_overriding_options=overriding())
@@ -162,41 +161,42 @@ class Outputs:
             else publisher(self._vision.Detection2DArray, interface.DETECTIONS_OUTPUT, 10)
         )
 
-    def wanted(self, publish_reference: bool, publish_overlay: bool) -> bool:
-        """Whether any output has a subscriber (if not, a frame need not be processed)."""
+    def wanted(self, config: NodeConfig) -> bool:
+        """Whether any output has a subscriber (if not, a frame need not be processed);
+        ``~/reference`` and ``~/overlay`` count only where ``config`` publishes them."""
         always = [self.mask, self.score, self.score_info, self.anomaly, self.result, self.regions]
         if self.detections is not None:
             always.append(self.detections)
         if any(p.get_subscription_count() for p in always):
             return True
-        if publish_reference and (
+        if config.publish_reference and (
             self.reference.get_subscription_count() or self.reference_info.get_subscription_count()
         ):
             return True
-        return bool(publish_overlay and self.overlay.get_subscription_count())
+        return bool(config.publish_overlay and self.overlay.get_subscription_count())
 
     def publish(
         self,
         header: object,
         image: np.ndarray,
         frame: ProcessedFrame,
-        reference_camera: CameraIntrinsics | None,
-        publish_reference: bool,
-        publish_overlay: bool,
-        score_map: bool = True,
+        *,
+        config: NodeConfig,
+        reference_camera: CameraIntrinsics | None = None,
         camera_info: Any | None = None,
-        score_full_resolution: bool = False,
-        overlay_full_resolution: bool = False,
+        score_map: bool = True,
     ) -> None:
         """Build and publish every subscribed output with the input image's ``header``.
 
+        ``config``: the node's settings for this frame (``publish_reference``,
+        ``publish_overlay``, ``score_full_resolution``: ``~/score`` at the image's resolution,
+        upscaled, instead of the detector's processing resolution; ``overlay_full_resolution``
+        likewise for ``~/overlay``; ``hardware_id``, empty: each result names the image's
+        frame_id, as /diagnostics does). ``reference_camera``: the camera the reference was
+        rendered for (None: no ``~/reference/camera_info``). ``camera_info``: the image's
+        ``sensor_msgs/CameraInfo`` (None: unknown, so no ``~/score/camera_info``).
         ``score_map`` False: the frame's score is not the ranking map (no one subscribed
         when it was detected), so ``~/score`` is left out for this frame.
-        ``camera_info``: the image's ``sensor_msgs/CameraInfo`` (None: unknown, so no
-        ``~/score/camera_info``). ``score_full_resolution``: ``~/score`` at the image's
-        resolution (upscaled) instead of the detector's processing resolution.
-        ``overlay_full_resolution``: ``~/overlay`` at the image's resolution instead of the
-        processing resolution.
         """
         result = frame.primary
         fill = messages.fill_image
@@ -207,7 +207,7 @@ class Outputs:
         self.anomaly.publish(Bool(data=bool(result.anomalous)))
         # The map as the detector made it: upscaling it is a 1080p float32 resize and 16 times
         # the bytes to send, worth it only to a consumer that asked for it.
-        score = result.score if score_full_resolution else result.work_score
+        score = result.score if config.score_full_resolution else result.work_score
         if score_map and self.score.get_subscription_count():
             self.score.publish(fill(Image(), header, score, interface.SCORE_ENCODING))
         if camera_info is not None and self.score_info.get_subscription_count():
@@ -232,18 +232,18 @@ class Outputs:
                 result.mask.size,
                 result.regions,
                 result.image_score,
-                self._hardware_id or getattr(header, "frame_id", ""),
+                config.hardware_id or getattr(header, "frame_id", ""),
             )
             self.result.publish(DiagnosticArray(header=header, status=[status]))
-        if publish_reference:
+        if config.publish_reference:
             if self.reference.get_subscription_count():
                 self.reference.publish(fill(Image(), header, frame.reference, interface.RGB8))
             if reference_camera is not None and self.reference_info.get_subscription_count():
                 info = messages.fill_camera_info(CameraInfo(), reference_camera)
                 info.header = header
                 self.reference_info.publish(info)
-        if publish_overlay and self.overlay.get_subscription_count():
-            overlay = _overlay(image, result, overlay_full_resolution)
+        if config.publish_overlay and self.overlay.get_subscription_count():
+            overlay = _overlay(image, result, config.overlay_full_resolution)
             self.overlay.publish(fill(Image(), header, overlay, interface.RGB8))
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 import types
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytest
@@ -21,12 +21,15 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
 from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.pipeline import DetectionResult
 from allo_mrad_ros.detector.regions import extract_regions
+from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.node import MradDetectorNode, camera_info_topic
 from allo_mrad_ros.ros.outputs import detection_array, result_status
+from allo_mrad_ros.ros.parameters import default_config
 from allo_mrad_ros.ros.pose_source import PoseSource
 
 pytestmark = pytest.mark.ros
@@ -106,7 +109,25 @@ def test_the_node_passes_its_hardware_id_parameter_to_the_result(ros):
         ]
     )
     try:
-        assert node._outputs._hardware_id == "cam7"
+        sent: list = []
+        node._outputs.result = types.SimpleNamespace(
+            get_subscription_count=lambda: 1, publish=sent.append
+        )
+        mask = np.zeros((4, 6), np.uint8)
+        result = DetectionResult(
+            work_score=np.zeros((4, 6), np.float32),
+            raw_score=np.zeros((4, 6), np.float32),
+            mask=mask,
+            area=0,
+            anomalous=False,
+            image_score=0.0,
+            regions=extract_regions(mask, np.zeros((4, 6), np.float32), (4, 6), 8),
+        )
+        frame = ProcessedFrame(reference=np.zeros((2, 3, 3), np.uint8), results={"MRAD": result})
+        msg = Image(header=Header(frame_id="camera_optical"))
+        node._publish(msg, np.zeros((4, 6, 3), np.uint8), frame)
+        (array,) = sent
+        assert array.status[0].hardware_id == "cam7"  # the parameter, not the image's frame
     finally:
         node.destroy_node()
 
@@ -312,15 +333,21 @@ def test_detections_carry_one_box_and_anomaly_hypothesis_per_region(connectivity
 def test_idle_with_nobody_subscribed_is_ok_with_its_reason_and_never_stale(ros):
     node = rclpy.create_node("diagnostics_idle_test")
     try:
-        diagnostics = Diagnostics(node, 1.0, lambda: 10, "topic", input_timeout_s=0.1)
+        config = replace(default_config(), input_timeout_s=0.1)
+        diagnostics = Diagnostics(
+            node,
+            config,
+            received=lambda: 10,
+            pose_source=lambda: "topic",
+            idle=lambda: "no subscriber to any output: inputs unsubscribed",
+            inputs_subscribed=lambda: False,
+        )
         diagnostics.input_seen("cam", 5, 5)
-        diagnostics.idle = lambda: "no subscriber to any output: inputs unsubscribed"
-        diagnostics.inputs_subscribed = lambda: False
         status = diagnostics.status()
         assert status.level == DiagnosticStatus.OK and status.message.startswith("idle: ")
-        assert {kv.key: kv.value for kv in status.values}["inputs_subscribed"] == "false"
-        diagnostics.idle = lambda: ""
-        silent = Diagnostics(node, 1.0, lambda: 0, "topic", input_timeout_s=0.1)
+        values = {kv.key: kv.value for kv in status.values}
+        assert values["inputs_subscribed"] == "false" and values["pose_source"] == "topic"
+        silent = Diagnostics(node, config, received=lambda: 0, pose_source=lambda: "topic")
         assert silent.status().level == DiagnosticStatus.ERROR  # no image at all: not STALE
     finally:
         node.destroy_node()
@@ -329,9 +356,8 @@ def test_idle_with_nobody_subscribed_is_ok_with_its_reason_and_never_stale(ros):
 def test_rate_and_stamp_statuses_report_as_diagnostic_updater_does(ros):
     node = rclpy.create_node("diagnostics_rate_test")
     try:
-        diagnostics = Diagnostics(
-            node, 1.0, lambda: 0, "topic", expected_rate_hz=30.0, max_stamp_delay_s=0.5
-        )
+        config = replace(default_config(), expected_rate_hz=30.0, max_stamp_delay_s=0.5)
+        diagnostics = Diagnostics(node, config, received=lambda: 0, pose_source=lambda: "topic")
         _pipeline, rate, stamp = diagnostics.statuses()
         assert rate.name.endswith(": input rate") and stamp.name.endswith(": input stamp")
         assert rate.level == DiagnosticStatus.ERROR and rate.message == "No events recorded."

@@ -7,8 +7,8 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
+from allo_mrad_ros.ros.arguments import command_line_parameters
 from allo_mrad_ros.ros.node import EXIT_INVALID_PARAMETER, MradDetectorNode
-from allo_mrad_ros.ros.parameters import command_line_parameters
 
 pytestmark = pytest.mark.ros
 
@@ -98,7 +98,7 @@ def test_a_missing_or_malformed_params_file_is_one_line(tmp_path, content, expec
 
 
 def test_an_unknown_parameter_name_is_warned_about_with_the_closest_name(capfd):
-    from allo_mrad_ros.ros.parameters import unknown_parameters
+    from allo_mrad_ros.ros.arguments import unknown_parameters
 
     declared = ["mrad.grid", "reference_scale", "pose_source"]
     given = ["mrad.gird", "use_sim_time", "qos_overrides./x.subscription.depth", "mrad.grid"]

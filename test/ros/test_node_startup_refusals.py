@@ -14,13 +14,9 @@ import rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy
 
+from allo_mrad_ros.ros.arguments import check_command_line, check_params_files, keys_for_other_nodes
 from allo_mrad_ros.ros.node import EXIT_INVALID_PARAMETER, MradDetectorNode
-from allo_mrad_ros.ros.parameters import (
-    ParameterError,
-    check_command_line,
-    check_params_files,
-    keys_for_other_nodes,
-)
+from allo_mrad_ros.ros.parameters import ParameterError
 from allo_mrad_ros.ros.pose_source import tf2_available
 
 pytestmark = pytest.mark.ros

@@ -23,9 +23,18 @@ from allo_mrad_ros.ros.outputs import (
     Outputs,
     region_marker,
 )
+from allo_mrad_ros.ros.parameters import NodeConfig, default_config
 from allo_mrad_ros.visualise import outline
 
 pytestmark = pytest.mark.ros
+
+DEFAULTS = default_config()
+
+
+def settings(**changes: object) -> NodeConfig:
+    """The node's default settings with ``changes``."""
+    return dataclasses.replace(DEFAULTS, **changes)
+
 
 NAMES = (
     "score",
@@ -109,12 +118,14 @@ def publish(
         header,
         np.zeros((90, 160, 3), np.uint8) if image is None else image,
         processed or frame(),
-        camera,
-        reference,
-        overlay,
+        config=settings(
+            publish_reference=reference,
+            publish_overlay=overlay,
+            score_full_resolution=full_resolution,
+            overlay_full_resolution=overlay_full_resolution,
+        ),
+        reference_camera=camera,
         camera_info=info,
-        score_full_resolution=full_resolution,
-        overlay_full_resolution=overlay_full_resolution,
     )
 
 
@@ -221,7 +232,8 @@ def test_a_frame_detected_without_the_score_map_leaves_the_score_out(outputs):
     fakes = subscribe(outputs, *NAMES)
     header = Header(frame_id="cam")
     image = np.zeros((90, 160, 3), np.uint8)
-    outputs.publish(header, image, frame(), None, True, True, score_map=False)
+    config = settings(publish_reference=True, publish_overlay=True)
+    outputs.publish(header, image, frame(), config=config, score_map=False)
     assert fakes["score"].sent == []
     assert fakes["score_info"].sent == []  # no camera_info was given
     assert all(len(fakes[name].sent) == 1 for name in ("mask", "overlay", "result"))
@@ -234,15 +246,18 @@ def test_switched_off_outputs_stay_off_even_when_subscribed(outputs):
 
 
 def test_wanted_only_with_a_subscriber_to_an_enabled_output(outputs):
+    def wanted(reference: bool, overlay: bool) -> bool:
+        return outputs.wanted(settings(publish_reference=reference, publish_overlay=overlay))
+
     subscribe(outputs)
-    assert not outputs.wanted(True, True)
+    assert not wanted(True, True)
     subscribe(outputs, "overlay")
-    assert outputs.wanted(True, True) and not outputs.wanted(True, False)
+    assert wanted(True, True) and not wanted(True, False)
     subscribe(outputs, "reference_info")
-    assert outputs.wanted(True, False) and not outputs.wanted(False, True)
+    assert wanted(True, False) and not wanted(False, True)
     for name in ("mask", "score", "score_info", "anomaly", "result", "regions"):
         subscribe(outputs, name)
-        assert outputs.wanted(False, False), name
+        assert wanted(False, False), name
 
 
 def test_the_outline_marker_draws_each_region_box():
@@ -296,7 +311,8 @@ def test_published_boxes_are_the_detectors_regions_with_its_connectivity(outputs
     fakes = subscribe(outputs, *NAMES)
     processed = ProcessedFrame(reference=np.zeros((3, 4, 3), np.uint8), results={"MRAD": result})
     header = Header(frame_id="cam")
-    outputs.publish(header, np.zeros((24, 32, 3), np.uint8), processed, None, False, False)
+    config = settings(publish_reference=False, publish_overlay=False)
+    outputs.publish(header, np.zeros((24, 32, 3), np.uint8), processed, config=config)
     status = {kv.key: kv.value for kv in fakes["result"].sent[0].status[0].values}
     assert status["boxes_xywh"] == ";".join("{},{},{},{}".format(*box) for box in boxes)
     assert status["regions"] == str(len(boxes))

@@ -17,7 +17,7 @@ from allo_mrad_ros.ros.buffers import LatestSlot
 from allo_mrad_ros.ros.diagnostics import _MAX_LOGGED_KINDS, Diagnostics
 from allo_mrad_ros.ros.messages import MessageError, fill_image
 from allo_mrad_ros.ros.outputs import result_status
-from allo_mrad_ros.ros.parameters import node_parameters, validate
+from allo_mrad_ros.ros.parameters import default_config, node_parameters, validate
 from allo_mrad_ros.ros.recorder import OutputRecorder, RecorderError, image_score_of
 from allo_mrad_ros.ros.worker import ProcessingWorker, Snapshot
 
@@ -196,7 +196,9 @@ def test_diagnostics_remembers_a_bounded_number_of_logged_error_kinds():
     """Messages that differ in more than numbers (object addresses, frame names) are new
     kinds: the log stops at the cap, and so must the set of kinds seen."""
     node = LoggingNode()
-    diagnostics = Diagnostics(node, 1.0, lambda: 0, "topic")
+    diagnostics = Diagnostics(
+        node, default_config(), received=lambda: 0, pose_source=lambda: "topic"
+    )
     for index in range(3 * _MAX_LOGGED_KINDS):
         name = "".join(chr(ord("a") + int(digit)) for digit in str(index))  # no digits left
         diagnostics.report(MessageError("internal", f"frame failed in camera {name}"))

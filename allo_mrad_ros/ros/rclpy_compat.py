@@ -1,0 +1,42 @@
+"""What the node needs of rclpy that rclpy keeps private, read in this one place.
+
+rclpy holds a node's parameter overrides (``--ros-args -p``, ``--params-file`` and the
+``parameter_overrides`` argument) in ``Node._parameter_overrides`` and offers no public
+accessor for them in any distribution from Humble to Kilted (rclcpp's
+``get_parameter_overrides`` has no rclpy twin). The node reads them to name the value a user
+gave when rclpy refuses to declare it, to warn about an override that names no parameter, and
+to refuse a ``qos_overrides.*`` override that nothing applied. ``test/ros/test_rclpy_compat.py``
+checks this module against the rclpy installed (the CI's Kilted wheels; a venv without rclpy
+skips it), so a change of rclpy shows there, not as a wrong value in the node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
+
+from allo_mrad_ros.errors import BackendError
+
+
+class RclpyCompatError(BackendError):
+    """The installed rclpy does not keep what this module reads where it expects it."""
+
+
+def parameter_overrides(node: Any) -> Mapping[str, Any]:
+    """The parameter overrides rclpy applies to ``node``'s declarations: name to
+    ``rclpy.parameter.Parameter``, read-only.
+
+    Raises
+    ------
+    RclpyCompatError
+        Where this rclpy keeps no mapping ``Node._parameter_overrides``.
+    """
+    overrides = getattr(node, "_parameter_overrides", None)
+    if not isinstance(overrides, Mapping):
+        raise RclpyCompatError(
+            f"this rclpy keeps no parameter overrides where allo_mrad_ros reads them "
+            f"(Node._parameter_overrides is {type(overrides).__name__}); "
+            "allo_mrad_ros.ros.rclpy_compat must learn where it keeps them now"
+        )
+    return MappingProxyType(overrides)
