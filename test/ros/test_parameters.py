@@ -106,3 +106,52 @@ def test_qos_overrides_reach_subscriptions_and_publishers():
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_a_refused_qos_override_names_the_topics_the_node_has():
+    rclpy.init()
+    try:
+        with pytest.raises(ParameterError) as refused:
+            MradDetectorNode(
+                parameter_overrides=[
+                    Parameter("pose_source", value="topic"),
+                    Parameter("qos_overrides./mrad_detector/mask.publisher.depht", value=1),
+                ]
+            )
+        topics = str(refused.value).split("the node's topics: ", 1)[1].split(", ")
+        assert topics == sorted(topics)
+        assert {"/arm_camera/image_raw", "/mrad_detector/mask", "/mrad_detector/score"} <= set(
+            topics
+        )
+        assert all(topic.startswith("/") and "." not in topic for topic in topics)
+    finally:
+        rclpy.shutdown()
+
+
+def test_diagnostics_are_built_from_the_node_config_with_their_callbacks():
+    rclpy.init()
+    try:
+        node = MradDetectorNode(
+            parameter_overrides=[
+                Parameter("pose_source", value="topic"),
+                Parameter("hardware_id", value="cam9"),
+                Parameter("expected_rate_hz", value=30.0),
+                Parameter("input_timeout_s", value=0.5),
+            ]
+        )
+        try:
+            diagnostics = node._diagnostics
+            assert diagnostics.input_timeout_s == 0.5
+            pipeline, rate, _stamp = diagnostics.statuses()
+            values = {kv.key: kv.value for kv in pipeline.values}
+            assert values["pose_source"] == "topic" and pipeline.hardware_id == "cam9"
+            # No output is subscribed: the node is idle on purpose, and says so.
+            assert values["inputs_subscribed"] == "false"
+            assert pipeline.message.startswith("idle: ")
+            assert {kv.key: kv.value for kv in rate.values}["Target frequency (Hz)"] == "30"
+            node._worker.stop()
+            assert diagnostics.status().message.startswith("processing thread stopped")
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

@@ -1,0 +1,63 @@
+"""The one place that reads rclpy's private state, checked against the rclpy installed.
+
+The CI runs this on its rclpy (Kilted wheels); the distro route without rclpy skips the file.
+If rclpy moves or changes the overrides, these fail here rather than the node reading nothing.
+"""
+
+from __future__ import annotations
+
+import types
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from allo_mrad_ros.ros.rclpy_compat import RclpyCompatError, parameter_overrides
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def context():
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["prog", "--ros-args", "-p", "from_command_line:=7"])
+    yield context
+    rclpy.shutdown(context=context)
+
+
+def test_overrides_from_the_command_line_and_the_constructor_are_read(context):
+    node = rclpy.create_node(
+        "compat_test",
+        context=context,
+        parameter_overrides=[Parameter("given", value=2.5)],
+        automatically_declare_parameters_from_overrides=False,
+    )
+    try:
+        overrides = parameter_overrides(node)
+        assert overrides["from_command_line"].value == 7
+        assert overrides["given"].value == 2.5
+        assert set(overrides) == {"from_command_line", "given"}
+        # What rclpy applies on declaration is what the shim reads.
+        assert node.declare_parameter("given", 0.0).value == 2.5
+        assert node.declare_parameter("from_command_line", 0).value == 7
+    finally:
+        node.destroy_node()
+
+
+def test_a_node_without_overrides_gives_an_empty_mapping_that_cannot_be_changed():
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["prog"])
+    node = rclpy.create_node("compat_empty", context=context)
+    try:
+        overrides = parameter_overrides(node)
+        assert dict(overrides) == {}
+        with pytest.raises(TypeError):
+            overrides["x"] = Parameter("x", value=1)  # type: ignore[index]
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def test_an_rclpy_that_keeps_them_elsewhere_is_named_not_read_as_empty():
+    with pytest.raises(RclpyCompatError, match="_parameter_overrides is NoneType"):
+        parameter_overrides(types.SimpleNamespace())
