@@ -233,3 +233,15 @@ def test_mrad_params_fields_are_the_detector_table_in_order_with_valid_defaults(
     assert PARAMETER_SPECS["colour_transfer"].choices == ("none", *DIRECTIONS)
     assert PARAMETER_SPECS["connectivity"].choices == (4, 8)
     assert PARAMETER_SPECS["transfer_gain"].choices == (True, False)
+
+
+def test_launch_arguments_offer_exactly_the_choices_of_the_parameter_they_set():
+    from allo_mrad_ros.ros.launch_arguments import ARGUMENTS
+
+    parameters = node_parameters(True)
+    forwarded = [a for a in ARGUMENTS if a.parameter in parameters]
+    assert {a.parameter for a in forwarded} >= {"mesh", "pose_source", "image_transport"}
+    for argument in forwarded:
+        spec = parameters[argument.parameter].spec
+        if spec.choices and spec.kind is str:
+            assert argument.choices == spec.choices, argument.name
