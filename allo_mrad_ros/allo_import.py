@@ -181,7 +181,12 @@ def import_allo(
         from tqdm import tqdm
 
         iterator = tqdm(items, desc=f"import-allo {split}", unit="frame", file=sys.stderr)
-    with SequenceWriter(out, meta, overwrite=overwrite, start_ns=start_ns) as writer:
+    # Into the folder that holds the split: its images are the download's own files, which
+    # sequence.yaml records so that no command ever replaces that folder.
+    in_place = split_dir.resolve().is_relative_to(out.resolve())
+    with SequenceWriter(
+        out, meta, overwrite=overwrite, start_ns=start_ns, images_in_place=in_place
+    ) as writer:
         for item in iterator:
             try:
                 sky = allo_sky(item.day)
