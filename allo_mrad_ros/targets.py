@@ -295,6 +295,53 @@ def _refuse_overlap(out: Path, target: Path, inputs: Iterable[str | PathLike[str
             )
 
 
+_OLD_COPY = re.compile(r"^\.(?P<name>.+)\.old-(?P<pid>\d+)$")
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def restore_interrupted(out: str | PathLike[str]) -> Path | None:
+    """Put back an old output that a process killed while replacing it left aside.
+
+    Replacing ``out`` without an atomic exchange renames the old output to
+    ``.<name>.old-<pid>`` and then the new one to ``out``: a process killed in between
+    (SIGKILL, a power cut) leaves nothing at ``out`` and the old output aside. When nothing
+    is at ``out`` and such a copy of a process that no longer runs is there, the newest one
+    is renamed back to ``out``.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The copy put back, or None.
+    """
+    out = Path(out)
+    if os.path.lexists(out) or not out.parent.is_dir():
+        return None
+    try:
+        copies = [
+            entry
+            for entry in out.parent.iterdir()
+            if (match := _OLD_COPY.match(entry.name))
+            and match["name"] == out.name
+            and not _running(int(match["pid"]))
+        ]
+        if not copies:
+            return None
+        newest = max(copies, key=lambda entry: entry.lstat().st_mtime)
+        newest.rename(out)
+    except OSError:
+        return None
+    return newest
+
+
 def check_target(
     out: str | PathLike[str],
     kind: OutputKind,
@@ -303,6 +350,9 @@ def check_target(
     inputs: Iterable[str | PathLike[str] | None] = (),
 ) -> None:
     """Refuse ``out`` unless the command may put a new ``kind`` there.
+
+    An old output left aside by a process killed while replacing ``out`` is put back first
+    (:func:`restore_interrupted`), so the rule applies to it as to any output there.
 
     Parameters
     ----------
@@ -327,6 +377,7 @@ def check_target(
     target = out.resolve()
     _refuse_protected(out, target)
     _refuse_overlap(out, target, inputs)
+    restore_interrupted(out)
     if not os.path.lexists(out):
         return
     if out.is_symlink():
