@@ -25,6 +25,7 @@ from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
+from typing import NoReturn
 
 import yaml
 
@@ -255,17 +256,34 @@ BAG = OutputKind("bag", _bag_foreign)
 SEQUENCE = OutputKind("sequence", _sequence_foreign)
 
 
+EMPTY_NAME = "an empty name is not an output folder"
+
+
 def output_path(text: str) -> Path:
     """``argparse`` type of an output folder: refuses an empty name (``''`` would be ``.``).
 
     Raises
     ------
     argparse.ArgumentTypeError
-        For an empty or blank name.
+        For an empty or blank name; :class:`OutputArgumentParser` reports it in one line.
     """
     if not text.strip():
-        raise argparse.ArgumentTypeError("an empty name is not an output folder")
+        raise argparse.ArgumentTypeError(EMPTY_NAME)
     return Path(text)
+
+
+class OutputArgumentParser(argparse.ArgumentParser):
+    """An ``argparse`` parser that refuses an empty output name in one line, as every other
+    refused output is refused, without the usage block before it.
+
+    Its sub-parsers are of this class too (``add_subparsers`` uses the parser's own class).
+    """
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``message`` and exit 2; only the usage of an empty output name is left out."""
+        if message.endswith(EMPTY_NAME):
+            self.exit(2, f"{self.prog}: error: {message}\n")
+        super().error(message)
 
 
 def _contains(folder: Path, path: Path) -> bool:
@@ -372,7 +390,7 @@ def check_target(
         One line naming ``out`` and what to do instead.
     """
     if not str(out).strip():
-        raise TargetError("'': an empty name is not an output folder")
+        raise TargetError(f"'': {EMPTY_NAME}")
     out = Path(out)
     target = out.resolve()
     _refuse_protected(out, target)

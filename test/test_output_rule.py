@@ -269,3 +269,27 @@ def test_bag_write_refuses_a_metadata_yaml_that_is_not_a_bag_s(sources, tmp_path
     assert "metadata.yaml" in line and "not a bag" in line
     assert (out / "metadata.yaml").read_text() == "hello: 1\n"
     assert sorted(p.name for p in out.iterdir()) == ["metadata.yaml"] and hidden(tmp_path) == []
+
+
+@pytest.mark.parametrize("blank", ["", "   "], ids=["empty", "blank"])
+@pytest.mark.parametrize(
+    "command",
+    ["write", "evaluate", "ablate", "generate", "import-allo", "import-allo alone", "demo"],
+)
+def test_an_empty_output_name_is_one_line_without_the_usage_block(sources, capsys, command, blank):
+    from allo_mrad_ros.demo import main as demo_main
+
+    main, argv = {
+        "write": (bag_main, ["write", str(sources["seq"]), blank]),
+        "evaluate": (bag_main, report_argv(EVALUATE, sources, blank)),
+        "ablate": (bag_main, report_argv(ABLATE, sources, blank)),
+        "generate": (synth_main, [*SMOKE, "--out", blank]),
+        "import-allo": (synth_main, ["import-allo", str(sources["allo"]), "--out", blank]),
+        "import-allo alone": (main_import, [str(sources["allo"]), "--out", blank]),
+        "demo": (demo_main, ["--builtin", "--out", blank]),
+    }[command]
+    assert exit_status(main, argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage" not in err, err
+    assert err.endswith(": an empty name is not an output folder\n"), err
+    assert "--out" in err or "argument out" in err, err

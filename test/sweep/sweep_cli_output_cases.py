@@ -152,7 +152,14 @@ def _refusals(group: str, head: tuple[str, ...], out_option: tuple[str, ...]) ->
             "not a folder",
             prepare=a_file_out,
         ),
-        CliCase(group, "empty output name", argv("", "--overwrite"), "empty name"),
+        CliCase(
+            group,
+            "empty output name",
+            argv("", "--overwrite"),
+            "empty name",
+            one_line=True,  # no usage block before the error
+            quick=group == "allo-bag write",
+        ),
         CliCase(group, "output is the working folder", argv(".", "--overwrite"), "working folder"),
         CliCase(
             group,
