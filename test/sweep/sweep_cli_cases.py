@@ -56,6 +56,20 @@ def nan_position(seq: Path) -> None:
     (seq / "frames.csv").write_text("\n".join(lines) + "\n")
 
 
+def set_cell(column: str, value: str, row: int = 2):
+    """An edit of ``frames.csv``: ``column`` of data row ``row`` becomes ``value``."""
+
+    def edit(seq: Path) -> None:
+        lines = (seq / "frames.csv").read_text().splitlines()
+        header = lines[0].split(",")
+        cells = lines[row].split(",")
+        cells[header.index(column)] = value
+        lines[row] = ",".join(cells)
+        (seq / "frames.csv").write_text("\n".join(lines) + "\n")
+
+    return edit
+
+
 def first_png(seq: Path, kind: str) -> Path:
     return sorted((seq / "test").glob(f"Camera*/{kind}/*.png"))[0]
 
@@ -255,6 +269,28 @@ def cli_cases() -> list[CliCase]:
             ("write", "{ws}/seq", "{ws}/out"),
             "row",
             prepare=sequence_with(nan_position),
+        ),
+        CliCase(
+            b,
+            "translation of 1e300 in a row",
+            ("write", "{ws}/seq", "{ws}/out"),
+            r"row 2 .*'tx'.*not physical",
+            prepare=sequence_with(set_cell("tx", "1e300")),
+            quick=True,
+        ),
+        CliCase(
+            b,
+            "Moon radius of 1e300 in a row",
+            ("write", "{ws}/seq", "{ws}/out"),
+            r"row 2 .*'moon_r'.*not physical",
+            prepare=sequence_with(set_cell("moon_r", "1e300")),
+        ),
+        CliCase(
+            b,
+            "Sun strength of 1e300 in a row",
+            ("write", "{ws}/seq", "{ws}/out"),
+            r"row 2 .*'sun_strength'.*not physical",
+            prepare=sequence_with(set_cell("sun_strength", "1e300")),
         ),
         CliCase(
             b,
@@ -574,6 +610,13 @@ def cli_cases() -> list[CliCase]:
             (*EVAL, "{ws}/empty", *out),
             "empty",
             prepare=empty_folder,
+        ),
+        CliCase(
+            b,
+            "sequence with a translation of 1e300",
+            (*EVAL, "{ws}/seq", *out),
+            r"row 2 .*'tx'.*not physical",
+            prepare=sequence_with(set_cell("tx", "1e300")),
         ),
         CliCase(
             b,
