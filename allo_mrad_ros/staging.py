@@ -190,9 +190,11 @@ def _interrupts_deferred() -> Iterator[list[int]]:
     previous = {}
     try:
         for signum in _INTERRUPTS:
-            previous[signum] = signal.getsignal(signum)
-            if previous[signum] is not signal.SIG_IGN:
-                signal.signal(signum, lambda signum, frame: received.append(signum))
+            handler = signal.getsignal(signum)
+            if handler is None or handler is signal.SIG_IGN:
+                continue  # ignored, or a handler from C that Python cannot put back
+            previous[signum] = handler
+            signal.signal(signum, lambda signum, frame: received.append(signum))
         yield received
     finally:
         for signum, handler in previous.items():

@@ -158,7 +158,6 @@ def _refusals(group: str, head: tuple[str, ...], out_option: tuple[str, ...]) ->
             argv("", "--overwrite"),
             "empty name",
             one_line=True,  # no usage block before the error
-            quick=group == "allo-bag write",
         ),
         CliCase(group, "output is the working folder", argv(".", "--overwrite"), "working folder"),
         CliCase(
