@@ -55,7 +55,7 @@ from .sequence import (
     validate_sequence,
 )
 from .staging import hold_point, signals_as_interrupt, staged_folder, staging_path
-from .targets import SEQUENCE, TargetError, check_target, output_path
+from .targets import SEQUENCE, OutputArgumentParser, TargetError, check_target, output_path
 
 ALLO_DEFAULT_SUN_STRENGTH = 10.0
 """ALLO's default sun lamp strength, which maps to ``sun_strength`` 1.0."""
@@ -181,7 +181,12 @@ def import_allo(
         from tqdm import tqdm
 
         iterator = tqdm(items, desc=f"import-allo {split}", unit="frame", file=sys.stderr)
-    with SequenceWriter(out, meta, overwrite=overwrite, start_ns=start_ns) as writer:
+    # Into the folder that holds the split: its images are the download's own files, which
+    # sequence.yaml records so that no command ever replaces that folder.
+    in_place = split_dir.resolve().is_relative_to(out.resolve())
+    with SequenceWriter(
+        out, meta, overwrite=overwrite, start_ns=start_ns, images_in_place=in_place
+    ) as writer:
         for item in iterator:
             try:
                 sky = allo_sky(item.day)
@@ -302,7 +307,7 @@ def _run_import(args: argparse.Namespace) -> int:
 
 def main_import(argv: Sequence[str] | None = None) -> int:
     """Run ``import-allo`` as a stand-alone command; returns the exit status."""
-    parser = argparse.ArgumentParser(prog="allo-synth")
+    parser = OutputArgumentParser(prog="allo-synth")
     add_import_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["import-allo", *(sys.argv[1:] if argv is None else argv)])
     with signals_as_interrupt():

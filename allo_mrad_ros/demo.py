@@ -21,7 +21,6 @@ synthetic example instead, without ROS.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -41,6 +40,7 @@ from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.render import DEFAULT_SCALE
 from allo_mrad_ros.resources import share_path
+from allo_mrad_ros.targets import OutputArgumentParser, output_path
 from allo_mrad_ros.visualise import outline
 
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
@@ -437,9 +437,11 @@ def run_builtin(out: Path, profile_name: str, reference_scale: float) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = OutputArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=Path("data/demo"), help="sequence and bag")
-    parser.add_argument("--out", type=Path, default=Path("reports/demo"), help="report folder")
+    parser.add_argument(
+        "--out", type=output_path, default=Path("reports/demo"), help="report folder"
+    )
     parser.add_argument("--seed", type=int, default=0, help="sequence seed")
     parser.add_argument("--rate", type=float, default=1.0, help="bag playback speed multiple")
     parser.add_argument("--builtin", action="store_true", help="built-in example, no ROS")

@@ -5,10 +5,21 @@ A command that writes a folder (a bag, a report, a sequence) builds it in
 complete; a failure, SIGINT or SIGTERM (:func:`signals_as_interrupt`) removes the partial
 folder, and partial folders left by processes that no longer exist (a SIGKILL, a power cut)
 are removed by the next run.
+
+Replacing an existing output is one atomic exchange of the two folders where the kernel and
+the file system have ``renameat2(RENAME_EXCHANGE)`` (Linux 3.15, glibc 2.28), else two
+renames (the old output to ``.<name>.old-<pid>``, the new one to the name); SIGINT and SIGTERM
+are held over the swap and the removal of the old output, so at every instant the path holds
+the old output or the new one. An old output that a process killed between the two renames
+(SIGKILL, power cut) left as ``.<name>.old-<pid>`` with nothing at the path is put back by
+:func:`allo_mrad_ros.targets.check_target`, never deleted.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import logging
 import os
 import re
 import shutil
@@ -29,7 +40,8 @@ HOLD_MARKER = "ALLO_HOLD_MARKER"
 """Environment variable: a file created when the process reaches the held point."""
 HOLD_SECONDS = 60.0
 
-_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)$")
+_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d+)$")
+_LOG = logging.getLogger(__name__)
 
 
 class StagingError(BackendError):
@@ -52,18 +64,25 @@ def _alive(pid: int) -> bool:
 
 
 def remove_stale(out: Path) -> list[Path]:
-    """Remove partial and old copies of ``out`` left by processes that no longer run."""
+    """Remove partial and old copies of ``out`` left by processes that no longer run.
+
+    An old copy with nothing at ``out`` is kept: it is the only output there is, which
+    :func:`allo_mrad_ros.targets.check_target` puts back.
+    """
     removed = []
     if not out.parent.is_dir():
         return removed
     for entry in out.parent.iterdir():
         match = _LEFTOVER.match(entry.name)
-        if match and match["name"] == out.name and not _alive(int(match["pid"])):
-            try:
-                remove_path(entry)
-            except OSError:
-                continue
-            removed.append(entry)
+        if not match or match["name"] != out.name or _alive(int(match["pid"])):
+            continue
+        if match["kind"] == "old" and not os.path.lexists(out):
+            continue
+        try:
+            remove_path(entry)
+        except OSError:
+            continue
+        removed.append(entry)
     return removed
 
 
@@ -86,24 +105,164 @@ def prepare_staging(out: Path) -> Path:
     return staging
 
 
-def put_in_place(built: Path, out: Path) -> None:
+def old_path(out: Path) -> Path:
+    """Where this process keeps the old ``out`` while it replaces it."""
+    return out.parent / f".{out.name}.old-{os.getpid()}"
+
+
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2  # <linux/fs.h>
+# errno values of renameat2 where the libc, kernel or file system lacks the exchange.
+_NO_EXCHANGE = {errno.EINVAL, errno.ENOSYS, errno.ENOTSUP, errno.EOPNOTSUPP}
+
+
+def _load_renameat2() -> Callable[..., int] | None:
+    try:
+        function = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    function.argtypes = [
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_uint,
+    ]
+    function.restype = ctypes.c_int
+    return function
+
+
+_renameat2 = _load_renameat2()
+
+
+def exchange(first: Path, second: Path) -> bool:
+    """Swap two existing paths in one step (``renameat2`` with ``RENAME_EXCHANGE``).
+
+    Returns
+    -------
+    bool
+        False, with nothing changed, where the libc, the kernel or the file system has no
+        such exchange.
+
+    Raises
+    ------
+    OSError
+        If the exchange is there but fails (permissions, different file systems).
+    """
+    if _renameat2 is None:
+        return False
+    paths = (os.fsencode(first), os.fsencode(second))
+    if _renameat2(_AT_FDCWD, paths[0], _AT_FDCWD, paths[1], _RENAME_EXCHANGE) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in _NO_EXCHANGE:
+        return False
+    raise OSError(code, os.strerror(code), str(second))
+
+
+def _between_steps(out: Path) -> None:
+    """Nothing: tests replace it to hold or signal the process between the two steps of
+    replacing ``out`` (after the swap, before the old output is removed; between the two
+    renames where there is no exchange)."""
+
+
+between_swap_steps: Callable[[Path], None] = _between_steps
+"""Called between the two steps of :func:`put_in_place`'s replacement, with ``out``."""
+
+_INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def _interrupts_deferred() -> Iterator[list[int]]:
+    """Hold SIGINT and SIGTERM over the block; yield the list of those that arrived.
+
+    Python's handlers are swapped for one that only records, so a signal delivered to any
+    thread (OpenCV's, tqdm's) cannot raise inside the block. After it, an interrupt whose
+    handler raises :class:`Interrupted` or ``KeyboardInterrupt`` is dropped: the output is in
+    place, the work is done, and the command finishes as if the signal had come after it.
+    Any other handler (the default action, a library's) gets the signal then. Outside the
+    main thread, where Python runs no handler, the block runs as it is.
+    """
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+    previous = {}
+    try:
+        for signum in _INTERRUPTS:
+            handler = signal.getsignal(signum)
+            if handler is None or handler is signal.SIG_IGN:
+                continue  # ignored, or a handler from C that Python cannot put back
+            previous[signum] = handler
+            signal.signal(signum, lambda signum, frame: received.append(signum))
+        yield received
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(received):
+            if previous[signum] not in (_raise_interrupted, signal.default_int_handler):
+                signal.raise_signal(signum)
+
+
+def put_in_place(built: Path, out: Path) -> Path | None:
     """Rename the complete ``built`` to ``out``, replacing an existing ``out`` only now.
+
+    At every instant ``out`` is the old output or the new one, whatever signal arrives:
+    SIGINT and SIGTERM wait until the new output is in place and the old one removed (see
+    :func:`_interrupts_deferred`).
+
+    Returns
+    -------
+    pathlib.Path or None
+        None once the old output is removed; where it was left if it could not be (a file in
+        it is immutable, say): the new output is in place all the same, and a warning names
+        both.
 
     Raises
     ------
     StagingError
-        If a rename fails; ``out`` is then either the old or the new complete folder.
+        If the new output cannot be put in place; ``out`` is then the old complete output.
     """
+    with _interrupts_deferred() as received:
+        try:
+            if not os.path.lexists(out):
+                built.rename(out)
+                return None
+            old = old_path(out)
+            if exchange(built, out):
+                between_swap_steps(out)
+                hold_point("swap", until=lambda: bool(received))
+                try:
+                    built.rename(old)  # a name that says what it is, if it has to stay
+                except OSError:
+                    old = built
+            else:
+                out.rename(old)
+                between_swap_steps(out)
+                hold_point("swap", until=lambda: bool(received))
+                try:
+                    built.rename(out)
+                except OSError:
+                    old.rename(out)
+                    raise
+        except OSError as error:
+            raise StagingError(f"{out}: cannot put the output in place: {error}") from None
+        return _remove_old(old, out)
+
+
+def _remove_old(old: Path, out: Path) -> Path | None:
     try:
-        if os.path.lexists(out):
-            trash = out.parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(trash)
-            built.rename(out)
-            remove_path(trash)
-        else:
-            built.rename(out)
+        remove_path(old)
     except OSError as error:
-        raise StagingError(f"{out}: cannot put the output in place: {error}") from None
+        _LOG.warning(
+            "warning: %s: the new output is in place, but the old one could not be removed "
+            "(%s); it is left at %s",
+            out,
+            error.strerror or error,
+            old,
+        )
+        return old
+    return None
 
 
 def remove_path(path: Path) -> None:
@@ -143,11 +302,12 @@ def staged_folder(out: str | PathLike[str]) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def hold_point(name: str) -> None:
+def hold_point(name: str, *, until: Callable[[], bool] | None = None) -> None:
     """A point where a test holds the process, so a signal lands there whatever the speed of
     the machine: with ``ALLO_HOLD_AT=<name>`` in the environment, create the file named by
     ``ALLO_HOLD_MARKER`` (if set) and wait up to 60 s, where SIGINT or SIGTERM interrupts as
-    anywhere else. Without it (always, outside tests), return at once.
+    anywhere else, or until ``until()`` is true (a signal held there has arrived). Without
+    it (always, outside tests), return at once.
     """
     if os.environ.get(HOLD_AT) != name:
         return
@@ -155,7 +315,7 @@ def hold_point(name: str) -> None:
     if marker:
         Path(marker).touch()
     deadline = time.monotonic() + HOLD_SECONDS
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not (until is not None and until()):
         time.sleep(0.01)
 
 

@@ -29,6 +29,7 @@ from allo_mrad_ros.staging import (
 from allo_mrad_ros.targets import (
     ABLATION_REPORT,
     EVALUATION_REPORT,
+    OutputArgumentParser,
     TargetError,
     check_target,
     output_path,
@@ -44,7 +45,7 @@ class CliError(InvalidInput):
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OutputArgumentParser(
         prog=PROG,
         description="ALLO sequences as rosbag2 bags: write, inspect, replay, evaluate, ablate.",
     )

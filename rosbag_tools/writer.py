@@ -370,12 +370,19 @@ def _write(
             digests.add(topics.tf_static, data)
             counts[topics.tf_static] = 1
         encoder = _FrameEncoder(sequence, topics, factory)
-        with interrupts_held():
-            bar = tqdm(frames, desc="write", unit="frame", disable=not progress)
-        for frame in bar:
-            for topic, _, data in encoder.encode(frame):
-                writer.write(connections[topic], frame.stamp_ns, data)
-                digests.add(topic, data)
-                counts[topic] = counts.get(topic, 0) + 1
-            hold_point("bag-frame")
+        bar = None
+        try:
+            with interrupts_held():  # a held signal is raised on leaving, with the bar built
+                bar = tqdm(frames, desc="write", unit="frame", disable=not progress)
+            for frame in bar:
+                for topic, _, data in encoder.encode(frame):
+                    writer.write(connections[topic], frame.stamp_ns, data)
+                    digests.add(topic, data)
+                    counts[topic] = counts.get(topic, 0) + 1
+                hold_point("bag-frame")
+        finally:
+            # Now, not when the interrupted frame is freed: that can be after the command's
+            # last line, and the bar would then be drawn below it.
+            if bar is not None:
+                bar.close()
         writer.set_custom_data(KEY_MESSAGE_CRC32, digests.custom_data())

@@ -216,3 +216,80 @@ def test_a_sequence_with_other_files_beside_it_is_not_replaced(sources, tmp_path
     status = exit_status(synth_main, [*SMOKE, "--out", str(sequence), "--overwrite"])
     assert "not a sequence" in refused(capsys, status, str(sequence))
     assert (sequence / "notes.txt").read_text() == "mine"
+
+
+def _allo_download(root: Path) -> list[Path]:
+    """``root/{test,train}/Camera0/{images,masks}/*.png``, as ALLO ships them: 12 PNGs."""
+    files = []
+    for split in ("test", "train"):
+        for index, name in enumerate(["1_normal_1.png", "2_normal_10.png", "3_normal_5.png"]):
+            for kind, pixels in (
+                ("images", np.full((1080, 1920, 3), 30 * index, np.uint8)),
+                ("masks", np.ones((1080, 1920), np.uint8)),
+            ):
+                path = root / split / "Camera0" / kind / name
+                path.parent.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(path), pixels)
+                files.append(path)
+    return files
+
+
+@pytest.mark.parametrize("splits", ["both", "test only"])
+def test_an_allo_download_imported_in_place_is_never_replaced(tmp_path, capsys, splits):
+    allo = tmp_path / "ALLO"
+    pngs = _allo_download(allo)
+    if splits == "test only":
+        shutil.rmtree(allo / "train")
+        pngs = [p for p in pngs if "train" not in p.parts]
+    contents = {path: path.read_bytes() for path in pngs}
+    assert main_import([str(allo / "test"), "--out", str(allo), "--quiet"]) == 0
+    capsys.readouterr()
+    for argv in ([*SMOKE, "--out", str(allo), "--overwrite"], [*SMOKE, "--out", str(allo)]):
+        line = refused(capsys, exit_status(synth_main, argv), str(allo))
+        assert "train/" in line if splits == "both" else "imported in place" in line
+    # Another split imported over it from elsewhere is refused too.
+    other = tmp_path / "elsewhere" / "test"
+    _allo_download(other.parent)
+    argv = [str(other), "--out", str(allo), "--overwrite", "--quiet"]
+    refused(capsys, exit_status(main_import, argv), str(allo))
+    assert sorted(allo.rglob("*.png")) == sorted(contents)
+    assert all(path.read_bytes() == data for path, data in contents.items())
+    assert hidden(tmp_path) == []
+    # Importing in place again still only rewrites its own two files.
+    assert main_import([str(allo / "test"), "--out", str(allo), "--quiet", "--overwrite"]) == 0
+    assert sorted(allo.rglob("*.png")) == sorted(contents)
+
+
+def test_bag_write_refuses_a_metadata_yaml_that_is_not_a_bag_s(sources, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metadata.yaml").write_text("hello: 1\n")
+    argv = ["write", str(sources["seq"]), str(out), "--quiet", "--overwrite"]
+    line = refused(capsys, exit_status(bag_main, argv), str(out))
+    assert "metadata.yaml" in line and "not a bag" in line
+    assert (out / "metadata.yaml").read_text() == "hello: 1\n"
+    assert sorted(p.name for p in out.iterdir()) == ["metadata.yaml"] and hidden(tmp_path) == []
+
+
+@pytest.mark.parametrize("blank", ["", "   "], ids=["empty", "blank"])
+@pytest.mark.parametrize(
+    "command",
+    ["write", "evaluate", "ablate", "generate", "import-allo", "import-allo alone", "demo"],
+)
+def test_an_empty_output_name_is_one_line_without_the_usage_block(sources, capsys, command, blank):
+    from allo_mrad_ros.demo import main as demo_main
+
+    main, argv = {
+        "write": (bag_main, ["write", str(sources["seq"]), blank]),
+        "evaluate": (bag_main, report_argv(EVALUATE, sources, blank)),
+        "ablate": (bag_main, report_argv(ABLATE, sources, blank)),
+        "generate": (synth_main, [*SMOKE, "--out", blank]),
+        "import-allo": (synth_main, ["import-allo", str(sources["allo"]), "--out", blank]),
+        "import-allo alone": (main_import, [str(sources["allo"]), "--out", blank]),
+        "demo": (demo_main, ["--builtin", "--out", blank]),
+    }[command]
+    assert exit_status(main, argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage" not in err, err
+    assert err.endswith(": an empty name is not an output folder\n"), err
+    assert "--out" in err or "argument out" in err, err

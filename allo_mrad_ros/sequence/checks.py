@@ -32,7 +32,9 @@ def checked_vector(values: object, length: int, name: str) -> np.ndarray:
 def checked_unit_vector(values: object, length: int, name: str) -> np.ndarray:
     """:func:`checked_vector` of norm 1 (within the sequence format's tolerance)."""
     array = checked_vector(values, length, name)
-    norm = float(np.linalg.norm(array))
+    # Through the largest component, so a huge vector (1e300) cannot overflow its norm.
+    largest = float(np.max(np.abs(array)))
+    norm = largest * float(np.linalg.norm(array / largest)) if largest > 0 else 0.0
     if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
         raise SequenceError(f"{name} must be a unit vector, got norm {norm:.6f}")
     return array

@@ -11,6 +11,7 @@ import yaml
 from .. import interface
 from ..camera import CameraIntrinsics
 from ..errors import one_line
+from ..targets import IMAGES_IN_PLACE_KEY
 from .model import FORMAT_V1, SequenceError, SequenceMeta, read_text
 from .png import write_atomic
 
@@ -124,7 +125,9 @@ def _meta_from_dict(data: dict, folder: Path) -> SequenceMeta:
     )
 
 
-def write_meta(path: Path, meta: SequenceMeta, mesh: str | None) -> None:
+def write_meta(
+    path: Path, meta: SequenceMeta, mesh: str | None, *, images_in_place: bool = False
+) -> None:
     """Write ``sequence.yaml`` atomically.
 
     Parameters
@@ -135,6 +138,10 @@ def write_meta(path: Path, meta: SequenceMeta, mesh: str | None) -> None:
         The metadata; its ``mesh`` is ignored in favour of ``mesh``.
     mesh : str or None
         The mesh path to record, relative to the folder of ``path`` (POSIX separators).
+    images_in_place : bool
+        Record ``images_in_place: true``: the images are another dataset's own files,
+        referenced where they lie, and no command may replace the folder
+        (:mod:`allo_mrad_ros.targets`). Readers ignore the key.
     """
     camera = meta.camera
     document = {
@@ -153,6 +160,8 @@ def write_meta(path: Path, meta: SequenceMeta, mesh: str | None) -> None:
         },
         "rate_hz": meta.rate_hz,
     }
+    if images_in_place:
+        document[IMAGES_IN_PLACE_KEY] = True
     text = yaml.safe_dump(document, sort_keys=False, default_flow_style=False, allow_unicode=True)
     write_atomic(path, text.encode("utf-8"))
 

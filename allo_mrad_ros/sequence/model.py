@@ -39,6 +39,18 @@ UNIT_NORM_TOLERANCE = 1e-3
 # builtin_interfaces/Time holds int32 seconds, so bag stamps must stay below 2**31 s.
 MAX_STAMP_NS = 2**31 * 10**9
 
+# Physical bounds of the numbers of a frame, so that a corrupt value (1e300) is refused with
+# its row and column instead of overflowing in the pose and renderer maths.
+MAX_POSITION_M = 1.0e6
+"""Largest camera coordinate: 1000 km from the station, where it is far below a pixel and
+the renderer's 32-bit floats no longer place it within a metre."""
+MAX_BODY_M = 1.0e13
+"""Largest coordinate and radius of the Earth or Moon: the distance from which the renderer
+pulls bodies in (67 au, beyond any body of the Solar System's planets)."""
+MAX_SUN_STRENGTH = 1.0e3
+"""Largest relative Sun intensity: a thousand times the nominal Sun, where every lit pixel
+has long saturated."""
+
 POSE_COLUMNS = ("tx", "ty", "tz", "qx", "qy", "qz", "qw")
 SUN_COLUMNS = ("sun_x", "sun_y", "sun_z")
 EARTH_COLUMNS = ("earth_x", "earth_y", "earth_z", "earth_r")

@@ -18,7 +18,10 @@ from .model import (
     COLUMNS,
     EARTH_COLUMNS,
     LABELS,
+    MAX_BODY_M,
+    MAX_POSITION_M,
     MAX_STAMP_NS,
+    MAX_SUN_STRENGTH,
     MOON_COLUMNS,
     NORMAL,
     SPLITS,
@@ -50,6 +53,19 @@ def parse_float(text: str, column: str) -> float:
     if not math.isfinite(value):
         raise SequenceError(f"must be finite, got {text!r}", column=column)
     return value
+
+
+def parse_bounded(text: str, column: str, bound: float, limit: str) -> float:
+    """Parse a finite number of magnitude at most ``bound``; ``limit`` says what that is."""
+    value = parse_float(text, column)
+    if abs(value) > bound:
+        raise SequenceError(f"{text.strip()} is not physical: beyond {limit}", column=column)
+    return value
+
+
+_POSITION = f"±{MAX_POSITION_M:g} m (1000 km from the station)"
+_BODY = f"±{MAX_BODY_M:g} m (the renderer's farthest body)"
+_SUN_STRENGTH = f"{MAX_SUN_STRENGTH:g} (a thousand nominal Suns)"
 
 
 def _choice(text: str, column: str, choices: tuple[str, ...]) -> str:
@@ -110,7 +126,7 @@ def _body(record: Mapping[str, str], columns: tuple[str, ...]) -> np.ndarray | N
     for column, text in zip(columns, texts, strict=True):
         if not text:
             raise SequenceError("empty while other columns of this body are set", column=column)
-    values = [parse_float(t, c) for c, t in zip(columns, texts, strict=True)]
+    values = [parse_bounded(t, c, MAX_BODY_M, _BODY) for c, t in zip(columns, texts, strict=True)]
     if values[3] <= 0:
         raise SequenceError(f"radius must be positive, got {values[3]}", column=columns[3])
     return np.array(values)
@@ -144,12 +160,14 @@ def frame_from_record(
         raise SequenceError(f"must be empty for a normal frame, got {anomaly!r}", column="anomaly")
     if label == ANOMALOUS and not anomaly.strip():
         raise SequenceError("an anomalous frame needs the object type name", column="anomaly")
-    position = [parse_float(record[c], c) for c in ("tx", "ty", "tz")]
+    position = [parse_bounded(record[c], c, MAX_POSITION_M, _POSITION) for c in ("tx", "ty", "tz")]
     quaternion = [parse_float(record[c], c) for c in ("qx", "qy", "qz", "qw")]
     _unit_vector(quaternion, ("qx", "qy", "qz", "qw"))
     sun = [parse_float(record[c], c) for c in SUN_COLUMNS]
     _unit_vector(sun, SUN_COLUMNS)
-    sun_strength = parse_float(record["sun_strength"], "sun_strength")
+    sun_strength = parse_bounded(
+        record["sun_strength"], "sun_strength", MAX_SUN_STRENGTH, _SUN_STRENGTH
+    )
     if sun_strength < 0:
         raise SequenceError(f"must not be negative, got {sun_strength}", column="sun_strength")
     return Frame(

@@ -65,6 +65,9 @@ class SequenceWriter:
     png_compression : int
         zlib level 0-9 for written PNGs: output is lossless at any level, 3 balances speed
         and size.
+    images_in_place : bool
+        The images are another dataset's own files in ``root`` (an ALLO download imported
+        where it lies): ``sequence.yaml`` says so, so that no command replaces the folder.
 
     Raises
     ------
@@ -88,6 +91,7 @@ class SequenceWriter:
         overwrite: bool = False,
         start_ns: int = 0,
         png_compression: int = 3,
+        images_in_place: bool = False,
     ) -> None:
         if not isinstance(meta, SequenceMeta):
             raise SequenceError(f"meta must be SequenceMeta, got {type(meta).__name__}")
@@ -105,6 +109,7 @@ class SequenceWriter:
         self.meta = meta
         self._copy_mesh = copy_mesh
         self._compression = png_compression
+        self._images_in_place = images_in_place
         self._period_ns = max(1, round(1e9 / meta.rate_hz))
         self._next_stamp = start_ns
         self._last_stamp = -1
@@ -384,7 +389,7 @@ class SequenceWriter:
                 mesh = f"meshes/{self.meta.mesh.name}"
             else:
                 mesh = relative_posix(self.meta.mesh, self.root)
-        write_meta(self.root / META_FILE, self.meta, mesh)
+        write_meta(self.root / META_FILE, self.meta, mesh, images_in_place=self._images_in_place)
         text = write_frames_text(self._records, self._extra_columns)
         write_atomic(self.root / FRAMES_FILE, text.encode("utf-8"))
         self._state = "closed"

@@ -26,7 +26,13 @@ from allo_mrad_ros.resources import package_version
 from allo_mrad_ros.staging import signals_as_interrupt, staged_folder, staging_path
 from allo_mrad_ros.synth.config import PRESETS, QUERY_RENDERERS, SynthError, preset
 from allo_mrad_ros.synth.objects import KNOWN_TYPES
-from allo_mrad_ros.targets import SEQUENCE, TargetError, check_target, output_path
+from allo_mrad_ros.targets import (
+    SEQUENCE,
+    OutputArgumentParser,
+    TargetError,
+    check_target,
+    output_path,
+)
 
 
 def _positive_int(text: str) -> int:
@@ -181,7 +187,7 @@ def _run_generate(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``allo-synth`` argument parser with its sub-commands."""
-    parser = argparse.ArgumentParser(
+    parser = OutputArgumentParser(
         prog="allo-synth", description="ALLO-like sequences: generate them, or import ALLO."
     )
     parser.add_argument("--version", action="version", version=f"allo-synth {package_version()}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import warnings
 from pathlib import Path
 
 import cv2
@@ -301,6 +302,9 @@ def _frame_args(**changes: object) -> dict:
         ({"quaternion": [0, 0, 0, 2]}, "quaternion must be a unit vector"),
         ({"sun_direction": [0, 0, 0.5]}, "sun_direction must be a unit vector"),
         ({"position": [0, np.nan, 0]}, "position must be finite"),
+        ({"position": [1e300, 0, 0]}, "'tx': 1e.300 is not physical"),
+        ({"quaternion": [1e300, 0, 0, 0]}, "quaternion must be a unit vector"),
+        ({"moon": [0, 0, 1e14, 1]}, "'moon_z'.*not physical"),
         ({"sun_strength": -1.0}, "sun_strength"),
         ({"earth": [1, 2, 3, 0]}, "earth radius"),
         ({"name": "a/b"}, "name must be"),
@@ -404,6 +408,11 @@ CELL_CASES = [
     (1, {"earth_y": ""}, "earth_y", "other columns of this body"),
     (1, {"moon_r": "0"}, "moon_r", "radius must be positive"),
     (2, {"moon_x": "1e400"}, "moon_x", "finite"),
+    (2, {"tx": "1e300"}, "tx", "not physical"),
+    (3, {"ty": "-1000000.5"}, "ty", "not physical"),
+    (1, {"earth_x": "2e13"}, "earth_x", "not physical"),
+    (2, {"moon_r": "1e300"}, "moon_r", "not physical"),
+    (2, {"sun_strength": "1e300"}, "sun_strength", "not physical"),
 ]
 
 
@@ -414,6 +423,27 @@ def test_reader_cell_errors_name_file_row_column(
     _edit(sequence_root, row, **cells)
     error = _expect(sequence_root, row, column, match)
     assert error.line == row + 1
+
+
+@pytest.mark.parametrize(
+    "cells",
+    [{"tx": "1e300"}, {"qx": "1e300"}, {"sun_x": "1e300"}, {"earth_r": "1e300"}],
+    ids=["position", "quaternion", "sun", "body"],
+)
+def test_reader_refuses_huge_values_without_numpy_warnings(
+    sequence_root: Path, cells: dict
+) -> None:
+    _edit(sequence_root, 2, **cells)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflow warning fails the test
+        with pytest.raises(SequenceError, match="row 2"):
+            read_sequence(sequence_root)
+
+
+def test_reader_accepts_values_at_the_physical_bounds(sequence_root: Path) -> None:
+    _edit(sequence_root, 1, tx="-1000000", earth_x="1e13", earth_r="6e12", sun_strength="1000")
+    frame = read_sequence(sequence_root)[0]
+    assert frame.position[0] == -1e6 and frame.earth[0] == 1e13 and frame.sun_strength == 1e3
 
 
 def test_reader_missing_column(sequence_root: Path) -> None:

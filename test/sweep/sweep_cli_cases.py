@@ -56,6 +56,20 @@ def nan_position(seq: Path) -> None:
     (seq / "frames.csv").write_text("\n".join(lines) + "\n")
 
 
+def set_cell(column: str, value: str, row: int = 2):
+    """An edit of ``frames.csv``: ``column`` of data row ``row`` becomes ``value``."""
+
+    def edit(seq: Path) -> None:
+        lines = (seq / "frames.csv").read_text().splitlines()
+        header = lines[0].split(",")
+        cells = lines[row].split(",")
+        cells[header.index(column)] = value
+        lines[row] = ",".join(cells)
+        (seq / "frames.csv").write_text("\n".join(lines) + "\n")
+
+    return edit
+
+
 def first_png(seq: Path, kind: str) -> Path:
     return sorted((seq / "test").glob(f"Camera*/{kind}/*.png"))[0]
 
@@ -173,6 +187,53 @@ def same_metrics(ws: Path, fx: dict) -> str | None:
     return None
 
 
+def existing_bag(ws: Path, fx: dict) -> None:
+    shutil.copytree(fx["bag"], ws / "out")
+
+
+def existing_bag_with_an_immutable_file(ws: Path, fx: dict) -> None:
+    """An old bag whose storage file is immutable (``chattr +i``): root cannot remove it
+    either. Where the file system has no such attribute, ``no-chattr`` says so."""
+    import subprocess
+
+    existing_bag(ws, fx)
+    storage = next((ws / "out").glob("*.mcap"))
+    if subprocess.run(["chattr", "+i", str(storage)], capture_output=True).returncode != 0:
+        (ws / "no-chattr").touch()
+
+
+def mutable_again(ws: Path) -> None:
+    import subprocess
+
+    for storage in ws.rglob("*.mcap"):
+        subprocess.run(["chattr", "-i", str(storage)], capture_output=True)
+
+
+def new_bag_in_place(ws: Path, fx: dict) -> str | None:
+    """The path holds a complete bag whose files match the digests recorded at writing."""
+    from rosbag_tools.info import bag_info
+
+    try:
+        bag_info(ws / "out")
+    except Exception as error:  # any failure to read it back is the finding
+        return f"no complete bag at out: {error}"
+    return None
+
+
+def old_bag_left_whole(ws: Path, fx: dict) -> str | None:
+    """The new bag in place and the old one, whole, at the one ``.out.old-<pid>`` named."""
+    if (ws / "no-chattr").exists():
+        return None
+    found = new_bag_in_place(ws, fx)
+    if found:
+        return found
+    old = list(ws.glob(".out.old-*"))
+    storage = next(Path(fx["bag"]).glob("*.mcap"))
+    if len(old) != 1 or (old[0] / storage.name).read_bytes() != storage.read_bytes():
+        return f"the old bag is not left whole at one .out.old-<pid>: {old}"
+    return None
+
+
 def no_stale_left(ws: Path, fx: dict) -> str | None:
     return "stale partial kept" if any(ws.glob(".out.partial-*")) else None
 
@@ -208,6 +269,27 @@ def cli_cases() -> list[CliCase]:
             ("write", "{ws}/seq", "{ws}/out"),
             "row",
             prepare=sequence_with(nan_position),
+        ),
+        CliCase(
+            b,
+            "translation of 1e300 in a row",
+            ("write", "{ws}/seq", "{ws}/out"),
+            r"row 2 .*'tx'.*not physical",
+            prepare=sequence_with(set_cell("tx", "1e300")),
+        ),
+        CliCase(
+            b,
+            "Moon radius of 1e300 in a row",
+            ("write", "{ws}/seq", "{ws}/out"),
+            r"row 2 .*'moon_r'.*not physical",
+            prepare=sequence_with(set_cell("moon_r", "1e300")),
+        ),
+        CliCase(
+            b,
+            "Sun strength of 1e300 in a row",
+            ("write", "{ws}/seq", "{ws}/out"),
+            r"row 2 .*'sun_strength'.*not physical",
+            prepare=sequence_with(set_cell("sun_strength", "1e300")),
         ),
         CliCase(
             b,
@@ -290,6 +372,39 @@ def cli_cases() -> list[CliCase]:
             "interrupted",
             signal=signal.SIGINT,
             hold="bag-frame",
+        ),
+        CliCase(
+            b,
+            "SIGTERM during the final swap",
+            (*WRITE, "{ws}/out", "--overwrite"),
+            expect_error=False,
+            prepare=existing_bag,
+            signal=signal.SIGTERM,
+            hold="swap",
+            outputs=("out",),
+            check=new_bag_in_place,
+            quick=True,
+        ),
+        CliCase(
+            b,
+            "SIGINT during the final swap",
+            (*WRITE, "{ws}/out", "--overwrite"),
+            expect_error=False,
+            prepare=existing_bag,
+            signal=signal.SIGINT,
+            hold="swap",
+            outputs=("out",),
+            check=new_bag_in_place,
+        ),
+        CliCase(
+            b,
+            "old bag with an immutable file, --overwrite",
+            (*WRITE, "{ws}/out", "--overwrite"),
+            expect_error=False,
+            prepare=existing_bag_with_an_immutable_file,
+            outputs=("out", ".out.old-*", "no-chattr"),
+            check=old_bag_left_whole,
+            cleanup=mutable_again,
         ),
         CliCase(
             b,
@@ -494,6 +609,13 @@ def cli_cases() -> list[CliCase]:
             (*EVAL, "{ws}/empty", *out),
             "empty",
             prepare=empty_folder,
+        ),
+        CliCase(
+            b,
+            "sequence with a translation of 1e300",
+            (*EVAL, "{ws}/seq", *out),
+            r"row 2 .*'tx'.*not physical",
+            prepare=sequence_with(set_cell("tx", "1e300")),
         ),
         CliCase(
             b,

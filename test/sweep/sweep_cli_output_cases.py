@@ -41,6 +41,28 @@ def a_report(ws: Path, fx: dict) -> None:
     (ws / "out" / "metrics.md").write_text("# old\n")
 
 
+def allo_imported_in_place(ws: Path, fx: dict) -> None:
+    """An ALLO download (test and train splits) with its test split imported in place."""
+    from allo_mrad_ros.allo_import import import_allo
+
+    shutil.copytree(fx["allo"], ws / "ALLO" / "test")
+    shutil.copytree(fx["allo"], ws / "ALLO" / "train")
+    import_allo(ws / "ALLO" / "test", ws / "ALLO")
+
+
+def allo_test_split_imported_in_place(ws: Path, fx: dict) -> None:
+    """The same with the test split alone: every file is the sequence's, none its own."""
+    from allo_mrad_ros.allo_import import import_allo
+
+    shutil.copytree(fx["allo"], ws / "ALLO" / "test")
+    import_allo(ws / "ALLO" / "test", ws / "ALLO")
+
+
+def not_bag_metadata(ws: Path, fx: dict) -> None:
+    (ws / "out").mkdir()
+    (ws / "out" / "metadata.yaml").write_text("hello: 1\n")
+
+
 def a_home(ws: Path, fx: dict) -> None:
     (ws / "home").mkdir()
     (ws / "home" / "keep.txt").write_text("mine")
@@ -81,6 +103,21 @@ def camera_not_its_folder(ws: Path, fx: dict) -> None:
 # --- checks ------------------------------------------------------------------------------
 
 
+def allo_kept(*splits: str):
+    """Exit 0 over an ALLO download: every PNG of ``splits`` must still be there, unchanged."""
+
+    def check(ws: Path, fx: dict) -> str | None:
+        for image in sorted(Path(fx["allo"]).rglob("*.png")):
+            relative = image.relative_to(fx["allo"])
+            for split in splits:
+                kept = ws / "ALLO" / split / relative
+                if not kept.is_file() or kept.read_bytes() != image.read_bytes():
+                    return f"data loss: ALLO/{split}/{relative} deleted or changed"
+        return None
+
+    return check
+
+
 def others_kept(ws: Path, fx: dict) -> str | None:
     """Exit 0 on a refused output: what the user had there must still be there."""
     for path in (ws / "out" / "keep.txt", ws / "home" / "keep.txt"):
@@ -115,7 +152,13 @@ def _refusals(group: str, head: tuple[str, ...], out_option: tuple[str, ...]) ->
             "not a folder",
             prepare=a_file_out,
         ),
-        CliCase(group, "empty output name", argv("", "--overwrite"), "empty name"),
+        CliCase(
+            group,
+            "empty output name",
+            argv("", "--overwrite"),
+            "empty name",
+            one_line=True,  # no usage block before the error
+        ),
         CliCase(group, "output is the working folder", argv(".", "--overwrite"), "working folder"),
         CliCase(
             group,
@@ -189,6 +232,39 @@ def output_cases() -> list[CliCase]:
             ("write", "{ws}/seq", "{ws}/out"),
             "camera 7",
             prepare=camera_not_its_folder,
+        ),
+        CliCase(
+            w,
+            "output holds a metadata.yaml that is not a bag's, --overwrite",
+            (*WRITE, "{ws}/out", "--overwrite"),
+            r"not a bag \(metadata\.yaml",
+            prepare=not_bag_metadata,
+            quick=True,
+        ),
+        CliCase(
+            "allo-synth generate",
+            "output is an ALLO download with a split imported in place, --overwrite",
+            (*SMOKE, "--out", "{ws}/ALLO", "--overwrite"),
+            r"not a sequence \(train/\)",
+            prepare=allo_imported_in_place,
+            check=allo_kept("test", "train"),
+            quick=True,
+        ),
+        CliCase(
+            "allo-synth generate",
+            "output is an ALLO split imported in place, --overwrite",
+            (*SMOKE, "--out", "{ws}/ALLO", "--overwrite"),
+            "imported in place",
+            prepare=allo_test_split_imported_in_place,
+            check=allo_kept("test"),
+        ),
+        CliCase(
+            "allo-synth import-allo",
+            "output is an ALLO download imported in place, another split, --overwrite",
+            (*IMPORT, "--out", "{ws}/ALLO", "--overwrite"),
+            r"not a sequence \(train/\)",
+            prepare=allo_imported_in_place,
+            check=allo_kept("test", "train"),
         ),
         CliCase(
             "allo-bag info",

@@ -20,9 +20,10 @@ import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from fnmatch import fnmatch
 from pathlib import Path
 
-from sweep_verdicts import CRASH, UNCLEAR, Outcome, classify_exit
+from sweep_verdicts import CLEAN, CRASH, UNCLEAR, Outcome, classify_exit
 
 COMMANDS = {
     "allo-bag": [sys.executable, "-m", "rosbag_tools"],
@@ -47,7 +48,10 @@ class CliCase:
     folders: ``{ws}`` (its workspace), ``{locked}`` (read-only when ``mount`` is ``ro``) and
     ``{disk}`` (a tmpfs of ``disk_kb`` KiB when ``mount`` is ``full``). ``hold`` names the
     ``hold_point`` where the command waits for ``signal``; ``env`` adds variables (formatted
-    like ``argv``).
+    like ``argv``). ``outputs`` are the top-level names (glob patterns) a command may leave;
+    ``one_line`` asks for a stderr of one line in all (no usage block before the error);
+    ``cleanup`` runs after the command whatever happened (to undo what ``prepare`` made
+    that a plain removal cannot, an immutable file).
     """
 
     group: str
@@ -66,6 +70,8 @@ class CliCase:
     tags: tuple[str, ...] = field(default=())
     hold: str = ""
     env: tuple[tuple[str, str], ...] = ()
+    one_line: bool = False
+    cleanup: Callable[[Path], None] | None = None
 
 
 def _listing(root: Path) -> set[str]:
@@ -117,21 +123,24 @@ def run_case(case: CliCase, fixtures: dict, base: Path, mountable: bool) -> Outc
     process = subprocess.Popen(
         argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ws
     )
-    signalled = _signal_midway(process, ws, case, marker) if case.signal else True
     try:
-        _, stderr = process.communicate(timeout=TIME_LIMIT_S)
-        returncode: int | None = process.returncode
-    except subprocess.TimeoutExpired:
-        process.kill()
-        _, stderr = process.communicate()
-        returncode = None
+        signalled = _signal_midway(process, ws, case, marker) if case.signal else True
+        try:
+            _, stderr = process.communicate(timeout=TIME_LIMIT_S)
+            returncode: int | None = process.returncode
+        except subprocess.TimeoutExpired:
+            process.kill()
+            _, stderr = process.communicate()
+            returncode = None
+    finally:
+        if case.cleanup is not None:
+            case.cleanup(ws)
     if returncode == 97 and case.mount:
         return Outcome(case.group, case.name, CRASH, "harness: mount failed")
     if not signalled:
         return Outcome(case.group, case.name, UNCLEAR, "not exercised: ended before the signal")
     after = set(listing.read_text().split()) if case.mount and listing.exists() else _listing(ws)
-    allowed = [(o, o + "/") for o in case.outputs]
-    new = {p for p in after - before if not any(p == o or p.startswith(d) for o, d in allowed)}
+    new = {p for p in after - before if not any(fnmatch(p.split("/")[0], o) for o in case.outputs)}
     if not case.expect_error and returncode == 0:
         new = {p for p in new if ".partial-" in p or ".old-" in p}
     wrong = None
@@ -140,6 +149,9 @@ def run_case(case: CliCase, fixtures: dict, base: Path, mountable: bool) -> Outc
     verdict, detail = classify_exit(
         returncode, stderr, case.keyword, _roots(new), case.expect_error, wrong
     )
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    if case.one_line and verdict == CLEAN and len(lines) != 1:
+        verdict, detail = UNCLEAR, f"{len(lines)} lines on stderr: " + " | ".join(lines[:3])
     return Outcome(case.group, case.name, verdict, detail)
 
 

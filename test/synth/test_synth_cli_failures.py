@@ -81,13 +81,25 @@ def test_full_disk_during_generate_keeps_the_old_sequence(tmp_path, capsys, monk
 
 def test_rerun_with_overwrite_keeps_no_stale_files(tmp_path, capsys):
     out = tmp_path / "seq"
-    assert main([*SMOKE, "--out", str(out)]) == 0
-    (out / "train" / "stale.png").write_bytes(b"old")
+    longer = [*SMOKE[:4], "6", *SMOKE[5:]]
+    assert main([*longer, "--out", str(out)]) == 0
+    first = {p.relative_to(out) for p in out.rglob("*.png")}
     assert main([*SMOKE, "--out", str(out)]) == 2
     one_line(capsys, "use --overwrite")
     assert main([*SMOKE, "--out", str(out), "--overwrite"]) == 0
-    assert not (out / "train" / "stale.png").exists()
+    second = {p.relative_to(out) for p in out.rglob("*.png")}
+    gone = first - second  # the first run's frames the second has not
+    assert gone and not any((out / path).exists() for path in gone)
     assert (out / "frames.csv").is_file()
+
+
+def test_a_file_the_sequence_does_not_name_is_never_replaced(tmp_path, capsys):
+    out = tmp_path / "seq"
+    assert main([*SMOKE, "--out", str(out)]) == 0
+    (out / "train" / "stale.png").write_bytes(b"mine")
+    assert main([*SMOKE, "--out", str(out), "--overwrite"]) == 2
+    one_line(capsys, "not a sequence (train/stale.png)")
+    assert (out / "train" / "stale.png").read_bytes() == b"mine"
 
 
 def test_generate_refuses_a_folder_of_other_files(tmp_path, capsys):
