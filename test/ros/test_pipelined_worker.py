@@ -446,7 +446,9 @@ def test_the_score_map_is_made_and_published_only_while_someone_reads_it(monkeyp
         run.feed_until(count + 3)
     finally:
         run.worker.stop()
-    assert stages.score_maps == run.score_maps  # publish is told what detect made
+    # Publish is told what detect made (a frame detected while stop() ran is not published).
+    assert stages.score_maps[: len(run.score_maps)] == run.score_maps
+    assert len(stages.score_maps) - len(run.score_maps) in (0, 1)
     assert run.score_maps[:3] == [False] * 3 and run.score_maps[-2:] == [True] * 2
 
 
