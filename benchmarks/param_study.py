@@ -1,4 +1,4 @@
-"""Measure the detector parameters mrad.md leaves open on varied synthetic scenes.
+"""Measure the detector parameters docs/method.md leaves to measurement on varied synthetic scenes.
 
 Scenes come from :mod:`allo_mrad_ros.example_scene`: a blanket of random size pasted at a
 random place (over sky or over structure) in half of the frames, sensor noise, a 2-pixel

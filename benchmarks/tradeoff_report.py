@@ -28,7 +28,8 @@ def pareto_front(rows: Iterable[dict]) -> list[dict]:
 
 
 def _candidates(rows: Iterable[dict]) -> list[dict]:
-    """The rows that may become the default: MRAD with outputs that follow mrad.md."""
+    """The rows that may become the default: MRAD with outputs that docs/method.md ("How
+    defaults are chosen") admits."""
     return [r for r in rows if r["conforms_to_mrad_md"] and r["method"] == "MRAD"]
 
 
@@ -77,7 +78,7 @@ def reprint(report: dict, speedup: float) -> None:
 
 def choose_default(rows: Sequence[dict], ap_margin: float) -> dict:
     """The fastest Pareto-front row within ``ap_margin`` P.AP points of the best, among the
-    rows whose outputs follow mrad.md."""
+    rows whose outputs docs/method.md admits."""
     rows = _candidates(rows)
     best = max(r["p_ap"] for r in rows)
     eligible = [r for r in pareto_front(rows) if r["p_ap"] >= best - ap_margin / 100.0]

@@ -43,7 +43,7 @@ class Setting:
 
     @property
     def conforms(self) -> bool:
-        """Whether the outputs follow mrad.md (only those may become the default)."""
+        """Whether docs/method.md ("How defaults are chosen") admits the outputs as a default."""
         return self.params.pixel_score in ("continuous", "regions") and not self.binary
 
 

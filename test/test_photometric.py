@@ -1,8 +1,9 @@
 """Photometric robustness: the render-to-camera gap must not score as an anomaly.
 
-Each perturbation of issue 11 is applied to the query of a normal frame (half black sky,
-half grey panel, a saturated glare patch): at most 0.5 % of pixels may be flagged and the
-frame must stay normal. The same perturbation on a query with a patch 40 DN from its
+Each camera perturbation (exposure, gamma, tone curve, white balance, vignetting, noise,
+JPEG, bloom, ...) is applied to the query of a normal frame (half black sky, half grey panel,
+a saturated glare patch): at most 0.5 % of pixels may be flagged and the frame must stay
+normal. The same perturbation on a query with a patch 40 DN from its
 background must still find the patch.
 """
 
@@ -55,7 +56,7 @@ def test_normal_frame_stays_normal_and_a_40_dn_patch_is_found(frames, name):
 
 
 def test_without_the_photometric_model_exposure_breaks_the_normal_frame(frames):
-    # The failure the model exists for (issue 11): x1.6 exposure flags the panel.
+    # The failure the model exists for: x1.6 exposure flags the panel.
     reference, clean, _ = frames
     bare = detect(
         exposure(clean, 1.6),

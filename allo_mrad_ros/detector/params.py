@@ -1,9 +1,13 @@
 """MRAD parameters: one validated dataclass, named profiles.
 
-Defaults keep the paper's tolerance 50, kernel 20 % of the cell and blur SD 5; grid 6x6,
-the per-cell noise rule and half-resolution processing were chosen on the validation split
-by the speed-against-error benchmark (``make bench``); the values the paper leaves open were
-decided by measurement (see docs/detector.md, "Parameters").
+Defaults keep the paper's kernel (20 % of the cell), blur SD 5 and tolerance 50 (used by
+tolerance growth only). Grid 8x8, processing at a quarter of the query's size
+(``process_scale`` 0.25), the per-cell noise rule, hysteresis growth, the continuous ranking
+map and the photometric models were chosen on the validation split by the
+speed-against-error benchmark (``make bench``), the colour transfer of the query into the
+reference's colours on the multi-station bench; the values the paper leaves open were
+decided by measurement. docs/method.md states the method and the rule by which a default
+is chosen; docs/detector.md ("How the defaults were chosen") gives the measurements.
 """
 
 from __future__ import annotations
@@ -381,7 +385,8 @@ PROFILES: dict[str, MradParams] = {
     "paper": _PAPER_OPTIMUM.replace(score_scaling="per_image", pixel_score="regions"),
     # The paper's optimum with fixed scaling and the continuous ranking map.
     "baseline": _PAPER_OPTIMUM,
-    # The most accurate mrad.md setting of the sweep on validation, at full resolution.
+    # The most accurate setting of the sweep that docs/method.md admits on validation, at
+    # full resolution.
     "accurate": MradParams(process_scale=1.0),
     # A simpler configuration (grid 6, per-cell noise rule, half resolution, no photometric
     # model, tolerance growth, the sparse map, area image score), kept to compare against.

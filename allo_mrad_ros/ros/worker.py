@@ -204,15 +204,12 @@ class ProcessingWorker:
 
         The detect thread started on it when it took it from the hand-over; if it is idle
         already, the time is past and the render starts at once."""
-        started, detect_ms, render_ms = (
+        remaining_s = render_delay_s(
             self._handover.taken_at,
             self._detect_ms.value,
             self._render_ms.value,
+            time.monotonic(),
         )
-        if started is None or detect_ms is None or render_ms is None:
-            return
-        lead_ms = detect_ms - (1.0 + _EARLY_SHARE) * render_ms - _EARLY_MS
-        remaining_s = started + lead_ms / 1e3 - time.monotonic()
         if remaining_s > 0:
             self._stopping.wait(min(remaining_s, 1.0))
 
@@ -375,6 +372,21 @@ class ProcessingWorker:
         self._slot.close()
         self._handover.close()
         self.join(timeout_s)
+
+
+def render_delay_s(
+    taken_at: float | None, detect_ms: float | None, render_ms: float | None, now: float
+) -> float:
+    """How long the render thread waits before it takes the next image, in seconds.
+
+    Until the frame in detection (taken from the hand-over at monotonic ``taken_at``) is
+    about one render from done by the running estimates ``detect_ms`` and ``render_ms``,
+    less a margin: 0 without a frame or an estimate, or when that time is past at ``now``.
+    """
+    if taken_at is None or detect_ms is None or render_ms is None:
+        return 0.0
+    lead_ms = detect_ms - (1.0 + _EARLY_SHARE) * render_ms - _EARLY_MS
+    return max(0.0, taken_at + lead_ms / 1e3 - now)
 
 
 def _stamp_of(item: tuple[Any, float] | None) -> str:

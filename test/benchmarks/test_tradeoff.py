@@ -49,7 +49,8 @@ def test_default_is_the_fastest_within_the_margin_and_follows_the_spec():
 
 
 def test_speedup_tier_is_the_most_accurate_fast_enough_row_within_the_spec():
-    # 200 ms best: 40 ms is 5x, 60 ms 3.3x, 15 ms 13x; the 10 ms row is outside mrad.md.
+    # 200 ms best: 40 ms is 5x, 60 ms 3.3x, 15 ms 13x; the 10 ms row is outside the speed
+    # range docs/method.md ("How defaults are chosen") sets.
     assert most_accurate_with_speedup(ROWS, 3.0)["setting"] == "fast close"
     assert most_accurate_with_speedup(ROWS, 10.0)["setting"] == "fastest poor"
     assert most_accurate_with_speedup(ROWS, 14.0) is None

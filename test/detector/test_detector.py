@@ -1,4 +1,5 @@
-"""detect() end to end: the hard cases of mrad.md, bad input, and a synthetic scene."""
+"""detect() end to end: the hard cases of the method (docs/method.md), bad input, and a
+synthetic scene."""
 
 import cv2
 import numpy as np

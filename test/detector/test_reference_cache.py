@@ -1,4 +1,5 @@
-"""A detection through the reference cache equals a fresh one, frame after frame."""
+"""A detection through the reference cache equals a fresh one, frame after frame, and from
+the second frame on with one reference nothing derived from it alone is computed again."""
 
 import cv2
 import numpy as np
@@ -17,6 +18,37 @@ def frames():
     reference = cv2.resize(pair.reference, (120, 68), interpolation=cv2.INTER_AREA)
     reference.flags.writeable = False
     return [pair.clean_query, pair.query], reference
+
+
+class CountingCache(ReferenceCache):
+    """A cache that also records, apart from its own tallies, each lookup of a value derived
+    from ``reference`` and each computation of one: a lookup answered from what the cache
+    holds runs none. (Values of other images, such as a reference mapped into the query's
+    colours, change every frame and are not counted.)"""
+
+    def __init__(self, reference):
+        super().__init__()
+        self.reference = reference
+        self.computed = []
+        self.lookups = 0
+
+    def value(self, image, key, compute):
+        if image is not self.reference:
+            return super().value(image, key, compute)
+        self.lookups += 1
+
+        def recorded():
+            self.computed.append(key)
+            return compute()
+
+        return super().value(image, key, recorded)
+
+    def frame(self, detector, *args, **kwargs):
+        """Run ``detector(*args, cache=self, **kwargs)``; return its result, the keys it
+        computed and its lookups."""
+        computed, lookups = len(self.computed), self.lookups
+        result = detector(*args, cache=self, **kwargs)
+        return result, self.computed[computed:], self.lookups - lookups
 
 
 def same(a, b):
@@ -40,47 +72,59 @@ def same(a, b):
 def test_cached_detections_equal_fresh_ones_over_consecutive_frames(frames, changes):
     queries, reference = frames
     params = MradParams(**changes) if changes else MradParams()
-    cache = ReferenceCache()
-    for query in queries + queries:
-        same(detect(query, reference, params, cache=cache), detect(query, reference, params))
-    assert cache.hits > 0 and cache.misses > 0
+    cache = CountingCache(reference)
+    for index, query in enumerate(queries + queries):
+        hits = cache.hits
+        result, computed, lookups = cache.frame(detect, query, reference, params)
+        same(result, detect(query, reference, params))
+        if index == 0:
+            assert computed and len(set(computed)) == len(computed)  # each value once
+        else:  # every lookup is answered from the cache: nothing is computed again
+            assert lookups > 0 and computed == [] and cache.hits - hits == lookups
 
 
 def test_the_cache_is_used_from_the_second_frame_on(frames):
     queries, reference = frames
-    cache = ReferenceCache()
-    detect(queries[0], reference, cache=cache)
-    misses = cache.misses
-    assert misses > 0 and cache.hits > 0  # the reference's quantiles serve two fits
-    hits = cache.hits
-    detect(queries[1], reference, cache=cache)
-    assert cache.misses == misses and cache.hits >= hits + misses
+    cache = CountingCache(reference)
+    _, first, first_lookups = cache.frame(detect, queries[0], reference)
+    assert cache.misses == len(first) > 0
+    assert cache.hits == first_lookups - len(first) > 0  # the reference's quantiles serve two fits
+    _, second, second_lookups = cache.frame(detect, queries[1], reference)
+    assert second == [] and second_lookups == first_lookups
+    assert cache.hits == 2 * first_lookups - len(first)
 
 
 def test_a_new_reference_clears_what_the_old_one_gave(frames):
     queries, reference = frames
-    cache = ReferenceCache()
-    detect(queries[0], reference, cache=cache)
+    cache = CountingCache(reference)
+    _, first, _ = cache.frame(detect, queries[0], reference)
     other = np.ascontiguousarray(reference[:, ::-1])
     other.flags.writeable = False
-    same(detect(queries[0], other, cache=cache), detect(queries[0], other))
+    cache.reference = other
+    result, again, _ = cache.frame(detect, queries[0], other)
+    assert sorted(map(repr, again)) == sorted(map(repr, first))  # all computed anew
+    same(result, detect(queries[0], other))
 
 
 def test_a_writable_reference_is_never_cached(frames):
     queries, reference = frames
     writable = reference.copy()
-    cache = ReferenceCache()
-    detect(queries[1], writable, cache=cache)
+    cache = CountingCache(writable)
+    _, first, lookups = cache.frame(detect, queries[1], writable)
+    assert len(first) == lookups > 0  # every lookup computed
     writable[:20] = 255 - writable[:20]  # changed in place between frames
-    same(detect(queries[1], writable, cache=cache), detect(queries[1], writable))
-    assert cache.hits == cache.misses == 0
+    result, second, _ = cache.frame(detect, queries[1], writable)
+    same(result, detect(queries[1], writable))
+    assert second == first and cache.hits == cache.misses == 0
 
 
 def test_pad_through_the_cache_equals_pad_without(frames):
     queries, reference = frames
-    cache = ReferenceCache()
-    for query in queries:
-        same(detect_pad(query, reference, cache=cache), detect_pad(query, reference))
+    cache = CountingCache(reference)
+    for index, query in enumerate(queries):
+        result, computed, lookups = cache.frame(detect_pad, query, reference)
+        same(result, detect_pad(query, reference))
+        assert lookups > 0 and (computed != [] if index == 0 else computed == [])
 
 
 def test_cached_values_are_read_only_and_keyed_by_their_parameters():

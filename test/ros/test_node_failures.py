@@ -1,4 +1,4 @@
-"""Bad input and faults against the node, over DDS on loopback (issue 13, node items).
+"""Bad input and faults against the node, over DDS on loopback.
 
 The node runs in this process (so a test can inject a fault into its processing thread) on an
 executor thread of its own; a :class:`CameraFeed` peer talks to it over DDS. Every wait is

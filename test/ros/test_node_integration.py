@@ -171,9 +171,33 @@ def test_malformed_images_log_one_error_per_cause_and_the_node_survives(
 FULL_HD = CameraIntrinsics(1920, 1080, 1333.33, 1333.33, 960.0, 540.0)
 
 
-def test_burst_of_100_full_hd_frames_at_30_hz_drops_stale_frames_without_growing(
+def counter(values, name):
+    return int(values.get(name, 0))
+
+
+def failed_frames(values):
+    """Images the node took but could not process, each counted once under its cause."""
+    errors = sum(int(v) for k, v in values.items() if k.startswith("errors_"))
+    return errors + counter(values, "pose_lookup_failures")
+
+
+def accounted_for(values):
+    """Whether every image the node received was processed, dropped as stale (a newer one
+    replaced it before it was taken) or failed: nothing is waiting or in progress."""
+    return bool(values) and counter(values, "frames_received") == (
+        counter(values, "frames_processed")
+        + counter(values, "frames_dropped_stale")
+        + failed_frames(values)
+    )
+
+
+def test_every_frame_of_a_full_hd_burst_is_processed_or_counted_as_dropped_and_memory_is_flat(
     node_process, ros_peer, scenes
 ):
+    # Frames arrive at 30 Hz, faster than this machine may process full HD: the node keeps
+    # the newest and counts the others as dropped. The check is the accounting, whatever the
+    # machine's speed: once the node is idle again, each image it received was processed
+    # (and its mask arrived) or dropped, none failed, and the last burst did not grow memory.
     process, log = node_process
     pose = scenes[0]
     with ReferenceRenderer(None, FULL_HD, scale=1.0) as camera:
@@ -183,26 +207,46 @@ def test_burst_of_100_full_hd_frames_at_30_hz_drops_stale_frames_without_growing
     node = psutil.Process(process.pid)
     ros_peer.intrinsics = FULL_HD  # the node rebuilds its renderer for the new camera_info
 
+    def idle_counters():
+        assert ros_peer.wait_for(lambda: accounted_for(ros_peer.diagnostic_values()), 120.0), (
+            ros_peer.diagnostic_values(),
+            log.read_text(),
+        )
+        return ros_peer.diagnostic_values()
+
     def burst(first_stamp):
+        before = idle_counters()
         for index in range(100):
-            started = time.monotonic()
+            deadline = time.monotonic() + 1 / 30
             ros_peer.publish_frame(
                 first_stamp + index, anomalous if index % 2 else clean, pose, SUN
             )
-            rclpy.spin_once(ros_peer.node, timeout_sec=0.0)
-            time.sleep(max(0.0, 1 / 30 - (time.monotonic() - started)))
-        ros_peer.spin(2.0)
+            # Read what arrives meanwhile: a backlog would overflow the mask's history.
+            while (left := deadline - time.monotonic()) > 0:
+                rclpy.spin_once(ros_peer.node, timeout_sec=left)
 
-    burst(T0 + 1000)
-    rss_first = node.memory_info().rss
-    burst(T0 + 2000)
-    rss_second = node.memory_info().rss
+        def masks():
+            return sum(1 for s in ros_peer.received["mask"] if first_stamp <= s < first_stamp + 100)
+
+        def done():
+            values = ros_peer.diagnostic_values()
+            processed = counter(values, "frames_processed") - counter(before, "frames_processed")
+            return accounted_for(values) and processed == masks()
+
+        assert ros_peer.wait_for(done, 120.0), (
+            f"before {before}, now {ros_peer.diagnostic_values()}, {masks()} masks"
+        )
+        after = ros_peer.diagnostic_values()
+        assert failed_frames(after) == failed_frames(before), (before, after)
+        assert masks() >= 1  # the newest frame the node received is never dropped
+        return node.memory_info().rss
+
+    ros_peer.set_outputs(["anomaly"])  # ~/mask and ~/anomaly: the peer keeps up with them
+    try:
+        rss_first = burst(T0 + 1000)
+        rss_second = burst(T0 + 2000)
+    finally:
+        ros_peer.set_outputs(["score", "overlay", "anomaly"])
+        ros_peer.intrinsics = INTRINSICS
     assert process.poll() is None, log.read_text()
-    values = ros_peer.diagnostic_values()
-    processed = sum(1 for s in ros_peer.received["mask"] if T0 + 1000 <= s < T0 + 2100)
-    assert processed >= 10
-    assert ros_peer.wait_for(
-        lambda: int(ros_peer.diagnostic_values().get("frames_dropped_stale", 0)) > 0, 5.0
-    ), values
     assert rss_second <= 1.10 * rss_first, (rss_first, rss_second)
-    ros_peer.intrinsics = INTRINSICS

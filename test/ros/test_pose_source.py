@@ -129,7 +129,7 @@ def test_tf_lookup_waits_tf_timeout_s_not_pose_tolerance_s(node, monkeypatch):
 
 
 def test_a_topic_pose_arriving_after_the_image_is_waited_for_up_to_tf_timeout_s(node):
-    # On a loaded machine the pose callback may run well after the image's (issue 13 flood).
+    # On a loaded machine (a flood of frames) the pose callback may run well after the image's.
     import threading
 
     poses = source(node, "topic", [])

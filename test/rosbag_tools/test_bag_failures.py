@@ -1,5 +1,5 @@
 """allo-bag with bad input, signals and failing disks: one clear line, nothing half-written,
-nothing silently wrong (issue 13 items 10-14 and 17)."""
+nothing silently wrong."""
 
 from __future__ import annotations
 

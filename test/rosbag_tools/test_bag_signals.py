@@ -1,5 +1,5 @@
 """`allo-bag write` stopped by SIGTERM at any point after its start: exit status 130, one
-line, no bag and no hidden ``.bag.partial-*`` left (issue 13 item 11).
+line, no bag and no hidden ``.bag.partial-*`` left.
 
 The command runs as ``python -m rosbag_tools``, as the sweep runs it: that is the path on
 which CPython ends a process by SIGINT (status -2) once a ``KeyboardInterrupt`` has left code

@@ -1,4 +1,4 @@
-"""The bad-input sweep of issue 13 (``make sweep``): ~180 kinds of bad input against the node,
+"""The bad-input sweep (``make sweep``): ~180 kinds of bad input against the node,
 ``allo-bag`` and ``allo-synth``, each classified as clean, traceback, crash, partial output,
 silent wrong or unclear error; prints the table and the count per verdict and writes
 ``sweep.json`` / ``sweep.md``. Exit status 1 when any case is not clean, so a regression fails.

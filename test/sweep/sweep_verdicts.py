@@ -1,4 +1,4 @@
-"""Verdicts of the bad-input sweep (issue 13) and its table: one row per case.
+"""Verdicts of the bad-input sweep and its table: one row per case.
 
 A case is *clean* when the program did what a careful user expects: refused the input with
 one line naming the problem, a non-zero exit and nothing left behind (or, for input that is

@@ -1,5 +1,5 @@
 """allo-synth generate / import-allo: nothing half-written on bad output paths, a bad mesh,
-a full disk or a signal; a rerun replaces, never mixes (issue 13 items 15-16)."""
+a full disk or a signal; a rerun replaces, never mixes."""
 
 from __future__ import annotations
 
