@@ -245,23 +245,16 @@ def detect(
         regions = extract_regions(mask, blurred, full_shape, params.connectivity)
     with timer.stage("pixel_score"):
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
-    with timer.stage("decision"):
-        # The full-resolution score is made only when read (DetectionResult.score).
-        full_mask = _restore_resolution(mask, full_shape)
-        area, anomalous = decide(full_mask, params.area_threshold)
-        frame_score = image_score(score, area, params)
-    return DetectionResult(
-        work_score=score,
-        raw_score=raw,
-        mask=full_mask,
-        area=area,
-        anomalous=anomalous,
-        image_score=frame_score,
-        regions=regions,
-        timings_ms=timer.finish(),
-        masked_score=params.pixel_score == "regions",
+    return _decided(
+        timer,
+        params,
+        score,
+        raw,
+        mask,
+        regions,
+        full_shape=full_shape,
         work_query=seen,
-        work_mask=mask,
+        masked_score=params.pixel_score == "regions",
     )
 
 
@@ -382,19 +375,41 @@ def _threshold_only(
         mask = cv2.compare(threshold_scores(score.copy(), params.min_score), 0.0, cv2.CMP_GT)
     with timer.stage("regions"):
         regions = extract_regions(mask, score, mask.shape, params.connectivity)
+    return _decided(
+        timer, params, score, raw, mask, regions, full_shape=mask.shape, work_query=query
+    )
+
+
+def _decided(
+    timer: _StageTimer,
+    params: MradParams,
+    score: np.ndarray,
+    raw: np.ndarray,
+    mask: np.ndarray,
+    regions: tuple[Region, ...],
+    *,
+    full_shape: tuple[int, int],
+    work_query: np.ndarray,
+    masked_score: bool = False,
+) -> DetectionResult:
+    """The last stage of every method: the mask (at the processing resolution) back at the
+    query's ``full_shape``, the image decision on it, and the result."""
     with timer.stage("decision"):
-        area, anomalous = decide(mask, params.area_threshold)
+        # The full-resolution score is made only when read (DetectionResult.score).
+        full_mask = _restore_resolution(mask, full_shape)
+        area, anomalous = decide(full_mask, params.area_threshold)
         frame_score = image_score(score, area, params)
     return DetectionResult(
         work_score=score,
         raw_score=raw,
-        mask=mask,
+        mask=full_mask,
         area=area,
         anomalous=anomalous,
         image_score=frame_score,
         regions=regions,
         timings_ms=timer.finish(),
-        work_query=query,
+        masked_score=masked_score,
+        work_query=work_query,
         work_mask=mask,
     )
 
