@@ -169,14 +169,8 @@ def detect(
         image smaller than the grid.
     """
     params = params or MradParams()
-    if reference is None:
-        raise ValueError("reference is required for MRAD (got None)")
     timer = _StageTimer()
-    query = check_image(query, "query", params.bit_depth)
-    reference = check_image(reference, "reference", params.bit_depth)
-    check_aspect(query, reference)
-    if cache is not None:
-        cache.use(reference)
+    query, reference = _checked_pair(query, reference, params, cache, "MRAD")
     full_shape = query.shape[:2]
     work = _resize_query(query, params.process_scale)
     if params.process_scale < 1.0 and min(work.shape[:2]) < params.grid:
@@ -330,13 +324,7 @@ def detect_pad(
     ``params.min_score``. ``cache`` as for :func:`detect`.
     """
     params = params or MradParams()
-    if reference is None:
-        raise ValueError("reference is required for PAD (got None)")
-    query = check_image(query, "query", params.bit_depth)
-    reference = check_image(reference, "reference", params.bit_depth)
-    check_aspect(query, reference)
-    if cache is not None:
-        cache.use(reference)
+    query, reference = _checked_pair(query, reference, params, cache, "PAD")
     timer = _StageTimer()
     with timer.stage("cross_score"):
         raw = cross_score(
@@ -412,6 +400,25 @@ def _decided(
         work_query=work_query,
         work_mask=mask,
     )
+
+
+def _checked_pair(
+    query: np.ndarray,
+    reference: np.ndarray | None,
+    params: MradParams,
+    cache: ReferenceCache | None,
+    method: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The validated query and reference of a ``method`` that compares them, with ``cache``
+    told which reference is in use."""
+    if reference is None:
+        raise ValueError(f"reference is required for {method} (got None)")
+    query = check_image(query, "query", params.bit_depth)
+    reference = check_image(reference, "reference", params.bit_depth)
+    check_aspect(query, reference)
+    if cache is not None:
+        cache.use(reference)
+    return query, reference
 
 
 def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:
