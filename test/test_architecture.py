@@ -1,7 +1,8 @@
 """The import rule of ARCHITECTURE.md, checked on the source: nothing imports upwards (the
 layers are read from ARCHITECTURE.md's table), the detector core imports nothing else of the
 package but the exception root, ROS stays at the edge, nothing installed imports the
-benchmarks or the harness."""
+benchmarks or the harness, and no modules import each other round a loop (an import inside a
+function counts as much as one at module level)."""
 
 from __future__ import annotations
 
@@ -167,3 +168,101 @@ def test_the_ros_edge_admits_no_namesakes():
     assert not violations("allo_mrad_ros.ros.inputs", ros)
     for namesake in ("benchmarks.node_extra", "allo_mrad_ros.demo_tools", "allo_mrad_ros.rosy"):
         assert violations(namesake, ros) == [f"{namesake} imports ROS package rclpy"]
+
+
+def import_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """Module -> the modules of ``sources`` it imports.
+
+    ``sources`` maps a module's name to its text and whether it is a package's
+    ``__init__``. Every import statement counts, wherever it stands (module level, inside a
+    function, under ``TYPE_CHECKING``). ``from p import n`` imports the module ``p.n`` where
+    there is one, else the module ``p`` (a name it defines); ``import p.q.r`` the innermost of
+    those that is a module of ``sources``.
+    """
+    graph = {}
+    for module, (text, is_package) in sources.items():
+        package = module if is_package else module.rpartition(".")[0]
+        imported = set()
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.Import):
+                for alias in node.names:
+                    name = alias.name
+                    while name and name not in sources:
+                        name = name.rpartition(".")[0]
+                    imported.add(name)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parts = package.split(".")
+                    anchor = parts[: len(parts) - node.level + 1]
+                    base = ".".join([*anchor, *([node.module] if node.module else [])])
+                for alias in node.names:
+                    submodule = f"{base}.{alias.name}"
+                    imported.add(submodule if submodule in sources else base)
+        graph[module] = {name for name in imported if name in sources and name != module}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The modules that import each other, directly or round a loop: every strongly
+    connected component of more than one module, sorted.
+
+    Plain reachability (a module and everything that reaches it and that it reaches), not
+    an efficient algorithm: the graph has a few hundred modules.
+    """
+
+    def reach(start: str) -> set[str]:
+        seen, todo = set(), [start]
+        while todo:
+            for name in graph[todo.pop()] - seen:
+                seen.add(name)
+                todo.append(name)
+        return seen
+
+    reached = {module: reach(module) for module in graph}
+    cycles = set()
+    for module in graph:
+        component = {other for other in reached[module] if module in reached[other]}
+        if len(component) > 1:
+            cycles.add(tuple(sorted(component)))
+    return [list(cycle) for cycle in sorted(cycles)]
+
+
+def test_no_module_imports_itself_round_a_loop():
+    sources = {
+        _module_name(path): (path.read_text(encoding="utf-8"), path.name == "__init__.py")
+        for path in _sources()
+    }
+    graph = import_graph(sources)
+    loops = [
+        f"{' <-> '.join(cycle)}: "
+        + ", ".join(f"{a} -> {b}" for a in cycle for b in sorted(graph[a] & set(cycle)))
+        for cycle in import_cycles(graph)
+    ]
+    assert loops == []
+
+
+def test_the_cycle_check_finds_loops_module_level_or_deferred():
+    # a -> b at module level, b -> c inside a function, c -> a by `import`: one loop of
+    # three; d imports into it but is not on it, and e's two imports name a's package.
+    sources = {
+        "pkg": ("from pkg.a import run\n", True),
+        "pkg.a": ("from pkg import b\n", False),
+        "pkg.b": ("def later():\n    from .c import helper\n", False),
+        "pkg.c": ("import pkg.a\nimport numpy\n", False),
+        "pkg.d": ("from pkg.a import run\n", False),
+        "pkg.e": ("from pkg import VERSION\nimport pkg.a.run\n", False),
+    }
+    graph = import_graph(sources)
+    assert graph == {
+        "pkg": {"pkg.a"},
+        "pkg.a": {"pkg.b"},
+        "pkg.b": {"pkg.c"},
+        "pkg.c": {"pkg.a"},
+        "pkg.d": {"pkg.a"},
+        "pkg.e": {"pkg", "pkg.a"},
+    }
+    assert import_cycles(graph) == [["pkg.a", "pkg.b", "pkg.c"]]
+    # Two loops through one module are one component; a chain without a loop is none.
+    assert import_cycles({"x": {"y", "z"}, "y": {"x"}, "z": {"x"}}) == [["x", "y", "z"]]
+    assert import_cycles({"x": {"y"}, "y": {"z"}, "z": set()}) == []

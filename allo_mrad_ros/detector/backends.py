@@ -17,13 +17,12 @@ algebra in float64, post-processing, region growing) is the same code for all of
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import cache
 from typing import Protocol
 
 import numpy as np
 
-from allo_mrad_ros.detector.images import to_float32
 from allo_mrad_ros.detector.photometric import cell_quantiles
 from allo_mrad_ros.detector.quadratic import PixelQuadratic, evaluate_quadratics
 from allo_mrad_ros.detector.statistics import CellStatistics, cell_statistics
@@ -42,51 +41,29 @@ class ArrayBackendError(InvalidInput):
 
 
 class PixelBackend(Protocol):
-    """The per-pixel operations a backend provides (NumPy arrays in and out)."""
+    """The per-pixel operations a backend provides, NumPy arrays in and out.
 
-    @property
-    def name(self) -> str:
-        """The backend and its device, e.g. ``numpy`` or ``torch:cuda:0``."""
-        ...
+    Each operation takes the arguments of the NumPy function it names and means the same;
+    the NumPy backend (:data:`NUMPY`) is those functions themselves.
+    """
 
-    def cell_statistics(self, image: np.ndarray, grid: int) -> CellStatistics:
-        """Per-cell colour mean and covariance (see :func:`.statistics.cell_statistics`)."""
-        ...
-
-    def cell_quantiles(self, image: np.ndarray, grid: int) -> np.ndarray:
-        """Per-cell quantiles (see :func:`.photometric.cell_quantiles`)."""
-        ...
-
-    def evaluate(
-        self,
-        image: np.ndarray,
-        grid: int,
-        quadratics: Sequence[PixelQuadratic],
-        check_finite: bool,
-    ) -> list[np.ndarray]:
-        """Score maps of ``quadratics`` (see :func:`.quadratic.evaluate_quadratics`)."""
-        ...
+    name: str
+    """The backend and its device, e.g. ``numpy`` or ``torch:cuda:0``."""
+    cell_statistics: Callable[[np.ndarray, int], CellStatistics]
+    """Per-cell colour mean and covariance: :func:`.statistics.cell_statistics`."""
+    cell_quantiles: Callable[[np.ndarray, int], np.ndarray]
+    """Per-cell quantiles: :func:`.photometric.cell_quantiles`."""
+    evaluate: Callable[[np.ndarray, int, Sequence[PixelQuadratic], bool], list[np.ndarray]]
+    """Score maps of quadratic forms: :func:`.quadratic.evaluate_quadratics`."""
 
 
 class NumpyBackend:
     """NumPy and OpenCV on the CPU: the reference every other backend is tested against."""
 
     name = "numpy"
-
-    def cell_statistics(self, image: np.ndarray, grid: int) -> CellStatistics:
-        return cell_statistics(image, grid)
-
-    def cell_quantiles(self, image: np.ndarray, grid: int) -> np.ndarray:
-        return cell_quantiles(image, grid)
-
-    def evaluate(
-        self,
-        image: np.ndarray,
-        grid: int,
-        quadratics: Sequence[PixelQuadratic],
-        check_finite: bool,
-    ) -> list[np.ndarray]:
-        return evaluate_quadratics(to_float32(image), grid, quadratics, check_finite)
+    cell_statistics = staticmethod(cell_statistics)
+    cell_quantiles = staticmethod(cell_quantiles)
+    evaluate = staticmethod(evaluate_quadratics)
 
 
 NUMPY = NumpyBackend()
@@ -108,7 +85,7 @@ def select_backend(spec: str = DEFAULT_BACKEND) -> PixelBackend:
     if spec == "numpy":
         return NUMPY
     try:
-        import torch  # noqa: F401  (only to tell a missing library from other errors)
+        import torch
     except ImportError as error:
         raise ArrayBackendError(
             f"array_backend {spec!r} needs PyTorch, which is not importable here ({error}); "
@@ -117,6 +94,11 @@ def select_backend(spec: str = DEFAULT_BACKEND) -> PixelBackend:
     from allo_mrad_ros.detector.torch_backend import TorchBackend
 
     device = spec.partition(":")[2] or None
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ArrayBackendError(
+            f"array_backend {spec!r} needs a CUDA GPU, and PyTorch {torch.__version__} sees "
+            "none here; use 'torch:cpu' or 'numpy'"
+        )
     return TorchBackend(device)
 
 

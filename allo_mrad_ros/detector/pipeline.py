@@ -169,14 +169,8 @@ def detect(
         image smaller than the grid.
     """
     params = params or MradParams()
-    if reference is None:
-        raise ValueError("reference is required for MRAD (got None)")
     timer = _StageTimer()
-    query = check_image(query, "query", params.bit_depth)
-    reference = check_image(reference, "reference", params.bit_depth)
-    check_aspect(query, reference)
-    if cache is not None:
-        cache.use(reference)
+    query, reference = _checked_pair(query, reference, params, cache, "MRAD")
     full_shape = query.shape[:2]
     work = _resize_query(query, params.process_scale)
     if params.process_scale < 1.0 and min(work.shape[:2]) < params.grid:
@@ -245,23 +239,16 @@ def detect(
         regions = extract_regions(mask, blurred, full_shape, params.connectivity)
     with timer.stage("pixel_score"):
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
-    with timer.stage("decision"):
-        # The full-resolution score is made only when read (DetectionResult.score).
-        full_mask = _restore_resolution(mask, full_shape)
-        area, anomalous = decide(full_mask, params.area_threshold)
-        frame_score = image_score(score, area, params)
-    return DetectionResult(
-        work_score=score,
-        raw_score=raw,
-        mask=full_mask,
-        area=area,
-        anomalous=anomalous,
-        image_score=frame_score,
-        regions=regions,
-        timings_ms=timer.finish(),
-        masked_score=params.pixel_score == "regions",
+    return _decided(
+        timer,
+        params,
+        score,
+        raw,
+        mask,
+        regions,
+        full_shape=full_shape,
         work_query=seen,
-        work_mask=mask,
+        masked_score=params.pixel_score == "regions",
     )
 
 
@@ -337,13 +324,7 @@ def detect_pad(
     ``params.min_score``. ``cache`` as for :func:`detect`.
     """
     params = params or MradParams()
-    if reference is None:
-        raise ValueError("reference is required for PAD (got None)")
-    query = check_image(query, "query", params.bit_depth)
-    reference = check_image(reference, "reference", params.bit_depth)
-    check_aspect(query, reference)
-    if cache is not None:
-        cache.use(reference)
+    query, reference = _checked_pair(query, reference, params, cache, "PAD")
     timer = _StageTimer()
     with timer.stage("cross_score"):
         raw = cross_score(
@@ -382,21 +363,62 @@ def _threshold_only(
         mask = cv2.compare(threshold_scores(score.copy(), params.min_score), 0.0, cv2.CMP_GT)
     with timer.stage("regions"):
         regions = extract_regions(mask, score, mask.shape, params.connectivity)
+    return _decided(
+        timer, params, score, raw, mask, regions, full_shape=mask.shape, work_query=query
+    )
+
+
+def _decided(
+    timer: _StageTimer,
+    params: MradParams,
+    score: np.ndarray,
+    raw: np.ndarray,
+    mask: np.ndarray,
+    regions: tuple[Region, ...],
+    *,
+    full_shape: tuple[int, int],
+    work_query: np.ndarray,
+    masked_score: bool = False,
+) -> DetectionResult:
+    """The last stage of every method: the mask (at the processing resolution) back at the
+    query's ``full_shape``, the image decision on it, and the result."""
     with timer.stage("decision"):
-        area, anomalous = decide(mask, params.area_threshold)
+        # The full-resolution score is made only when read (DetectionResult.score).
+        full_mask = _restore_resolution(mask, full_shape)
+        area, anomalous = decide(full_mask, params.area_threshold)
         frame_score = image_score(score, area, params)
     return DetectionResult(
         work_score=score,
         raw_score=raw,
-        mask=mask,
+        mask=full_mask,
         area=area,
         anomalous=anomalous,
         image_score=frame_score,
         regions=regions,
         timings_ms=timer.finish(),
-        work_query=query,
+        masked_score=masked_score,
+        work_query=work_query,
         work_mask=mask,
     )
+
+
+def _checked_pair(
+    query: np.ndarray,
+    reference: np.ndarray | None,
+    params: MradParams,
+    cache: ReferenceCache | None,
+    method: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The validated query and reference of a ``method`` that compares them, with ``cache``
+    told which reference is in use."""
+    if reference is None:
+        raise ValueError(f"reference is required for {method} (got None)")
+    query = check_image(query, "query", params.bit_depth)
+    reference = check_image(reference, "reference", params.bit_depth)
+    check_aspect(query, reference)
+    if cache is not None:
+        cache.use(reference)
+    return query, reference
 
 
 def _resize_query(query: np.ndarray, scale: float) -> np.ndarray:

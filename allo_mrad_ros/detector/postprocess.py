@@ -14,6 +14,38 @@ NEGATIVE_BAND = 1.0
 """Part of the continuous map's 0..255 range that ranks negative cross scores."""
 
 
+def scaling_reference(raw: np.ndarray, scaling: str, score_ref: float, *, flat: float) -> float:
+    """The raw score that ``scaling`` takes as its unit: ``score_ref`` for ``fixed``, the
+    frame's largest score for ``per_image``.
+
+    Parameters
+    ----------
+    raw : numpy.ndarray
+        Raw score map.
+    scaling : {"fixed", "per_image"}
+        The score scaling.
+    score_ref : float
+        The ``fixed`` unit.
+    flat : float
+        The ``per_image`` unit of a frame with no positive score (each caller's own rule).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``scaling``.
+    """
+    if scaling == "per_image":
+        peak = float(raw.max())
+        return peak if peak > 0.0 else flat
+    if scaling == "fixed":
+        return float(score_ref)
+    raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+
+
 def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
     """Map the raw score onto 0..255.
 
@@ -32,13 +64,8 @@ def scale_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.ndarray:
     numpy.ndarray
         H x W float32 in [0, 255].
     """
-    if scaling == "per_image":
-        peak = float(raw.max())
-        factor = SCORE_RANGE / peak if peak > 0.0 else 0.0
-    elif scaling == "fixed":
-        factor = SCORE_RANGE / score_ref
-    else:
-        raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+    # A frame with no positive score has an infinite reference: every pixel scales to 0.
+    factor = SCORE_RANGE / scaling_reference(raw, scaling, score_ref, flat=math.inf)
     _, positive = cv2.threshold(raw, 0.0, 0.0, cv2.THRESH_TOZERO)
     scaled = cv2.multiply(positive, factor)
     cv2.threshold(scaled, SCORE_RANGE, SCORE_RANGE, cv2.THRESH_TRUNC, dst=scaled)
@@ -60,13 +87,7 @@ def continuous_scores(raw: np.ndarray, scaling: str, score_ref: float) -> np.nda
     numpy.ndarray
         H x W float32 in [0, 255].
     """
-    if scaling == "per_image":
-        peak = float(raw.max())
-        ref = peak if peak > 0.0 else 1.0
-    elif scaling == "fixed":
-        ref = float(score_ref)
-    else:
-        raise ValueError(f"score_scaling must be 'fixed' or 'per_image', got {scaling!r}")
+    ref = scaling_reference(raw, scaling, score_ref, flat=1.0)
     _, positive = cv2.threshold(raw, 0.0, 0.0, cv2.THRESH_TOZERO)
     span = np.float32(SCORE_RANGE - NEGATIVE_BAND)
     if scaling == "fixed":

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_slices
+from allo_mrad_ros.detector.images import to_float32
 from allo_mrad_ros.detector.threads import for_each_block
 
 
@@ -124,7 +125,8 @@ def evaluate_quadratics(
     Parameters
     ----------
     image : numpy.ndarray
-        H x W x 3 C-contiguous float32 on the 0..255 scale.
+        H x W x 3 validated image (uint8, uint16, or float on the 0..1 scale), evaluated
+        as float32 on the 0..255 scale.
     grid : int
         Cells per side.
     quadratics : sequence of PixelQuadratic
@@ -141,6 +143,7 @@ def evaluate_quadratics(
     # the pixel (y and l * y + m), their product, and a 1 x 4 transform that sums the
     # channels and adds k straight into the score map. OpenCV vectorises only 3- and
     # 1-channel outputs, so each step keeps to those.
+    image = to_float32(image)
     height, width = image.shape[:2]
     channel_sums = []
     for quadratic in quadratics:

@@ -140,7 +140,8 @@ def cross_scores(
             affine = (gain, offset, widening, widened_precision)
         models.append(_affine_models(ref_stats, query_stats, *affine, abs_floor, rel_floor))
     quadratics = [pixel_quadratic(model) for model in models]
-    return backend.evaluate(query, grid, quadratics, check_finite=abs_floor < _BOUNDED_FLOOR)
+    check_finite = abs_floor < _BOUNDED_FLOOR
+    return backend.evaluate(query, grid, quadratics, check_finite)
 
 
 def _affine_models(
@@ -187,4 +188,5 @@ def rx_score(
     precision = regularised_precision(stats.cov, abs_floor, rel_floor)
     model = CellModels(stats.mean, precision, stats.mean, np.zeros_like(precision))
     quadratic = pixel_quadratic(model)
-    return backend.evaluate(image, 1, [quadratic], check_finite=abs_floor < _BOUNDED_FLOOR)[0]
+    check_finite = abs_floor < _BOUNDED_FLOOR
+    return backend.evaluate(image, 1, [quadratic], check_finite)[0]

@@ -29,20 +29,13 @@ class TorchBackend:
     ----------
     device : str, optional
         A PyTorch device (``"cuda"``, ``"cuda:1"``, ``"cpu"``); None: the first CUDA GPU
-        when one is visible, else the CPU.
+        when one is visible, else the CPU. :func:`.backends.select_backend` refuses a CUDA
+        device where PyTorch sees none, before building the backend.
     """
 
     def __init__(self, device: str | None = None) -> None:
-        # Imported here so that a missing or broken PyTorch is the selector's error.
-        from allo_mrad_ros.detector.backends import ArrayBackendError
-
         if device is None:
             device = "cuda" if torch.cuda.is_available() else "cpu"
-        if device.startswith("cuda") and not torch.cuda.is_available():
-            raise ArrayBackendError(
-                f"array_backend 'torch:{device}' needs a CUDA GPU, and PyTorch "
-                f"{torch.__version__} sees none here; use 'torch:cpu' or 'numpy'"
-            )
         # No CUDA call that creates a context here: selecting a backend (as the node's
         # parameter check does) must stay cheap, and a forked child could not use it.
         self._device = torch.device(device)

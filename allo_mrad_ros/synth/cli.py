@@ -34,6 +34,20 @@ from allo_mrad_ros.targets import (
     output_path,
 )
 
+# The options of `generate` that set the SynthConfig field of their name (their dest).
+_CONFIG_OPTIONS = (
+    "width",
+    "height",
+    "references",
+    "anomaly_types",
+    "position_sigma_m",
+    "rotation_sigma_rad",
+    "pose_error_m",
+    "query_renderer",
+    "cycles_samples",
+    "camera_effects",
+)
+
 
 def _positive_int(text: str) -> int:
     value = int(text)
@@ -78,6 +92,8 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         type=_positive_int,
         help="scale the preset to about this many frames",
     )
+    # Options that override a field of the preset's SynthConfig parse into that field's
+    # name (dest); one not given is None and keeps the preset's value.
     parser.add_argument("--width", type=_positive_int, help="image width")
     parser.add_argument("--height", type=_positive_int, help="image height")
     parser.add_argument(
@@ -88,19 +104,22 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         action=argparse.BooleanOptionalAction,
         help="also write pre-rendered references (reported pose, nominal model and light)",
     )
-    parser.add_argument("--types", type=_types, help="comma-separated object types")
     parser.add_argument(
-        "--position-sigma", type=_non_negative, help="base-pose perturbation, m (1)"
+        "--types",
+        dest="anomaly_types",
+        metavar="TYPES",
+        type=_types,
+        help="comma-separated object types",
     )
-    parser.add_argument(
-        "--rotation-sigma",
-        type=_non_negative,
-        help="base-pose perturbation, rad (0.2)",
-    )
-    parser.add_argument("--pose-error-m", type=_non_negative, help="reported pose error, m (0.02)")
-    parser.add_argument(
-        "--pose-error-deg", type=_non_negative, help="reported pose error, deg (0.2)"
-    )
+    for flag, dest, what in (
+        ("--position-sigma", "position_sigma_m", "base-pose perturbation, m (1)"),
+        ("--rotation-sigma", "rotation_sigma_rad", "base-pose perturbation, rad (0.2)"),
+        ("--pose-error-m", "pose_error_m", "reported pose error, m (0.02)"),
+        # Degrees on the command line; the config holds radians (see _run_generate).
+        ("--pose-error-deg", "pose_error_deg", "reported pose error, deg (0.2)"),
+    ):
+        metavar = flag[2:].upper().replace("-", "_")
+        parser.add_argument(flag, dest=dest, metavar=metavar, type=_non_negative, help=what)
     parser.add_argument(
         "--query-renderer",
         choices=QUERY_RENDERERS,
@@ -131,17 +150,8 @@ def _run_generate(args: argparse.Namespace) -> int:
             config = config.with_frames(args.frames)
         pose_error_rad = None if args.pose_error_deg is None else math.radians(args.pose_error_deg)
         config = config.with_overrides(
-            width=args.width,
-            height=args.height,
-            references=args.references,
-            anomaly_types=args.types,
-            position_sigma_m=args.position_sigma,
-            rotation_sigma_rad=args.rotation_sigma,
-            pose_error_m=args.pose_error_m,
+            **{name: getattr(args, name) for name in _CONFIG_OPTIONS},
             pose_error_rad=pose_error_rad,
-            query_renderer=args.query_renderer,
-            cycles_samples=args.cycles_samples,
-            camera_effects=args.camera_effects,
         )
         if args.clean:
             config = config.with_overrides(realism=replace(config.realism, enabled=False))

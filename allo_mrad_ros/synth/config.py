@@ -388,17 +388,15 @@ def _bench_cycles() -> SynthConfig:
 
 def _bench_stations() -> SynthConfig:
     # One station's share of the multi-station path-traced bench (``make bench-stations``
-    # generates it once per station model): Cycles queries developed under several view
-    # transforms and exposures from -1 to +1.5 stops (bright parts clip: glare), JPEG as a
-    # camera streams it, 4:3 frames, a larger pose error than the rasterised bench;
-    # anomalies recoloured and scaled as ALLO does.
-    return SynthConfig(
+    # generates it once per station model): bench-cycles' frames with more variation, Cycles
+    # queries developed under several view transforms and exposures from -1 to +1.5 stops
+    # (bright parts clip: glare), JPEG as a camera streams it, 4:3 frames, a larger pose
+    # error than the rasterised bench; anomalies recoloured and scaled as ALLO does.
+    return _bench_cycles().with_overrides(
         name="bench-stations",
         splits={"test": SplitSpec(8, 16, 4)},
         width=512,
         height=384,
-        query_renderer="cycles",
-        camera_effects=False,
         cycles_samples=16,
         cycles_view_transforms=("AgX", "Filmic", "Standard"),
         cycles_exposure_ev=(-1.0, 1.5),

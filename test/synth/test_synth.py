@@ -220,3 +220,36 @@ def test_cli_wires_import_allo_and_rejects_bad_options(capsys):
         with pytest.raises(SystemExit):
             build_parser().parse_args(bad)
     capsys.readouterr()
+
+
+def test_cli_options_reach_the_fields_they_name(monkeypatch, tmp_path, capsys):
+    # Every option that overrides the preset lands in its own SynthConfig field (degrees
+    # turned into radians); the generator is stopped before it writes anything.
+    import allo_mrad_ros.synth.generator as generator
+
+    seen = []
+
+    def capture(config, *args, **kwargs):
+        seen.append(config)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(generator, "generate", capture)
+    argv = ["generate", "--preset", "smoke", "--out", str(tmp_path / "s"), "--quiet"]
+    argv += ["--width", "320", "--height", "180", "--no-references", "--types", "glove,wrench"]
+    argv += ["--position-sigma", "0.5", "--rotation-sigma", "0.1", "--pose-error-m", "0.04"]
+    argv += ["--pose-error-deg", "0.5", "--cycles-samples", "8", "--no-camera-effects"]
+    assert main(argv) == 130
+    capsys.readouterr()
+    expected = preset("smoke").with_overrides(
+        width=320,
+        height=180,
+        references=False,
+        anomaly_types=("glove", "wrench"),
+        position_sigma_m=0.5,
+        rotation_sigma_rad=0.1,
+        pose_error_m=0.04,
+        pose_error_rad=math.radians(0.5),
+        cycles_samples=8,
+        camera_effects=False,
+    )
+    assert seen == [expected] and expected != preset("smoke")
