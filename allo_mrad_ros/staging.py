@@ -33,6 +33,7 @@ from os import PathLike
 from pathlib import Path
 
 from allo_mrad_ros.errors import BackendError
+from allo_mrad_ros.targets import process_alive
 
 HOLD_AT = "ALLO_HOLD_AT"
 """Environment variable: the name of the :func:`hold_point` at which to hold the process."""
@@ -53,16 +54,6 @@ def staging_path(out: Path) -> Path:
     return out.parent / f".{out.name}.partial-{os.getpid()}"
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def remove_stale(out: Path) -> list[Path]:
     """Remove partial and old copies of ``out`` left by processes that no longer run.
 
@@ -74,7 +65,7 @@ def remove_stale(out: Path) -> list[Path]:
         return removed
     for entry in out.parent.iterdir():
         match = _LEFTOVER.match(entry.name)
-        if not match or match["name"] != out.name or _alive(int(match["pid"])):
+        if not match or match["name"] != out.name or process_alive(int(match["pid"])):
             continue
         if match["kind"] == "old" and not os.path.lexists(out):
             continue

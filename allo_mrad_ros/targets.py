@@ -316,7 +316,8 @@ def _refuse_overlap(out: Path, target: Path, inputs: Iterable[str | PathLike[str
 _OLD_COPY = re.compile(r"^\.(?P<name>.+)\.old-(?P<pid>\d+)$")
 
 
-def _running(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (one of another user counts as alive)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -349,7 +350,7 @@ def restore_interrupted(out: str | PathLike[str]) -> Path | None:
             for entry in out.parent.iterdir()
             if (match := _OLD_COPY.match(entry.name))
             and match["name"] == out.name
-            and not _running(int(match["pid"]))
+            and not process_alive(int(match["pid"]))
         ]
         if not copies:
             return None
