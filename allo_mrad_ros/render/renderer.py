@@ -27,7 +27,12 @@ from allo_mrad_ros.render.backend import (
     share_egl_display,
 )
 from allo_mrad_ros.render.bodies import CelestialBody, bodies_in_view, frustum_planes
-from allo_mrad_ros.render.gl_patches import bounded_scene_class, install_patches
+from allo_mrad_ros.render.gl_patches import (
+    bounded_scene_class,
+    current_context,
+    install_patches,
+    release_context_data,
+)
 from allo_mrad_ros.render.meshes import body_mesh, mesh_from_groups
 from allo_mrad_ros.render.model import MeshGroup, ModelSource, load_model
 from allo_mrad_ros.render.values import (
@@ -186,6 +191,8 @@ class ReferenceRenderer:
                 f"cannot start an OpenGL context with the {self.backend} backend: {error}; "
                 f"{INSTALL_HINT}"
             ) from error
+        # What PyOpenGL keeps per context is found by it when the context is gone.
+        self._context = current_context()
         share_egl_display(self._gl)
         install_patches(pr, self._gl)
 
@@ -368,10 +375,12 @@ class ReferenceRenderer:
         return len(self._scene.nodes)
 
     def close(self) -> None:
-        """Free the OpenGL context and buffers (also done when the object is collected)."""
+        """Free the OpenGL context and buffers, and what PyOpenGL kept for them (also done
+        when the object is collected)."""
         if getattr(self, "_gl", None) is not None:
             self._gl.delete()
             self._gl = None
+            release_context_data(getattr(self, "_context", None))
 
     def __enter__(self) -> ReferenceRenderer:
         return self
