@@ -26,7 +26,12 @@ from allo_mrad_ros.detector.params import PARAMETER_SPECS, ParameterSpec
 from allo_mrad_ros.detector.reference_cache import ReferenceCache
 from allo_mrad_ros.errors import InvalidInput
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render import (
+    DEFAULT_SCALE,
+    DEFAULT_SHADOWS,
+    ReferenceRenderer,
+    scaled_keeping_aspect,
+)
 from allo_mrad_ros.render.reuse import ReferenceReuse, ReuseBounds
 from allo_mrad_ros.view import View
 
@@ -206,7 +211,8 @@ class ReferenceProvider:
     ) -> None:
         self.settings = render
         self._camera = camera
-        self.reference_camera = camera.scaled(render.reference_scale)
+        # The renderer's own rule: the reference keeps the image's aspect ratio.
+        self.reference_camera = scaled_keeping_aspect(camera, render.reference_scale)
         self.reuse: ReferenceReuse | None = None
         render_camera, scale = camera, render.reference_scale
         if render.reuse is not None:

@@ -6,7 +6,12 @@ when a :class:`ReferenceRenderer` is built.
 
 from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
-from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render.renderer import (
+    DEFAULT_SCALE,
+    DEFAULT_SHADOWS,
+    ReferenceRenderer,
+    scaled_keeping_aspect,
+)
 from allo_mrad_ros.render.values import (
     LABEL_ANOMALY,
     LABEL_SPACE,
@@ -27,4 +32,5 @@ __all__ = [
     "RenderResult",
     "RendererError",
     "choose_backend",
+    "scaled_keeping_aspect",
 ]

@@ -62,6 +62,21 @@ SHADOW_MAP_SIZE = 2048
 _EXTRA_CACHE_SIZE = 16
 
 
+def scaled_keeping_aspect(intrinsics: CameraIntrinsics, scale: float) -> CameraIntrinsics:
+    """The intrinsics of ``intrinsics``' camera rendered at about ``scale``, with the image's
+    aspect ratio kept within a pixel: the shorter side is rounded to whole pixels (at least
+    one) and the longer follows it.
+
+    Rounding both sides on their own (:meth:`CameraIntrinsics.scaled`) distorts the aspect
+    ratio of a narrow camera: 700x3 at 0.125 gives 88x1, where 700x3's aspect wants 233x1,
+    and the detector refuses a reference whose aspect differs from the image's by more
+    than a pixel. Where the shorter side scales to whole pixels (1920x1080 at 0.125:
+    240x135), the result is :meth:`CameraIntrinsics.scaled`'s.
+    """
+    short = min(intrinsics.width, intrinsics.height)
+    return intrinsics.scaled(max(1, round(short * scale)) / short)
+
+
 class ReferenceRenderer:
     """Render the station model as the camera would see it, for MRAD and the generator.
 
@@ -73,7 +88,9 @@ class ReferenceRenderer:
     intrinsics : CameraIntrinsics
         Full-resolution pinhole intrinsics (``sensor_msgs/CameraInfo`` without distortion).
     scale : float
-        Linear output scale in (0, 4]; the default 0.125 renders 1920x1080 as 240x135.
+        Linear output scale in (0, 4]; the default 0.125 renders 1920x1080 as 240x135
+        (the shorter side is rounded to whole pixels, the longer keeps the aspect ratio:
+        :func:`scaled_keeping_aspect`).
     backend : str or None
         ``"osmesa"`` or ``"egl"``; None chooses (see :func:`~.backend.choose_backend`).
     shadows : bool
@@ -134,7 +151,7 @@ class ReferenceRenderer:
         if cone >= 180.0:
             raise InvalidInput(f"spot_cone_deg must be < 180, got {cone}")
         self.intrinsics = intrinsics
-        self.output_intrinsics = intrinsics.scaled(scale)
+        self.output_intrinsics = scaled_keeping_aspect(intrinsics, scale)
         self.scale = scale
         self.shadows = bool(shadows)
         self.cull_bodies = bool(cull_bodies)
