@@ -20,7 +20,8 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.evaluation.sources import open_sequence
-from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
+from allo_mrad_ros.render import ReferenceProvider
 from benchmarks import finish
 
 KINDS = ("edge", "space", "dark", "mid", "bright")

@@ -26,7 +26,8 @@ from sensor_msgs.msg import Image
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import ALLO_INTRINSICS
-from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
+from allo_mrad_ros.render import ReferenceProvider
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import default_config

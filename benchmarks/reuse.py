@@ -31,8 +31,14 @@ from allo_mrad_ros.metrics import (
     bootstrap_ap_difference,
     frame_counts,
 )
-from allo_mrad_ros.pipeline import Pipeline, PipelineConfig, ReferenceProvider, RenderSettings
-from allo_mrad_ros.render import LABEL_ANOMALY, ExtraObject, ReferenceRenderer
+from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
+from allo_mrad_ros.render import (
+    LABEL_ANOMALY,
+    ExtraObject,
+    ReferenceProvider,
+    ReferenceRenderer,
+    RenderSettings,
+)
 from allo_mrad_ros.render.reuse import ReuseBounds
 from allo_mrad_ros.synth.objects import ANOMALY_TYPES, build_anomaly
 from allo_mrad_ros.view import View

@@ -36,7 +36,7 @@ from allo_mrad_ros.metrics import (
     bootstrap_ap_difference,
     frame_counts,
 )
-from allo_mrad_ros.pipeline import ReferenceProvider, RenderSettings
+from allo_mrad_ros.render import ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
 from benchmarks import machine_facts

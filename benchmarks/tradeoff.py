@@ -42,7 +42,8 @@ from tqdm import tqdm
 
 from allo_mrad_ros.detector import profile
 from allo_mrad_ros.metrics import frame_counts
-from allo_mrad_ros.pipeline import Pipeline, ReferenceProvider, RenderSettings
+from allo_mrad_ros.pipeline import Pipeline
+from allo_mrad_ros.render import ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import Frame, read_sequence
 from allo_mrad_ros.sequence import Sequence as AlloSequence
 from allo_mrad_ros.view import View

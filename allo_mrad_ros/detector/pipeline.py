@@ -174,10 +174,22 @@ def detect(
     full_shape = query.shape[:2]
     work = _resize_query(query, params.process_scale)
     if params.process_scale < 1.0 and min(work.shape[:2]) < params.grid:
+        fix = (
+            "use a larger image or process_scale=1"
+            if min(full_shape) >= params.grid
+            else f"use process_scale=1 and a grid of at most {min(full_shape)}"
+        )
         raise ValueError(
             f"grid={params.grid} is too fine for the {full_shape[1]}x{full_shape[0]} query "
             f"processed at process_scale={params.process_scale} "
-            f"({work.shape[1]}x{work.shape[0]}); use a larger image or process_scale=1"
+            f"({work.shape[1]}x{work.shape[0]}); {fix}"
+        )
+    if min(work.shape[:2]) >= params.grid > min(reference.shape[:2]):
+        # A narrow camera's reference (700x3 at reference_scale 0.125: 233x1).
+        raise ValueError(
+            f"grid={params.grid} is too fine for the {reference.shape[1]}x{reference.shape[0]} "
+            f"reference of the {full_shape[1]}x{full_shape[0]} query: render it larger "
+            f"(reference_scale) or use a grid of at most {min(reference.shape[:2])}"
         )
     seen = work
     if params.colour_transfer != "none":

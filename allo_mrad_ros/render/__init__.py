@@ -7,7 +7,12 @@ when a :class:`ReferenceRenderer` is built.
 from allo_mrad_ros.render.backend import RendererError, choose_backend
 from allo_mrad_ros.render.bodies import CelestialBody
 from allo_mrad_ros.render.provider import ReferenceProvider
-from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS, ReferenceRenderer
+from allo_mrad_ros.render.renderer import (
+    DEFAULT_SCALE,
+    DEFAULT_SHADOWS,
+    ReferenceRenderer,
+    scaled_keeping_aspect,
+)
 from allo_mrad_ros.render.settings import RenderSettings
 from allo_mrad_ros.render.values import (
     LABEL_ANOMALY,
@@ -31,4 +36,5 @@ __all__ = [
     "RenderSettings",
     "RendererError",
     "choose_backend",
+    "scaled_keeping_aspect",
 ]

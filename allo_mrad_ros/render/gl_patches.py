@@ -7,6 +7,7 @@ filter of :mod:`.shader_patches`, whose float rounding may move a rare pixel by 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 from collections.abc import Iterator
 from types import ModuleType
 
@@ -44,6 +45,46 @@ def install_patches(pr: ModuleType, offscreen: object) -> None:
         install_shadow_filter(offscreen)
         install_light_limits(offscreen)
     install_shadow_map_cache(pr, offscreen)
+
+
+def current_context() -> int | None:
+    """The address of the OpenGL context current on this thread, or None."""
+    from OpenGL import platform
+
+    return _address(platform.PLATFORM.GetCurrentContext())
+
+
+def _address(context: object) -> int | None:
+    if not context:
+        return None
+    try:
+        return ctypes.cast(context, ctypes.c_void_p).value
+    except (TypeError, ctypes.ArgumentError):
+        value = getattr(context, "value", context)
+        return value if isinstance(value, int) else None
+
+
+def release_context_data(context: int | None) -> int:
+    """Drop what PyOpenGL keeps for a deleted context (its address, as from
+    :func:`current_context`); return how many entries went.
+
+    PyOpenGL stores the pointer of every ``glVertexAttribPointer`` call (42 for the station
+    model) per context, and pyrender never asks it to forget them. Under OSMesa and EGL the
+    key is a new ctypes pointer object on every call, never equal to another, so even
+    PyOpenGL's own ``cleanupContext`` cannot find them: they are matched by address here.
+    Call it only after the context is deleted (the GL may still read the pointers before).
+    """
+    if context is None:
+        return 0
+    from OpenGL import contextdata
+
+    dropped = 0
+    for storage in contextdata.STORAGES:
+        for key in list(storage):  # a copy made without running Python code: thread-safe
+            if _address(key) == context:
+                storage.pop(key, None)
+                dropped += 1
+    return dropped
 
 
 def bounded_scene_class(pr: ModuleType) -> type:

@@ -10,7 +10,7 @@ import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.render.renderer import ReferenceRenderer
+from allo_mrad_ros.render.renderer import ReferenceRenderer, scaled_keeping_aspect
 from allo_mrad_ros.render.reuse import ReferenceReuse, View
 from allo_mrad_ros.render.settings import RenderSettings
 
@@ -40,7 +40,8 @@ class ReferenceProvider:
     ) -> None:
         self.settings = render
         self._camera = camera
-        self.reference_camera = camera.scaled(render.reference_scale)
+        # The renderer's own rule: the reference keeps the image's aspect ratio.
+        self.reference_camera = scaled_keeping_aspect(camera, render.reference_scale)
         self.reuse: ReferenceReuse | None = None
         render_camera, scale = camera, render.reference_scale
         if render.reuse is not None:

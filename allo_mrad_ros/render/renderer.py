@@ -27,7 +27,12 @@ from allo_mrad_ros.render.backend import (
     share_egl_display,
 )
 from allo_mrad_ros.render.bodies import CelestialBody, bodies_in_view, frustum_planes
-from allo_mrad_ros.render.gl_patches import bounded_scene_class, install_patches
+from allo_mrad_ros.render.gl_patches import (
+    bounded_scene_class,
+    current_context,
+    install_patches,
+    release_context_data,
+)
 from allo_mrad_ros.render.meshes import body_mesh, mesh_from_groups
 from allo_mrad_ros.render.model import MeshGroup, ModelSource, load_model
 from allo_mrad_ros.render.values import (
@@ -57,6 +62,21 @@ SHADOW_MAP_SIZE = 2048
 _EXTRA_CACHE_SIZE = 16
 
 
+def scaled_keeping_aspect(intrinsics: CameraIntrinsics, scale: float) -> CameraIntrinsics:
+    """The intrinsics of ``intrinsics``' camera rendered at about ``scale``, with the image's
+    aspect ratio kept within a pixel: the shorter side is rounded to whole pixels (at least
+    one) and the longer follows it.
+
+    Rounding both sides on their own (:meth:`CameraIntrinsics.scaled`) distorts the aspect
+    ratio of a narrow camera: 700x3 at 0.125 gives 88x1, where 700x3's aspect wants 233x1,
+    and the detector refuses a reference whose aspect differs from the image's by more
+    than a pixel. Where the shorter side scales to whole pixels (1920x1080 at 0.125:
+    240x135), the result is :meth:`CameraIntrinsics.scaled`'s.
+    """
+    short = min(intrinsics.width, intrinsics.height)
+    return intrinsics.scaled(max(1, round(short * scale)) / short)
+
+
 class ReferenceRenderer:
     """Render the station model as the camera would see it, for MRAD and the generator.
 
@@ -68,7 +88,9 @@ class ReferenceRenderer:
     intrinsics : CameraIntrinsics
         Full-resolution pinhole intrinsics (``sensor_msgs/CameraInfo`` without distortion).
     scale : float
-        Linear output scale in (0, 4]; the default 0.125 renders 1920x1080 as 240x135.
+        Linear output scale in (0, 4]; the default 0.125 renders 1920x1080 as 240x135
+        (the shorter side is rounded to whole pixels, the longer keeps the aspect ratio:
+        :func:`scaled_keeping_aspect`).
     backend : str or None
         ``"osmesa"`` or ``"egl"``; None chooses (see :func:`~.backend.choose_backend`).
     shadows : bool
@@ -129,7 +151,7 @@ class ReferenceRenderer:
         if cone >= 180.0:
             raise InvalidInput(f"spot_cone_deg must be < 180, got {cone}")
         self.intrinsics = intrinsics
-        self.output_intrinsics = intrinsics.scaled(scale)
+        self.output_intrinsics = scaled_keeping_aspect(intrinsics, scale)
         self.scale = scale
         self.shadows = bool(shadows)
         self.cull_bodies = bool(cull_bodies)
@@ -186,6 +208,8 @@ class ReferenceRenderer:
                 f"cannot start an OpenGL context with the {self.backend} backend: {error}; "
                 f"{INSTALL_HINT}"
             ) from error
+        # What PyOpenGL keeps per context is found by it when the context is gone.
+        self._context = current_context()
         share_egl_display(self._gl)
         install_patches(pr, self._gl)
 
@@ -368,10 +392,12 @@ class ReferenceRenderer:
         return len(self._scene.nodes)
 
     def close(self) -> None:
-        """Free the OpenGL context and buffers (also done when the object is collected)."""
+        """Free the OpenGL context and buffers, and what PyOpenGL kept for them (also done
+        when the object is collected)."""
         if getattr(self, "_gl", None) is not None:
             self._gl.delete()
             self._gl = None
+            release_context_data(getattr(self, "_context", None))
 
     def __enter__(self) -> ReferenceRenderer:
         return self

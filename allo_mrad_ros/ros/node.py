@@ -37,10 +37,11 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CompressedImage, Image
 
 from allo_mrad_ros import interface
@@ -66,6 +67,7 @@ from allo_mrad_ros.ros.parameters import (
 )
 from allo_mrad_ros.ros.pose_source import PoseSource, tf2_available
 from allo_mrad_ros.ros.rclpy_compat import parameter_overrides
+from allo_mrad_ros.ros.shutdown import ShutdownSignals
 from allo_mrad_ros.ros.worker import ProcessingWorker
 
 # Exit status when a parameter value is invalid (as for a command-line usage error).
@@ -201,6 +203,7 @@ class MradDetectorNode(Node):
             self.get_logger(),
             config.pipelined,
             lambda: self._outputs.score.get_subscription_count() > 0,
+            self.context.ok,
         )
         self.get_logger().info(self._tuning)
         self.get_logger().info(
@@ -371,7 +374,11 @@ class MradDetectorNode(Node):
 
 
 def run_node(node_class: type, argv: list[str] | None = None) -> int:
-    """Check the command line, then build ``node_class`` and spin it until shutdown.
+    """Check the command line, then build ``node_class`` and spin it until a signal.
+
+    The first SIGINT or SIGTERM stops the processing threads, then destroys the node, then
+    shuts the ROS context down, so no frame is published into a context that is gone; a
+    second ends the process at once with status 130 (:mod:`.shutdown`).
 
     Returns the exit status: 0, or 2 (one line on stderr) for an invalid parameter.
     """
@@ -382,27 +389,42 @@ def run_node(node_class: type, argv: list[str] | None = None) -> int:
     except ParameterError as error:
         print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
         return EXIT_INVALID_PARAMETER
-    rclpy.init(args=arguments)
+    signals = ShutdownSignals()  # before rclpy starts a thread: every thread inherits it
+    rclpy.init(args=arguments, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         node = node_class(command_line_parameters(arguments), files)
-        rclpy.spin(node)
+        _spin_until_signal(node, signals)
     except ParameterError as error:
         print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
         return EXIT_INVALID_PARAMETER
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # A timer that fired while a signal shut the context down (rclpy's RCLError is a
-        # RuntimeError): that is the requested shutdown, not a failure.
-        if rclpy.ok():
-            raise
+    except ExternalShutdownException:
+        pass  # the context was shut down from elsewhere
     finally:
         if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+            node.destroy_node()  # the processing threads first: nothing is published after
+        rclpy.try_shutdown()
     return 0
+
+
+def _spin_until_signal(node: Node, signals: ShutdownSignals) -> None:
+    """Run the node's callbacks until the first signal (or the context's end)."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    # A callback to run is what ends a spin_once (executor.wake only makes it wait again).
+    wake = node.create_guard_condition(lambda: None)
+    signals.on_request(wake.trigger)
+    try:
+        while not signals.requested() and rclpy.ok():
+            executor.spin_once()
+    finally:
+        executor.shutdown(timeout_sec=0)
+        node.destroy_guard_condition(wake)
+    if signals.received is not None:
+        node.get_logger().info(
+            f"{signals.received.name} received: stopping the processing threads, then the "
+            "node (a second signal ends it at once)"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:

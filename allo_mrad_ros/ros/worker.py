@@ -14,15 +14,21 @@ frame in detection is about one render time from done, so the frame it renders i
 as it can be and is ready when the detect thread is. One detect thread takes frames in the
 order they were rendered, so results are published in the order of the images taken.
 Serial (``pipelined: false``): one thread renders, then detects and publishes.
+
+A failure once the run is over (:meth:`ProcessingWorker.stop` called, or the ROS context
+gone: a publish into a context a signal shut down) is the end of the run, not a failed
+frame: the threads end without a report.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,6 +43,7 @@ from allo_mrad_ros.ros.buffers import HandOver, LatestSlot
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.parameters import NodeConfig
+from allo_mrad_ros.staging import HOLD_AT, HOLD_MARKER
 from allo_mrad_ros.view import View
 
 # Weight of the newest stage time in the running estimates the render thread schedules by.
@@ -48,6 +55,11 @@ _EARLY_SHARE = 0.25
 _EARLY_MS = 2.0
 # How long a waiting thread sleeps before it looks whether the worker stops.
 _POLL_S = 0.2
+# Test hooks (``ALLO_HOLD_AT``): hold a frame at publish time until the worker is asked to
+# stop or the ROS context is gone, or (stuck) for HOLD_S whatever happens.
+HOLD_PUBLISH = "node-publish"
+HOLD_PUBLISH_STUCK = "node-publish-stuck"
+HOLD_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -110,6 +122,9 @@ class ProcessingWorker:
     score_wanted : callable
         Whether anyone reads the score map now (``~/score`` subscribed); if not, the
         detector skips the ranking map (:meth:`~allo_mrad_ros.pipeline.Pipeline.detect`).
+    context_ok : callable
+        Whether the ROS context lives (``Context.ok``); asked only when something fails,
+        to tell a failed frame from the end of the run.
     """
 
     def __init__(
@@ -122,6 +137,7 @@ class ProcessingWorker:
         logger: Any,
         pipelined: bool = True,
         score_wanted: Callable[[], bool] = lambda: True,
+        context_ok: Callable[[], bool] = lambda: True,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -131,6 +147,9 @@ class ProcessingWorker:
         self._logger = logger
         self.pipelined = pipelined
         self._score_wanted = score_wanted
+        self._context_ok = context_ok
+        hold = os.environ.get(HOLD_AT)
+        self._hold = hold if hold in (HOLD_PUBLISH, HOLD_PUBLISH_STUCK) else None
         self._running = True
         self._stopping = threading.Event()
         self._publishing = threading.Lock()
@@ -184,6 +203,8 @@ class ProcessingWorker:
                     elif rendered is not None:
                         self._detect(rendered)
                 except Exception as error:  # one bad frame must not end the thread
+                    if self._run_is_over():
+                        break
                     self._report_failure(item, error)
         finally:
             if pipeline is not None:
@@ -197,7 +218,27 @@ class ProcessingWorker:
             try:
                 self._detect(rendered)
             except Exception as error:  # one bad frame must not end the thread
+                if self._run_is_over():
+                    break
                 self._report_failure((rendered.msg, rendered.received), error)
+
+    def _run_is_over(self) -> bool:
+        """After a failure: whether the run is over (stopping, or the ROS context gone, as
+        when a signal shut it down while this frame was published). If so the other thread
+        is woken to end too, and nothing is reported: the failure is the shutdown's."""
+        if self._running and self._context_alive():
+            return False
+        self._running = False
+        self._stopping.set()
+        self._slot.close()
+        self._handover.close()
+        return True
+
+    def _context_alive(self) -> bool:
+        try:
+            return bool(self._context_ok())
+        except Exception:  # a context already destroyed cannot even say so
+            return False
 
     def _wait_for_detect_to_near_its_end(self) -> None:
         """Sleep until the frame in detection is about one render time from published.
@@ -337,6 +378,8 @@ class ProcessingWorker:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
             if not self._running:
                 return
+            if self._hold is not None:
+                self._hold_at_publish()
             self._publish(rendered.msg, rendered.image, frame, score_map)
         self._diagnostics.stages.record(
             {
@@ -348,6 +391,22 @@ class ProcessingWorker:
         self._diagnostics.count("frames_processed")
         if frame.primary.anomalous:
             self._diagnostics.count("anomalous_frames")
+
+    def _hold_at_publish(self) -> None:
+        """The test hooks at publish time: a signal lands there on any machine. Creates the
+        file ``ALLO_HOLD_MARKER`` names, then holds the frame: ``node-publish`` until the
+        worker is asked to stop or the ROS context is gone, ``node-publish-stuck`` for
+        :data:`HOLD_S` whatever happens (a publish that does not return)."""
+        marker = os.environ.get(HOLD_MARKER)
+        if marker:
+            Path(marker).touch()
+        deadline = time.monotonic() + HOLD_S
+        while time.monotonic() < deadline:
+            if self._hold == HOLD_PUBLISH and (
+                self._stopping.is_set() or not self._context_alive()
+            ):
+                return
+            time.sleep(0.002)
 
     # --- control ------------------------------------------------------------------------
 
@@ -363,12 +422,12 @@ class ProcessingWorker:
                 thread.join(timeout=max(0.0, deadline - time.monotonic()))
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop: no output is published after this returns; waits up to ``timeout_s`` for the
-        frames in progress (the threads are daemons, so one stuck in rendering cannot keep
-        the process alive)."""
+        """Stop: no output is published after this returns (a publish under way ends first);
+        waits up to ``timeout_s`` for the frames in progress (the threads are daemons, so one
+        stuck in rendering cannot keep the process alive)."""
+        self._stopping.set()  # first: whatever waits for it wakes before the lock is taken
         with self._publishing:
             self._running = False
-        self._stopping.set()
         self._slot.close()
         self._handover.close()
         self.join(timeout_s)
