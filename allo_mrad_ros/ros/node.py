@@ -389,7 +389,7 @@ def run_node(node_class: type, argv: list[str] | None = None) -> int:
     except ParameterError as error:
         print(f"{interface.NODE_NAME}: {error}", file=sys.stderr)
         return EXIT_INVALID_PARAMETER
-    signals = ShutdownSignals()  # before rclpy starts a thread: every thread inherits it
+    signals = ShutdownSignals()  # the signals are the node's from here; rclpy's handlers stay off
     rclpy.init(args=arguments, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:

@@ -153,7 +153,9 @@ NODE_TABLE: tuple[Section, ...] = (
             "reference_scale": NodeParameter(
                 DEFAULT_SCALE,
                 _number(
-                    "linear scale of the rendered reference (0.125: 1920x1080 -> 240x135)",
+                    "linear scale of the rendered reference (0.125: 1920x1080 -> 240x135; the "
+                    "shorter side is rounded to whole pixels and the longer keeps the aspect "
+                    "ratio, so 700x3 -> 233x1)",
                     0.05,
                     1.0,
                 ),

@@ -9,6 +9,8 @@ still processed. The node's log is a file; a case reads what the node wrote duri
 
 from __future__ import annotations
 
+import itertools
+import os
 import re
 import subprocess
 import sys
@@ -28,6 +30,7 @@ from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.ros.node_process import start_node, stop_node
 from harness.feed import CameraFeed
 
+HERE = Path(__file__).resolve().parent
 INTRINSICS = CameraIntrinsics(320, 180, 222.2, 222.2, 160.0, 90.0)
 POSE = look_at([-30.0, -12.0, 6.0], [0.0, 0.0, 0.0])
 IMAGE = np.full((180, 320, 3), 40, np.uint8)
@@ -35,6 +38,12 @@ NODE_ARGS = ("diagnostics_period_s:=0.2", "reference_scale:=0.25", "input_timeou
 WAIT_S = 20.0
 # Largest growth of the node's resident memory when an oversize image comes again.
 RSS_BOUND_MB = 32.0
+# Largest growth per renderer rebuild: unreleased, a rebuild kept about 30 KB.
+REBUILD_BOUND_KB = 12.0
+# Rebuilds between two readings of the node's RSS.
+REBUILD_SAMPLE = 50
+# Process cases run two at a time: each in a DDS domain of its own.
+_DOMAINS = itertools.count(1)
 
 
 @dataclass(frozen=True)
@@ -64,6 +73,9 @@ class RunCase:
     either: bool = False
     quick: bool = False
     rss_bound: bool = False
+    # With a count: the input makes the node rebuild its renderer for every frame; the RSS
+    # growth per rebuild over the later two thirds must stay below REBUILD_BOUND_KB.
+    rebuilds: int = 0
     # The image itself is bad (it must not be processed); else the bad message is a side
     # input (camera_info, pose, Sun, bodies): refused and counted, while frames go on with
     # the last valid one.
@@ -81,6 +93,19 @@ class ParamCase:
     keyword: str = ""
     accepted: bool = False
     quick: bool = False
+
+
+@dataclass(frozen=True)
+class ProcessCase:
+    """A script of this folder that runs node processes of its own (shutdowns under a feed,
+    a second signal, DDS delivery), in a DDS domain of its own: exit 0 is clean, else its
+    last line says what went wrong, with the verdict ``failure``."""
+
+    name: str
+    argv: tuple[str, ...]
+    failure: str = TRACEBACK
+    quick: bool = False
+    timeout_s: float = 900.0
 
 
 class Live:
@@ -142,6 +167,8 @@ def run_case(live: Live, case: RunCase) -> Outcome:
     group = "node running"
     if not live.alive():
         return Outcome(group, case.name, CRASH, "node not running")
+    if case.rebuilds:
+        return run_rebuilds(live, case)
     start = len(live.log())
     before = live.values()
     rss_before = live.rss_mb()
@@ -192,6 +219,43 @@ def run_case(live: Live, case: RunCase) -> Outcome:
     return Outcome(group, case.name, CLEAN, (lines[-1] if lines else ", ".join(grown))[-200:])
 
 
+def run_rebuilds(live: Live, case: RunCase) -> Outcome:
+    """Send the case's frames one at a time (each waited for) and read the node's RSS every
+    ``REBUILD_SAMPLE`` of them. A leak grows every interval alike, while the allocator and
+    DDS grow their pools in steps now and then: the verdict is the median interval's growth,
+    after the first third (warm-up)."""
+    group = "node running"
+    start = len(live.log())
+    samples = []
+    for index in range(case.rebuilds):
+        if index % REBUILD_SAMPLE == 0:
+            samples.append(live.rss_mb())
+        stamp = live.next_stamp()
+        case.send(live, stamp)
+        live.feed.wait_for(lambda s=stamp: s in live.feed.received["mask"], 10.0)
+    samples.append(live.rss_mb())
+    text = live.log()[start:]
+    rebuilt = text.count("renderer ready")
+    good = live.process_one()
+    if not live.alive():
+        return Outcome(group, case.name, CRASH, f"node exited with {live.process.returncode}")
+    if "Traceback" in text:
+        return Outcome(group, case.name, TRACEBACK, "a traceback in the log")
+    if good is None:
+        return Outcome(group, case.name, CRASH, "no good frame processed after the case")
+    if rebuilt < case.rebuilds * 0.9:
+        return Outcome(group, case.name, UNCLEAR, f"only {rebuilt} rebuilds logged")
+    later = np.diff(samples)[len(samples) // 3 :]
+    per_rebuild = 1024 * float(np.median(later)) / REBUILD_SAMPLE
+    detail = (
+        f"{rebuilt} rebuilds; median {per_rebuild:+.1f} KB RSS per rebuild "
+        f"(MB per {REBUILD_SAMPLE}: {' '.join(f'{x:+.1f}' for x in np.diff(samples))})"
+    )
+    if per_rebuild > REBUILD_BOUND_KB:
+        return Outcome(group, case.name, SILENT, detail)
+    return Outcome(group, case.name, CLEAN, detail)
+
+
 def run_param(live: Live, case: ParamCase) -> Outcome:
     """Change a parameter over the service and classify the answer."""
     group = "node parameter change"
@@ -222,8 +286,37 @@ def run_param(live: Live, case: ParamCase) -> Outcome:
     return Outcome(group, case.name, CLEAN, result.reason[:200])
 
 
-def run_start(case: StartCase, timeout_s: float = 60.0) -> Outcome:
+def run_process(case: ProcessCase) -> Outcome:
+    """Run the case's script; its exit status is the verdict, its last line the detail."""
+    group = "node process"
+    # Neither the domain of the node start cases beside it nor another process case's.
+    domain = 100 + (int(os.environ.get("ROS_DOMAIN_ID", "0") or 0) + 17 * next(_DOMAINS)) % 100
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
+    # The tree under test where PYTHONPATH names one, else this one.
+    env["PYTHONPATH"] = os.pathsep.join(
+        filter(None, [env.get("PYTHONPATH"), str(HERE.parent.parent)])
+    )
+    try:
+        done = subprocess.run(
+            [sys.executable, str(HERE / case.argv[0]), *case.argv[1:]],
+            capture_output=True,
+            text=True,
+            timeout=case.timeout_s,
+            env=env,
+        )
+    except subprocess.TimeoutExpired:
+        return Outcome(group, case.name, CRASH, f"did not finish in {case.timeout_s:.0f} s")
+    lines = (done.stdout + done.stderr).strip().splitlines()
+    last = lines[-1] if lines else f"exit {done.returncode}"
+    if "Traceback" in done.stderr:
+        return Outcome(group, case.name, TRACEBACK, last[:200])
+    return Outcome(group, case.name, CLEAN if done.returncode == 0 else case.failure, last[:200])
+
+
+def run_start(case: StartCase | ProcessCase, timeout_s: float = 60.0) -> Outcome:
     """Start the node with the case's arguments; classify its exit and output."""
+    if isinstance(case, ProcessCase):
+        return run_process(case)
     group = "node start"
     argv = [sys.executable, "-m", "allo_mrad_ros.ros.node", "--ros-args"]
     argv += ["-p", "pose_source:=topic", *case.arguments]

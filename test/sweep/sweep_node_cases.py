@@ -10,14 +10,17 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float32
-from sweep_node import IMAGE, POSE, Live, ParamCase, RunCase, StartCase
+from sweep_node import IMAGE, INTRINSICS, POSE, Live, ParamCase, ProcessCase, RunCase, StartCase
+from sweep_verdicts import SILENT
 from visualization_msgs.msg import Marker, MarkerArray
 
 from allo_mrad_ros import interface
+from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import matrix_to_quaternion
+from allo_mrad_ros.ros.messages import fill_camera_info
 
 
-def start_cases(work: Path) -> list[StartCase]:
+def start_cases(work: Path) -> list[StartCase | ProcessCase]:
     """Invalid start-up parameters: one line naming the parameter, exit 2."""
     garbage = work / "garbage.yaml"
     garbage.write_text("/**:\n  ros__parameters: [unclosed\n")
@@ -55,7 +58,26 @@ def start_cases(work: Path) -> list[StartCase]:
         StartCase("params file grid abc", ("--params-file", str(typed)), "mrad.grid .*abc"),
         StartCase("unknown parameter name", (p, "mrad.gird:=4"), "mrad.gird", starts=True),
     ]
-    return cases
+    return cases + process_cases()
+
+
+def process_cases() -> list[ProcessCase]:
+    """Node processes of their own: shutdowns under a 1080p feed, a second signal, and what
+    the shipped DDS profile delivers."""
+    shutdowns = ("sweep_node_shutdown.py", "shutdowns", "--runs", "10", "--signal")
+    return [
+        ProcessCase("SIGTERM x10 under a 1080p30 feed", (*shutdowns, "SIGTERM")),
+        ProcessCase("SIGINT x10 under a 1080p30 feed", (*shutdowns, "SIGINT")),
+        ProcessCase(
+            "second SIGINT while a frame is stuck in publishing",
+            ("sweep_node_shutdown.py", "second-signal"),
+        ),
+        ProcessCase(
+            "first image of each new larger size (DDS profile)",
+            ("dds_sizes.py", "--runs", "3"),
+            failure=SILENT,
+        ),
+    ]
 
 
 # --- messages ------------------------------------------------------------------------------
@@ -390,7 +412,55 @@ def run_cases() -> list[RunCase]:
             "body zero diameter", body(diameter=0.0), "errors_bodies", "earth", frame_is_bad=False
         ),
         RunCase("body in frame 'map'", body_in_map, "errors_bodies.*", "map", frame_is_bad=False),
+        RunCase(
+            "camera 700x3 (grid too fine, not its reference)",
+            narrow_camera(700, 3),
+            "errors_processing",
+            "grid=8 is too fine for the",
+        ),
+        RunCase(
+            "camera 3x700 (grid too fine, not its reference)",
+            narrow_camera(3, 700),
+            "errors_processing",
+            # Logged once per kind: the 700x3 case's line stands for this one.
+            "grid=8 is too fine for the",
+        ),
+        RunCase("camera_info alternating every frame", alternating_camera, rebuilds=400),
     ]
+
+
+def narrow_camera(width: int, height: int):
+    """camera_info and an image of a legal but narrow camera (700x3)."""
+
+    def send(live: Live, stamp: int) -> None:
+        focal = 0.8 * max(width, height)
+        camera = CameraIntrinsics(width, height, focal, focal, width / 2 - 0.5, height / 2 - 0.5)
+        info = fill_camera_info(live.feed.camera_info(), camera, live.feed.frame_id)
+        info.header.stamp.sec, info.header.stamp.nanosec = divmod(stamp, 10**9)
+        pixels = np.full((height, width, 3), 40, np.uint8)
+        msg = _image(live, stamp, data=pixels.tobytes(), width=width, height=height)
+        msg.step = width * 3
+        msg.header.stamp = info.header.stamp
+        _publish_pose(live, stamp, POSE)
+        live.feed.pub_info.publish(info)
+        live.feed.spin(0.2)
+        live.feed.pub_image.publish(msg)
+
+    return send
+
+
+def alternating_camera(live: Live, stamp: int) -> None:
+    """camera_info whose focal length alternates every frame: a renderer rebuild each."""
+    fx = INTRINSICS.fx + 0.1 * ((stamp // 10**7) % 2)
+    camera = CameraIntrinsics(INTRINSICS.width, INTRINSICS.height, fx, fx, 160.0, 90.0)
+    feed = live.feed
+    info = fill_camera_info(feed.camera_info(), camera, feed.frame_id)
+    info.header.stamp.sec, info.header.stamp.nanosec = divmod(stamp, 10**9)
+    msg = _image(live, stamp)
+    msg.header.stamp = info.header.stamp
+    _publish_pose(live, stamp, POSE)
+    feed.pub_info.publish(info)
+    feed.pub_image.publish(msg)
 
 
 def _header(frame_id: str):
