@@ -293,6 +293,21 @@ def test_distro_requirements_use_ranges_and_no_ros_wheels(name):
         )
 
 
+def test_every_message_package_the_bags_carry_is_declared():
+    # allo-bag play imports each topic's message type by name (no import statement to check):
+    # /tf and /tf_static need tf2_msgs on the robot.
+    from rosbag_tools import topics
+
+    exec_keys = _manifest_depends().get("exec_depend", set())
+    packages = {
+        value.split("/")[0]
+        for value in vars(topics).values()
+        if isinstance(value, str) and re.fullmatch(r"\w+/msg/\w+", value)
+    }
+    assert "tf2_msgs" in packages
+    assert sorted(packages - exec_keys) == []
+
+
 def test_imported_ros_modules_are_declared_and_viewing_stays_optional():
     exec_keys = _manifest_depends().get("exec_depend", set())
     # The node imports tf2_ros (from tf2_ros_py) and vision_msgs where installed.
