@@ -9,6 +9,8 @@ import pytest
 from allo_mrad_ros.ros.launch_arguments import ros_arguments
 
 pytestmark = pytest.mark.ros
+# The probe runs rclpy in a child process: absent here (make test-distro), nothing to check.
+pytest.importorskip("rclpy", reason="rclpy is not installed")
 
 PROBE = """
 import sys, rclpy
