@@ -5,14 +5,15 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export PYOPENGL_PLATFORM ?= osmesa
-# ROS traffic of tests and the demo stays on this machine (see config/fastdds_loopback.xml).
+# ROS traffic of tests and the demo stays on this machine (see config/fastdds_loopback.xml;
+# test/conftest.py names it to Fast DDS 2, Jazzy's, as FASTRTPS_DEFAULT_PROFILES_FILE).
 export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/config/fastdds_loopback.xml
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
 
 setup: $(STAMP)
 
@@ -36,6 +37,7 @@ lint: $(STAMP)
 test: lint
 	$(ISOLATED) $(PY) -m pytest -q --timeout=600
 	$(MAKE) test-distro
+	$(MAKE) test-jazzy
 
 # Bad-input fuzzing: several hundred generated cases per property (hypothesis) over image
 # headers, camera_info, poses, Sun vectors and sequence rows; prints the count per verdict.
@@ -73,6 +75,26 @@ $(DISTRO_STAMP): test/data/humble_apt_stand_ins.txt requirements-distro.txt requ
 	$(DISTRO_VENV)/bin/python -m pip install -q --disable-pip-version-check --no-deps \
 	  --ignore-requires-python -r requirements-distro-nodeps.txt
 	$(DISTRO_VENV)/bin/python -m pip install -q --disable-pip-version-check --no-deps -e .
+	@touch $@
+
+# ROS 2 Jazzy, on its own wheels from PyPI (rclpy 7.1, Fast DDS 2.14): Python 3.12 and the
+# NumPy 1.26.4 / SciPy 1.11.4 / OpenCV 4.6 that Ubuntu 24.04 ships (requirements-jazzy.txt,
+# with requirements-distro*.txt), then every test that touches ROS (ALLO_TESTS=ros,
+# test/conftest.py). Skipped where no python3.12 exists.
+JAZZY_PYTHON ?= $(firstword $(foreach c,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12) /usr/bin/python3.12,$(shell $(c) -c 'import sys; print(sys.executable)' 2>/dev/null)))
+JAZZY_VENV := .venv-jazzy
+JAZZY_STAMP := $(JAZZY_VENV)/.installed
+test-jazzy:
+	@if [ -z "$(JAZZY_PYTHON)" ]; then echo "test-jazzy: no python3.12 here, skipped"; \
+	else $(MAKE) --no-print-directory $(JAZZY_STAMP) && \
+	  ALLO_TESTS=ros $(ISOLATED) $(JAZZY_VENV)/bin/python -m pytest -q --timeout=600 -p no:cacheprovider; fi
+
+$(JAZZY_STAMP): requirements-jazzy.txt requirements-distro.txt requirements-distro-nodeps.txt setup.py
+	@test -x $(JAZZY_VENV)/bin/python || $(JAZZY_PYTHON) -m venv $(JAZZY_VENV)
+	$(JAZZY_VENV)/bin/python -m pip install -q --disable-pip-version-check -r requirements-jazzy.txt
+	$(JAZZY_VENV)/bin/python -m pip install -q --disable-pip-version-check --no-deps \
+	  --ignore-requires-python -r requirements-distro-nodeps.txt
+	$(JAZZY_VENV)/bin/python -m pip install -q --disable-pip-version-check --no-deps -e .
 	@touch $@
 
 bench-detector: $(STAMP)

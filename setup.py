@@ -32,7 +32,6 @@ setup(
     maintainer_email="maintainers@allo-mrad-ros.invalid",
     description="Model-reference anomaly detection (MRAD) for space-station proximity operations.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "mrad_demo = allo_mrad_ros.demo:main",

@@ -4,4 +4,12 @@ The detector core (:mod:`allo_mrad_ros.detector`) is pure NumPy/OpenCV and knows
 ROS; ROS lives at the edges (the node, the bag tools).
 """
 
-__version__ = "0.1.0"
+
+def __getattr__(name: str) -> str:
+    """``__version__``, read when asked: the installed metadata, else package.xml's (a source
+    tree), as ``allo-bag --version`` prints it; importing the package reads nothing."""
+    if name == "__version__":
+        from allo_mrad_ros.resources import package_version
+
+        return package_version()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

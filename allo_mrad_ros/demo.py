@@ -22,7 +22,6 @@ synthetic example instead, without ROS.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -39,7 +38,6 @@ from allo_mrad_ros.errors import BackendError
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.metrics import MetricsAccumulator
 from allo_mrad_ros.render import DEFAULT_SCALE
-from allo_mrad_ros.resources import share_path
 from allo_mrad_ros.targets import OutputArgumentParser, output_path
 from allo_mrad_ros.visualise import outline
 
@@ -386,11 +384,10 @@ def print_summary(paths: DemoPaths, report: dict) -> None:
 
 def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     """The full demo (steps 1-5 of the module's docstring); returns the exit status."""
+    from allo_mrad_ros.ros.node_process import use_loopback_profile
     from allo_mrad_ros.sequence import read_sequence
 
-    os.environ.setdefault(
-        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
-    )
+    use_loopback_profile()
     paths = DemoPaths(data, out)
     paths.prepare()
     generate_sequence(paths, seed)

@@ -8,7 +8,6 @@ under :data:`SUN`. Shared by ``bench-node``, its output comparison, the profiler
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,8 +20,7 @@ from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.render import ReferenceRenderer
-from allo_mrad_ros.resources import share_path
-from allo_mrad_ros.ros.node_process import start_node, stop_node
+from allo_mrad_ros.ros.node_process import start_node, stop_node, use_loopback_profile
 from allo_mrad_ros.ros.process_tuning import keep_freed_memory
 from harness.feed import CameraFeed
 
@@ -58,9 +56,7 @@ def node_session(
     camera : CameraIntrinsics
         The feed's camera.
     """
-    os.environ.setdefault(
-        "FASTDDS_DEFAULT_PROFILES_FILE", str(share_path("config", "fastdds_loopback.xml"))
-    )
+    use_loopback_profile()
     # The feed stands for a camera driver and a viewer, C++ programs that reuse their
     # buffers; without this its Python receives would fault in pages the node competes for.
     keep_freed_memory(512)

@@ -161,8 +161,21 @@ class CameraFeed:
         return condition()
 
     def wait_for_node(self, timeout: float = 30.0) -> bool:
-        """Wait until the node subscribes to the image topic."""
-        return self.wait_for(lambda: self.pub_image.get_subscription_count() > 0, timeout)
+        """Wait until the node is ready for the first image: subscribed to the image topic,
+        and its image and camera_info subscriptions have matched a publisher (what its
+        ``/diagnostics`` report; this side's count can rise first, and an image sent then is
+        dropped by DDS)."""
+        seen = len(self.diagnostics)  # an earlier node's reports do not count
+
+        def ready() -> bool:
+            if self.pub_image.get_subscription_count() == 0 or len(self.diagnostics) == seen:
+                return False
+            values = self.diagnostic_values()
+            return all(
+                int(values.get(f"{name}_publishers", 0)) > 0 for name in ("image", "camera_info")
+            )
+
+        return self.wait_for(ready, timeout)
 
     def camera_info(self) -> CameraInfo:
         """CameraInfo of the current intrinsics (no distortion)."""

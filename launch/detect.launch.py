@@ -4,6 +4,7 @@ ros2 launch allo_mrad_ros detect.launch.py [config:=/path/mrad.yaml] [namespace:
     [mesh:=/path/station.glb] [pose_source:=topic] [image_transport:=compressed]
     [use_sim_time:=true] [image_topic:=/cam/image_raw] [pose_topic:=...] [sun_topic:=...]
     [sun_strength_topic:=...] [bodies_topic:=...] [log_level:=debug] [rviz:=true]
+    [respawn:=true] [respawn_delay:=2.0]
 
 Only the arguments given are forwarded: the parameter file's values hold for the rest
 (allo_mrad_ros.ros.launch_arguments). The node's inputs are relative names, so
@@ -41,7 +42,13 @@ def _nodes(context: object) -> list:
         output="screen",
         parameters=[config, overrides] if overrides else [config],
         remappings=launch_arguments.remappings(values),
-        arguments=launch_arguments.ros_arguments(LaunchConfiguration("log_level").perform(context)),
+        arguments=launch_arguments.ros_arguments(
+            LaunchConfiguration("log_level").perform(context), namespace
+        ),
+        **launch_arguments.respawn_options(
+            LaunchConfiguration("respawn").perform(context),
+            LaunchConfiguration("respawn_delay").perform(context),
+        ),
     )
     sim_time = {k: v for k, v in overrides.items() if k == "use_sim_time"}
     rviz = Node(
@@ -73,8 +80,20 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "log_level",
             default_value="info",
-            description="the node's log severity",
+            description="the node's log severity (its own logger; rcl and the middleware keep "
+            "theirs)",
             choices=list(launch_arguments.LOG_LEVELS),
+        ),
+        DeclareLaunchArgument(
+            "respawn",
+            default_value="false",
+            description="start the node again when its process ends",
+            choices=["true", "false"],
+        ),
+        DeclareLaunchArgument(
+            "respawn_delay",
+            default_value=launch_arguments.DEFAULT_RESPAWN_DELAY_S,
+            description="seconds to wait before starting it again (respawn:=true)",
         ),
     ]
     arguments += [

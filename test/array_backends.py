@@ -20,7 +20,6 @@ ARRAY_BACKENDS = [
 def skip_unless_runnable(spec: str) -> None:
     """Skip the calling test when ``spec`` needs a CUDA GPU that PyTorch does not see."""
     if spec.startswith("torch:cuda"):
-        import torch
-
+        torch = pytest.importorskip("torch", reason="PyTorch is not installed")
         if not torch.cuda.is_available():
             pytest.skip("no CUDA GPU visible to PyTorch")

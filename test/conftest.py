@@ -10,12 +10,13 @@ import os
 import re
 from pathlib import Path
 
+from allo_mrad_ros.ros.node_process import use_loopback_profile
+
 REPO = Path(__file__).resolve().parent.parent
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-os.environ.setdefault(
-    "FASTDDS_DEFAULT_PROFILES_FILE", str(REPO / "config" / "fastdds_loopback.xml")
-)
+# Under the variable this Fast DDS reads (Jazzy's 2.x reads another than Kilted's 3.x).
+use_loopback_profile(profile=REPO / "config" / "fastdds_loopback.xml")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 # A domain of its own per test run, so parallel runs on one machine do not hear each other.
@@ -28,4 +29,22 @@ if importlib.util.find_spec("rclpy") is None:
         str(path.relative_to(REPO / "test"))
         for path in (REPO / "test").rglob("test_*.py")
         if re.search(r"^(import|from) rclpy\b", path.read_text(), re.MULTILINE)
+    ]
+
+# `make test-jazzy` (ALLO_TESTS=ros) runs only what touches ROS on the Jazzy wheels: the node's
+# tests and every module that names rclpy, a message package, launch_ros or tf2_ros; the rest
+# is the Python the main and distro stages already run.
+ROS_TESTS = re.compile(r"\b(rclpy|[a-z0-9_]+_msgs|launch_ros|tf2_ros)\b")
+
+
+def touches_ros(path: Path) -> bool:
+    """Whether test module ``path`` is one of the Jazzy stage's."""
+    return path.parent == REPO / "test" / "ros" or bool(ROS_TESTS.search(path.read_text()))
+
+
+if os.environ.get("ALLO_TESTS") == "ros":
+    collect_ignore = [
+        str(path.relative_to(REPO / "test"))
+        for path in (REPO / "test").rglob("test_*.py")
+        if not touches_ros(path)
     ]

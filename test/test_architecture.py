@@ -123,11 +123,22 @@ def test_nothing_installed_sits_above_the_harness_and_the_benchmarks():
     assert max(LAYERS[unit] for unit in installed) < LAYERS["harness"] < LAYERS["benchmarks"]
 
 
+# What the package root (allo_mrad_ros/__init__.py, run by every import of the package) may
+# import: ``resources``, for ``__version__`` when it is asked for.
+ROOT_MAY_IMPORT = {"resources"}
+
+
 def violations(module: str, text: str, is_package: bool = False) -> list[str]:
     """Where ``module`` (source ``text``) breaks the import rule."""
     unit = _unit(module)
     found = []
     imported = _imports(module, text, is_package)
+    if module == "allo_mrad_ros":
+        return [
+            f"the package root imports {name}"
+            for name in sorted(imported)
+            if _unit(name) is not None and _unit(name) not in ROOT_MAY_IMPORT
+        ]
     for name in sorted(imported):
         other = _unit(name)
         upward = other in LAYERS and other != unit and LAYERS[other] >= LAYERS[unit]
@@ -160,6 +171,13 @@ def test_the_rule_catches_upward_ros_and_core_imports():
     assert violations("rosbag_tools.probe", "import benchmarks\n")
     assert violations("harness.probe", "from benchmarks.node import run\n")
     assert not violations("benchmarks.probe", "from harness.feed import CameraFeed\n")
+
+
+def test_the_package_root_imports_only_resources():
+    assert not violations(
+        "allo_mrad_ros", "def f():\n    from allo_mrad_ros.resources import v\n", True
+    )
+    assert violations("allo_mrad_ros", "from allo_mrad_ros.pipeline import Pipeline\n", True)
 
 
 def test_the_ros_edge_admits_no_namesakes():

@@ -33,3 +33,19 @@ def test_the_docs_say_what_is_tested_with_stand_ins():
 def test_the_node_doc_names_the_optical_frame_convention():
     node = (DOCS / "node.md").read_text()
     assert "<camera>_optical_frame" in node and "REP-103/105" in node
+
+
+FAST_DDS_SETTING = re.compile(r"FAST(?:DDS|RTPS)_[A-Z_]+(?:=[A-Z_]+\b)?|config/fastdds_\w+\.xml")
+
+
+def test_node_md_defers_to_distro_md_on_dds_settings():
+    # One place says how to set DDS up for a robot (distro.md): node.md names only the tests'
+    # and the pip route's loopback profile, no transport or segment setting of its own, and
+    # its DDS section points to distro.md, which names everything node.md names.
+    node = (DOCS / "node.md").read_text()
+    distro = (DOCS / "distro.md").read_text()
+    named = set(FAST_DDS_SETTING.findall(node))
+    assert named == {"FASTDDS_DEFAULT_PROFILES_FILE", "config/fastdds_loopback.xml"}, named
+    assert "segment_size" not in node
+    assert named <= set(FAST_DDS_SETTING.findall(distro))
+    assert "distro.md#deploying-on-a-robot" in _section(node, "Large images and DDS")

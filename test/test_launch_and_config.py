@@ -103,6 +103,30 @@ class _LaunchConfiguration(_Recorded):
         return context[self.args[0]]
 
 
+class _DeclareLaunchArgument(_Recorded):
+    """Stands in for launch's DeclareLaunchArgument, refusing what the real one refuses: an
+    empty ``choices``, a plain default that is not one of them (at construction) and a given
+    value that is not one of them, compared exactly (:meth:`check`, as its ``execute``)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        choices = kwargs.get("choices")
+        if choices is not None:
+            if not choices:
+                raise RuntimeError("Provided choices arg is empty.")
+            default = kwargs.get("default_value")
+            if isinstance(default, str) and default not in choices:
+                raise RuntimeError(f'Provided default_value "{default}" is not in choices')
+
+    def check(self, value):
+        choices = self.kwargs.get("choices")
+        if choices is not None and value not in choices:
+            raise RuntimeError(
+                f'Argument "{self.args[0]}" provided value "{value}" is not valid. Valid '
+                f"options are: {choices}"
+            )
+
+
 def _launch_module(monkeypatch):
     """detect.launch.py executed against stand-ins of launch and launch_ros."""
     import sys
@@ -110,7 +134,10 @@ def _launch_module(monkeypatch):
 
     names = {
         "launch": {"LaunchDescription": _Recorded},
-        "launch.actions": {"DeclareLaunchArgument": _Recorded, "OpaqueFunction": _Recorded},
+        "launch.actions": {
+            "DeclareLaunchArgument": _DeclareLaunchArgument,
+            "OpaqueFunction": _Recorded,
+        },
         "launch.conditions": {"IfCondition": _Recorded},
         "launch.substitutions": {
             "LaunchConfiguration": _LaunchConfiguration,
@@ -135,13 +162,15 @@ def launched_nodes(monkeypatch, **given):
     module = _launch_module(monkeypatch)
     description = module.generate_launch_description()
     declared = {}
-    for entity in description.args[0]:
-        if isinstance(entity, _Recorded) and entity.args:
-            declared[entity.args[0]] = entity.kwargs["default_value"]
+    arguments = [e for e in description.args[0] if isinstance(e, _DeclareLaunchArgument)]
+    for entity in arguments:
+        declared[entity.args[0]] = entity.kwargs["default_value"]
     opaque = description.args[0][-1]
     context = {name: default for name, default in declared.items()}
     context["config"] = "/home/user/my.yaml"
     context.update(given)
+    for entity in arguments:  # what `ros2 launch` checks before any node is made
+        entity.check(context[entity.args[0]])
     detector, rviz = opaque.kwargs["function"](context)
     return declared, detector.kwargs, rviz.kwargs
 
@@ -160,7 +189,7 @@ def test_launch_forwards_exactly_the_arguments_given(monkeypatch):
     _, detector, rviz = launched_nodes(
         monkeypatch,
         pose_source="topic",
-        use_sim_time="True",
+        use_sim_time="true",
         namespace="arm2",
         image_topic="/cam/image_rect",
         bodies_topic="/allo/celestial_bodies",
@@ -176,11 +205,22 @@ def test_launch_forwards_exactly_the_arguments_given(monkeypatch):
     ]
 
 
-def test_launch_rejects_a_boolean_argument_that_is_not_true_or_false(monkeypatch):
-    from allo_mrad_ros.ros.launch_arguments import LaunchArgumentError
+def test_a_value_real_launch_refuses_is_refused_by_the_stand_in(monkeypatch):
+    # Real launch compares a given value with the declared choices exactly: "True" is not
+    # "true" (launch/actions/declare_launch_argument.py, DeclareLaunchArgument.execute).
+    for name, value in (("use_sim_time", "True"), ("rviz", "yes"), ("respawn", "True")):
+        with pytest.raises(RuntimeError, match=f'Argument "{name}" provided value "{value}"'):
+            launched_nodes(monkeypatch, **{name: value})
+    with pytest.raises(RuntimeError, match="not in choices"):
+        _DeclareLaunchArgument("x", default_value="maybe", choices=["true", "false"])
+
+
+def test_a_boolean_argument_that_is_not_true_or_false_is_refused_by_name():
+    # Behind launch's own check: a launch file that names no choices still gets the name.
+    from allo_mrad_ros.ros.launch_arguments import LaunchArgumentError, parameter_overrides
 
     with pytest.raises(LaunchArgumentError, match="use_sim_time"):
-        launched_nodes(monkeypatch, use_sim_time="yes")
+        parameter_overrides({"use_sim_time": "yes"})
 
 
 def test_every_node_input_can_be_remapped_from_the_launch_file():
@@ -261,4 +301,20 @@ def test_enumerated_launch_arguments_declare_their_choices_and_log_level_is_forw
         if "choices" in kwargs:
             assert kwargs["default_value"] in kwargs["choices"], name
     _, detector, _ = launched_nodes(monkeypatch, log_level="debug")
-    assert detector["arguments"] == ["--ros-args", "--log-level", "debug"]
+    # The node's logger only: rcl and the middleware keep their level.
+    assert detector["arguments"] == ["--ros-args", "--log-level", "mrad_detector:=debug"]
+    _, detector, _ = launched_nodes(monkeypatch, log_level="warn", namespace="arm2")
+    assert detector["arguments"] == ["--ros-args", "--log-level", "arm2.mrad_detector:=warn"]
+
+
+def test_respawn_is_a_launch_argument_off_by_default(monkeypatch):
+    from allo_mrad_ros.ros.launch_arguments import LaunchArgumentError
+
+    declared, detector, _ = launched_nodes(monkeypatch)
+    assert declared["respawn"] == "false" and float(declared["respawn_delay"]) >= 0
+    assert detector["respawn"] is False
+    _, detector, _ = launched_nodes(monkeypatch, respawn="true", respawn_delay="5")
+    assert detector["respawn"] is True and detector["respawn_delay"] == 5.0
+    for delay in ("-1", "soon", "inf", "nan"):
+        with pytest.raises(LaunchArgumentError, match="respawn_delay"):
+            launched_nodes(monkeypatch, respawn="true", respawn_delay=delay)

@@ -44,6 +44,7 @@ MODULE_PROVIDERS = {
     "skyfield": "skyfield",
     "skyfield_data": "skyfield-data",
     "pytest": "python3-pytest",
+    "pytest_timeout": "python3-pytest-timeout",
     "hypothesis": "python3-hypothesis",
     "sklearn": "python3-sklearn",
     "skimage": "python3-skimage",
@@ -194,6 +195,90 @@ def test_every_test_import_has_a_provider():
     assert not missing, f"test or benchmark imports without a key or requirement: {missing}"
 
 
+# Markers that a pytest plugin defines (the suite runs with --strict-markers, so without the
+# plugin a module using one fails at collection): marker -> the plugin's module.
+PLUGIN_MARKERS = {"timeout": "pytest_timeout"}
+_IMPORT_ERRORS = {"ImportError", "ModuleNotFoundError"}
+
+
+def _catches_import_errors(handler: ast.ExceptHandler) -> bool:
+    kinds = handler.type.elts if isinstance(handler.type, ast.Tuple) else [handler.type]
+    return any(isinstance(kind, ast.Name) and kind.id in _IMPORT_ERRORS for kind in kinds)
+
+
+def _dev_imports(tree: ast.AST) -> list[tuple[str, int, str]]:
+    """(module, line, how) of each import in ``tree``: how is "import", "guarded" (inside a
+    ``try`` that catches ImportError), "skip" (``pytest.importorskip`` with a reason),
+    "skip without reason", or "marker" (a plugin's ``pytest.mark.<name>``)."""
+    found: list[tuple[str, int, str]] = []
+
+    def visit(node: ast.AST, guarded: bool) -> None:
+        if isinstance(node, ast.Try) and any(map(_catches_import_errors, node.handlers)):
+            for child in node.body:
+                visit(child, True)
+            for child in [*node.handlers, *node.orelse, *node.finalbody]:
+                visit(child, guarded)
+            return
+        how = "guarded" if guarded else "import"
+        if isinstance(node, ast.Import):
+            found.extend((alias.name, node.lineno, how) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.module, node.lineno, how))
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr == "importorskip"
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+        ):
+            reason = any(keyword.arg == "reason" for keyword in node.keywords)
+            found.append(
+                (node.args[0].value, node.lineno, "skip" if reason else "skip without reason")
+            )
+        elif (
+            isinstance(node, ast.Attribute)
+            and node.attr in PLUGIN_MARKERS
+            and isinstance(node.value, ast.Attribute)
+            and node.value.attr == "mark"
+        ):
+            found.append((PLUGIN_MARKERS[node.attr], node.lineno, "marker"))
+        for child in ast.iter_child_nodes(node):
+            visit(child, guarded)
+
+    visit(tree, False)
+    return found
+
+
+def test_every_test_import_is_declared_or_skipped_with_a_reason():
+    # `colcon test` on a distro has what package.xml declares (test_depend included) and the
+    # venv of requirements-distro*.txt (docs/distro.md), nothing of requirements-dev.txt:
+    # any other module must be imported where a missing one skips, with the reason, or is
+    # caught; a module failing at collection takes every test of the run down.
+    depends = _manifest_depends()
+    keys = set().union(*depends.values())
+    distro_pip = _requirement_names(ROOT / "requirements-distro.txt") | _requirement_names(
+        ROOT / "requirements-distro-nodeps.txt"
+    )
+    missing = []
+    for tree in DEV_TREES:
+        for path in sorted((ROOT / tree).rglob("*.py")):
+            where = path.relative_to(ROOT)
+            for name, line, how in _dev_imports(ast.parse(path.read_text(), str(path))):
+                module = name.split(".")[0]
+                if module in sys.stdlib_module_names or module in FIRST_PARTY:
+                    continue
+                if module == "__future__" or how in ("guarded", "skip"):
+                    continue
+                provider = MODULE_PROVIDERS.get(module, ROS_MODULE_PACKAGES.get(module, module))
+                if provider in keys or provider.lower() in distro_pip:
+                    continue
+                missing.append(f"{where}:{line}: {name} ({how})")
+    assert not missing, (
+        "imports that neither package.xml nor requirements-distro*.txt provide; declare a "
+        "test_depend key, or use pytest.importorskip(name, reason=...):\n" + "\n".join(missing)
+    )
+
+
 @pytest.mark.parametrize("name", ["requirements-distro.txt", "requirements-distro-nodeps.txt"])
 def test_distro_requirements_use_ranges_and_no_ros_wheels(name):
     for number, raw in enumerate((ROOT / name).read_text().splitlines(), 1):
@@ -206,6 +291,21 @@ def test_distro_requirements_use_ranges_and_no_ros_wheels(name):
         assert re.search(r"^numpy[^#\n]*<2", (ROOT / name).read_text(), re.MULTILINE), (
             "NumPy must stay below 2 on a distro: its message packages are built against 1.x"
         )
+
+
+def test_every_message_package_the_bags_carry_is_declared():
+    # allo-bag play imports each topic's message type by name (no import statement to check):
+    # /tf and /tf_static need tf2_msgs on the robot.
+    from rosbag_tools import topics
+
+    exec_keys = _manifest_depends().get("exec_depend", set())
+    packages = {
+        value.split("/")[0]
+        for value in vars(topics).values()
+        if isinstance(value, str) and re.fullmatch(r"\w+/msg/\w+", value)
+    }
+    assert "tf2_msgs" in packages
+    assert sorted(packages - exec_keys) == []
 
 
 def test_imported_ros_modules_are_declared_and_viewing_stays_optional():

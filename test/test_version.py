@@ -1,6 +1,8 @@
-"""`allo-bag --version` and `allo-synth --version` print the version package.xml declares,
-and setup.py declares the same one (the two are bumped together; CHANGELOG.md names it)."""
+"""`allo-bag --version`, `allo-synth --version` and ``allo_mrad_ros.__version__`` give the
+version package.xml declares, and setup.py declares the same one (the two are bumped together;
+CHANGELOG.md names it)."""
 
+import ast
 import re
 import subprocess
 import sys
@@ -8,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+import allo_mrad_ros
+from allo_mrad_ros import resources
 from allo_mrad_ros.resources import package_version
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -25,6 +29,29 @@ def test_setup_py_and_package_xml_declare_the_same_version():
 
 def test_the_package_metadata_has_the_manifest_version():
     assert package_version() == _manifest_version()
+
+
+def test_the_version_attribute_is_the_manifest_version():
+    assert allo_mrad_ros.__version__ == _manifest_version()
+
+
+def test_without_installed_metadata_the_version_attribute_is_package_xmls(monkeypatch):
+    def not_installed(name):
+        raise resources.metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(resources.metadata, "version", not_installed)
+    assert allo_mrad_ros.__version__ == _manifest_version()  # the source tree's package.xml
+
+
+def test_setup_py_declares_no_tests_require():
+    # setuptools dropped it and colcon ignores it: test dependencies are package.xml's
+    # test_depend keys (and requirements-dev.txt).
+    call = next(
+        node
+        for node in ast.walk(ast.parse((ROOT / "setup.py").read_text(encoding="utf-8")))
+        if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "setup"
+    )
+    assert "tests_require" not in {keyword.arg for keyword in call.keywords}
 
 
 def test_the_changelog_has_a_section_for_the_manifest_version():

@@ -56,6 +56,10 @@ class Diagnostics:
         Returns why the node processes nothing on purpose ("" when it should be processing).
     inputs_subscribed : callable
         Returns whether the node is subscribed to the image now.
+    input_publishers : callable
+        Returns, by input (``image``, ``camera_info``), the publishers its subscription has
+        matched, reported as ``<input>_publishers``: a camera's first image is sure to arrive
+        once they are up.
     worker_alive : callable
         Returns whether the processing thread runs.
     """
@@ -69,6 +73,7 @@ class Diagnostics:
         pose_source: Callable[[], str],
         idle: Callable[[], str] = lambda: "",
         inputs_subscribed: Callable[[], bool] = lambda: True,
+        input_publishers: Callable[[], dict[str, int]] = dict,
         worker_alive: Callable[[], bool] = lambda: True,
     ) -> None:
         self._node = node
@@ -76,6 +81,7 @@ class Diagnostics:
         self._pose_source = pose_source
         self._idle = idle
         self._inputs_subscribed = inputs_subscribed
+        self._input_publishers = input_publishers
         self._worker_alive = worker_alive
         self.input_timeout_s = config.input_timeout_s
         self.window_s = max(5.0, 5.0 * config.diagnostics_period_s)
@@ -165,6 +171,8 @@ class Diagnostics:
             "window_s": f"{self.window_s:g}",
             "inputs_subscribed": str(self._inputs_subscribed()).lower(),
         }
+        for name, count in self._input_publishers().items():
+            values[f"{name}_publishers"] = str(count)
         for stage, (p50, p95) in self.stages.percentiles().items():
             values[f"latency_{stage}_ms_p50"] = f"{p50:.1f}"
             values[f"latency_{stage}_ms_p95"] = f"{p95:.1f}"

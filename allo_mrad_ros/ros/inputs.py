@@ -91,6 +91,8 @@ class NodeInputs:
         # stamp; the message is what ~/score/camera_info is made from.
         self._infos: StampedBuffer[tuple[CameraIntrinsics, str, CameraInfo]] = StampedBuffer(64)
         self.subscriptions: list[Subscription] = []
+        # The image and camera_info subscriptions among them, by input.
+        self._camera: dict[str, Subscription] = {}
         self._sun_direction = np.asarray(config.sun_direction, dtype=np.float64)
         self._sun_strength = config.sun_strength
         self._sun_from_topic = False
@@ -153,26 +155,29 @@ class NodeInputs:
             return copy.copy(qos_profile_sensor_data)
 
         node = self._node
-        self.subscriptions = [
-            # The Sun direction is stamped per frame by its publisher; while idle the node
-            # keeps the last one it received.
-            node.create_subscription(
-                Vector3Stamped, interface.SUN_DIRECTION_INPUT, self.on_sun, self._state_qos
-            ),
-            node.create_subscription(
+        self._camera = {
+            "image": node.create_subscription(
                 self._image_type,
                 self._image_topic,
                 self.on_image,
                 inputs(),
                 qos_overriding_options=self._overriding(),
             ),
-            node.create_subscription(
+            "camera_info": node.create_subscription(
                 CameraInfo,
                 self._info_topic,
                 self.on_camera_info,
                 inputs(),
                 qos_overriding_options=self._overriding(),
             ),
+        }
+        self.subscriptions = [
+            # The Sun direction is stamped per frame by its publisher; while idle the node
+            # keeps the last one it received.
+            node.create_subscription(
+                Vector3Stamped, interface.SUN_DIRECTION_INPUT, self.on_sun, self._state_qos
+            ),
+            *self._camera.values(),
         ]
         if self.pose_source is not None:
             self.pose_source.set_active(True)
@@ -182,6 +187,7 @@ class NodeInputs:
         for subscription in self.subscriptions:
             self._node.destroy_subscription(subscription)
         self.subscriptions = []
+        self._camera = {}
         if self.pose_source is not None:
             self.pose_source.set_active(False)
 
@@ -204,6 +210,20 @@ class NodeInputs:
                 f"no output has a subscriber: unsubscribed from {self._image_topic} and "
                 f"{self._info_topic}"
             )
+
+    def publisher_counts(self) -> dict[str, int]:
+        """The publishers the image and camera_info subscriptions have matched (0 while
+        unsubscribed), as ``/diagnostics`` reports them.
+
+        A camera sees the node's subscription (its publisher's ``get_subscription_count``)
+        before the node's side has matched the camera's publisher, and DDS drops what a
+        best-effort subscription receives from a publisher it has not matched: only once these
+        counts are up is an image sure to arrive (the node is ready for it).
+        """
+        counts = {"image": 0, "camera_info": 0}
+        for name, subscription in self._camera.items():
+            counts[name] = matched_publishers(self._node, subscription)
+        return counts
 
     def idle_reason(self) -> str:
         """Why no frame is processed on purpose ("" when an output is subscribed)."""
@@ -358,3 +378,12 @@ class NodeInputs:
         )
         sun = state.sun_direction if stamped is None else stamped
         return View(pose, sun, state.sun_strength, state.bodies)
+
+
+def matched_publishers(node: Node, subscription: Subscription) -> int:
+    """The publishers ``subscription`` has matched (rclpy of Iron on); Humble's rclpy has no
+    such count, so there it is the topic's publishers in the graph, which may come first."""
+    count = getattr(subscription, "get_publisher_count", None)
+    if count is not None:
+        return count()
+    return node.count_publishers(subscription.topic_name)

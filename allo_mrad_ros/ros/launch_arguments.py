@@ -89,11 +89,49 @@ def launch_choices(argument: LaunchArgument) -> list[str] | None:
     return [NOT_GIVEN, *argument.choices]
 
 
-def ros_arguments(log_level: str) -> list[str]:
-    """The node's ``--ros-args`` for the launch argument ``log_level``."""
+# Seconds before a node that died is started again (launch argument ``respawn_delay``), as
+# nav2's launch files wait.
+DEFAULT_RESPAWN_DELAY_S = "2.0"
+
+
+def node_logger_name(namespace: str = "") -> str:
+    """The node's logger name: its namespace and name joined by dots, as rcl names it
+    (``arm2.mrad_detector`` for ``/arm2/mrad_detector``)."""
+    return ".".join([*filter(None, namespace.split("/")), interface.NODE_NAME])
+
+
+def ros_arguments(log_level: str, namespace: str = "") -> list[str]:
+    """The node's ``--ros-args`` for the launch argument ``log_level``.
+
+    The level is set on the node's own logger only (``--log-level mrad_detector:=debug``):
+    a bare ``--log-level debug`` would also turn on the debug output of rcl and the
+    middleware, hundreds of lines a second that drown the node's own.
+    """
     if log_level not in LOG_LEVELS:
         raise LaunchArgumentError(f"launch argument log_level must be one of {list(LOG_LEVELS)}")
-    return ["--ros-args", "--log-level", log_level]
+    return ["--ros-args", "--log-level", f"{node_logger_name(namespace)}:={log_level}"]
+
+
+def respawn_options(respawn: str, delay: str) -> dict[str, Any]:
+    """launch_ros ``Node``'s ``respawn`` and ``respawn_delay`` for the launch arguments.
+
+    Raises
+    ------
+    LaunchArgumentError
+        For ``respawn`` neither ``true`` nor ``false``, or a delay that is not a number of
+        seconds >= 0.
+    """
+    if respawn not in ("true", "false"):
+        raise LaunchArgumentError("launch argument respawn must be true or false")
+    try:
+        seconds = float(delay)
+    except ValueError:
+        seconds = -1.0
+    if not (seconds >= 0.0 and seconds != float("inf")):
+        raise LaunchArgumentError(
+            f"launch argument respawn_delay must be a number of seconds >= 0, got {delay!r}"
+        )
+    return {"respawn": respawn == "true", "respawn_delay": seconds}
 
 
 def _typed(argument: LaunchArgument, text: str) -> Any:

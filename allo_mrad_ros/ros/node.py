@@ -175,6 +175,7 @@ class MradDetectorNode(Node):
             pose_source=lambda: self._pose_source.kind,
             idle=self._inputs.idle_reason,
             inputs_subscribed=lambda: bool(self._inputs.subscriptions),
+            input_publishers=self._inputs.publisher_counts,
             worker_alive=lambda: self._worker is None or self._worker.is_alive(),
         )
         state = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,6 +97,34 @@ def _log_level_functions() -> tuple:
     return cv2.getLogLevel, cv2.setLogLevel
 
 
+def png_damage(data: np.ndarray) -> str | None:
+    """Why the chunks of a PNG file's bytes are broken (cut short, a checksum wrong), or None.
+
+    Checked before decoding: for such a file the libpng of OpenCV 4.6 (Ubuntu 24.04's) prints
+    its own ``libpng error`` line on stderr, which OpenCV's log level does not silence.
+
+    Parameters
+    ----------
+    data : numpy.ndarray
+        The file's bytes (uint8), signature included.
+    """
+    raw = memoryview(data).cast("B")
+    position = len(PNG_SIGNATURE)
+    while position + 8 <= len(raw):
+        length, kind = struct.unpack(">I4s", raw[position : position + 8])
+        name = kind.decode("latin-1")
+        end = position + 12 + length
+        if end > len(raw):
+            return f"truncated PNG: the file ends inside its {name} chunk"
+        (stored,) = struct.unpack(">I", raw[end - 4 : end])
+        if zlib.crc32(raw[position + 4 : end - 4]) != stored:
+            return f"corrupt PNG: the checksum of its {name} chunk is wrong"
+        if kind == b"IEND":
+            return None
+        position = end
+    return "truncated PNG: the file ends before its IEND chunk"
+
+
 def _decode(path: Path, flags: int) -> np.ndarray:
     try:
         data = np.fromfile(path, dtype=np.uint8)
@@ -103,8 +132,11 @@ def _decode(path: Path, flags: int) -> np.ndarray:
         raise SequenceError("file not found", file=path) from None
     except OSError as error:
         raise SequenceError(f"cannot read file: {error.strerror}", file=path) from None
+    damage = png_damage(data) if data[:8].tobytes() == PNG_SIGNATURE else None
+    if damage is not None:
+        raise SequenceError(f"cannot decode image: {damage}", file=path)
     # A corrupt file is reported below as one SequenceError; OpenCV's own warning line
-    # (or libpng's) would only come first and confuse.
+    # would only come first and confuse.
     get_level, set_level = _log_level_functions()
     previous = get_level()
     set_level(0)  # LOG_LEVEL_SILENT in every OpenCV version

@@ -37,7 +37,7 @@ def test_pytorch_missing_is_the_reason_given(monkeypatch):
 
 
 def test_a_cuda_backend_without_a_gpu_is_refused():
-    torch = pytest.importorskip("torch")
+    torch = pytest.importorskip("torch", reason="PyTorch is not installed")
     if torch.cuda.is_available():
         pytest.skip("this machine has a CUDA GPU")
     with pytest.raises(ArrayBackendError, match="needs a CUDA GPU"):

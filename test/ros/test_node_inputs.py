@@ -8,7 +8,7 @@ import pytest
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from std_msgs.msg import Float32
 
-from allo_mrad_ros.ros.inputs import NodeInputs
+from allo_mrad_ros.ros.inputs import NodeInputs, matched_publishers
 from allo_mrad_ros.ros.parameters import detector_parameters, node_config_from, node_parameters
 
 pytestmark = pytest.mark.ros
@@ -37,3 +37,43 @@ def test_a_sun_parameter_applies_until_a_sun_topic_has_given_one():
     assert np.allclose(state.sun_direction, (0.0, 1.0, 0.0)) and state.sun_strength == 3.0
     assert state.config.sun_strength == 4.0  # the settings themselves are the new ones
     assert np.allclose(inputs.sun_direction, (0.0, 1.0, 0.0))
+
+
+class _Graph:
+    """A node's graph count, as Humble's rclpy gives it."""
+
+    def __init__(self, publishers):
+        self.publishers = publishers
+
+    def count_publishers(self, topic):
+        return self.publishers[topic]
+
+
+class _HumbleSubscription:
+    """A subscription of Humble's rclpy: no matched-publisher count of its own."""
+
+    topic_name = "/arm_camera/image_raw"
+
+
+class _Subscription(_HumbleSubscription):
+    def __init__(self, matched):
+        self.matched = matched
+
+    def get_publisher_count(self):
+        return self.matched
+
+
+def test_matched_publishers_are_the_subscriptions_own_count_where_rclpy_has_one():
+    graph = _Graph({"/arm_camera/image_raw": 2})
+    # The subscription's side has matched none yet although the graph shows two publishers:
+    # its count, not the graph's, says whether an image would arrive.
+    assert matched_publishers(graph, _Subscription(0)) == 0
+    assert matched_publishers(graph, _Subscription(1)) == 1
+    assert matched_publishers(graph, _HumbleSubscription()) == 2
+
+
+def test_publisher_counts_are_zero_while_the_inputs_are_unsubscribed():
+    inputs = NodeInputs(
+        object(), _config(), lambda: False, QoSOverridingOptions.with_default_policies
+    )
+    assert inputs.publisher_counts() == {"image": 0, "camera_info": 0}

@@ -1,16 +1,17 @@
 """Camera pose and stamped inputs: tf_timeout_s for TF, frame ids checked against the station.
 
-tf2_ros is not installed on the pip route; a stand-in module records what the node asks TF.
+tf2_ros is not installed on the pip route; the tf2 stand-in (test/tf2_stand_in.py, written from
+tf2's code) takes its place and records what the node asks TF.
 """
 
 from __future__ import annotations
 
 import sys
-import types
 
 import numpy as np
 import pytest
 import rclpy
+import tf2_stand_in
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Header
@@ -22,38 +23,29 @@ from allo_mrad_ros.ros.pose_source import PoseSource
 
 pytestmark = pytest.mark.ros
 
-# T_station_world of the stand-in TF tree: 10 m along x, a quarter turn about z.
+# T_station_world of the TF tree given to the tf2 stand-in: 10 m along x, a quarter turn
+# about z; the camera sits at world's origin.
 QUARTER_TURN_Z = (0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5))
 
 
-class FakeTfModule(types.ModuleType):
-    class LookupException(Exception):
-        pass
+def stand_in_tf(monkeypatch):
+    """Install the tf2 stand-in (test/tf2_stand_in.py) as tf2_ros; return the function that
+    fills a PoseSource's buffer with the tree above, as TransformListener would."""
+    monkeypatch.setitem(sys.modules, "tf2_ros", tf2_stand_in.module())
 
-    class ConnectivityException(Exception):
-        pass
+    def fill(poses: PoseSource) -> None:
+        world = TransformStamped()
+        world.header.frame_id, world.child_frame_id = "station", "world"
+        world.transform.translation.x = 10.0
+        r = world.transform.rotation
+        r.x, r.y, r.z, r.w = QUARTER_TURN_Z
+        poses._tf_buffer.set_transform_static(world, "test")
+        camera = TransformStamped()
+        camera.header.frame_id, camera.child_frame_id = "world", "arm_camera_optical_frame"
+        camera.transform.rotation.w = 1.0
+        poses._tf_buffer.set_transform_static(camera, "test")
 
-    class ExtrapolationException(Exception):
-        pass
-
-    def __init__(self) -> None:
-        super().__init__("tf2_ros")
-        self.calls: list[tuple[str, str, float]] = []
-        module = self
-
-        class Buffer:
-            def lookup_transform(self, target, source, time, timeout):
-                module.calls.append((target, source, timeout.nanoseconds / 1e9))
-                if source not in ("world", "arm_camera_optical_frame"):
-                    raise module.LookupException(f"no frame {source}")
-                msg = TransformStamped()
-                msg.transform.translation.x = 10.0
-                r = msg.transform.rotation
-                r.x, r.y, r.z, r.w = QUARTER_TURN_Z
-                return msg
-
-        self.Buffer = Buffer
-        self.TransformListener = lambda buffer, node: None
+    return fill
 
 
 @pytest.fixture
@@ -102,9 +94,9 @@ def test_sun_and_bodies_in_another_frame_are_rejected_without_tf(node):
 
 
 def test_inputs_in_another_frame_are_transformed_through_tf(node, monkeypatch):
-    tf = FakeTfModule()
-    monkeypatch.setitem(sys.modules, "tf2_ros", tf)
+    fill = stand_in_tf(monkeypatch)
     poses = source(node, "topic", [])
+    fill(poses)
     poses._on_pose(pose_msg("world", 1.0))
     pose = poses.lookup(pose_msg("", 0).header, 0.0, 0.0)
     np.testing.assert_allclose(pose[:3, 3], [10.0, 1.0, 0.0], atol=1e-9)
@@ -119,13 +111,13 @@ def test_inputs_in_another_frame_are_transformed_through_tf(node, monkeypatch):
 
 
 def test_tf_lookup_waits_tf_timeout_s_not_pose_tolerance_s(node, monkeypatch):
-    tf = FakeTfModule()
-    monkeypatch.setitem(sys.modules, "tf2_ros", tf)
+    fill = stand_in_tf(monkeypatch)
     poses = source(node, "tf", [])
+    fill(poses)
     header = Header(frame_id="arm_camera_optical_frame")
     pose = poses.lookup(header, 0.05, 0.75)
     assert pose is not None and pose[0, 3] == 10.0
-    assert tf.calls[-1] == ("station", "arm_camera_optical_frame", 0.75)
+    assert poses._tf_buffer.lookups[-1] == ("station", "arm_camera_optical_frame", 0, 0.75)
 
 
 def test_a_topic_pose_arriving_after_the_image_is_waited_for_up_to_tf_timeout_s(node):

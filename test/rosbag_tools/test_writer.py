@@ -163,14 +163,17 @@ def _check_frames_rosbags(path: Path, sequence) -> None:
 
 def _check_frames_mcap(path: Path, sequence) -> None:
     """The independent reader: mcap + mcap_ros2 decode with the schemas in the file."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+    # Test-only; rosdep's key for them is a pip one, which Ubuntu 24.04 refuses system-wide:
+    # `make test` installs them (requirements-dev.txt), a distro may not.
+    reason = "the independent MCAP reader (pip: mcap, mcap-ros2-support) is not installed"
+    mcap_reader = pytest.importorskip("mcap.reader", reason=reason)
+    mcap_decoder = pytest.importorskip("mcap_ros2.decoder", reason=reason)
 
     (storage,) = path.glob("*.mcap")
     frames = sequence.frames
     seen: dict[str, list] = {}
     with storage.open("rb") as stream:
-        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        reader = mcap_reader.make_reader(stream, decoder_factories=[mcap_decoder.DecoderFactory()])
         assert reader.get_header().profile == "ros2"
         summary = reader.get_summary()
         for channel in summary.channels.values():

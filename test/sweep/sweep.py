@@ -27,9 +27,9 @@ HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE), str(HERE.parent), str(HERE.parent.parent)]  # the root: harness/
 REPO = HERE.parent.parent
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-os.environ.setdefault(
-    "FASTDDS_DEFAULT_PROFILES_FILE", str(REPO / "config" / "fastdds_loopback.xml")
-)
+from allo_mrad_ros.ros.node_process import use_loopback_profile  # noqa: E402
+
+use_loopback_profile(profile=REPO / "config" / "fastdds_loopback.xml")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
