@@ -77,6 +77,9 @@ class MradDetectorLifecycleNode(LifecycleNodeMixin, MradDetectorNode):
 
     def _teardown(self) -> None:
         self._stop_inputs()
+        # The pose source is configure's: detached, the next configure's input subscription
+        # (made before its new pose source) cannot subscribe this one's topic again.
+        self._inputs.pose_source = None
         if self._worker is not None:
             self._worker.stop()
             self._worker = None

@@ -61,3 +61,33 @@ def test_a_bad_mesh_fails_configure_with_one_line(ros, tmp_path, capfd):
         assert "/mrad_detector/mask" not in _topics(node)
     finally:
         node.destroy_node()
+
+
+def _pose_subscriptions(peer, node_name: str) -> int:
+    """Subscriptions of ``node_name`` on the pose topic, as another node sees the graph."""
+    return sum(
+        1
+        for info in peer.get_subscriptions_info_by_topic("/arm_camera/pose")
+        if info.node_name == node_name
+    )
+
+
+def test_a_second_configure_leaves_the_pose_topic_unsubscribed_while_inactive(ros):
+    node = MradDetectorLifecycleNode(parameter_overrides=[Parameter("pose_source", value="topic")])
+    peer = rclpy.create_node("pose_peer")
+    try:
+        for transition in ("configure", "activate", "deactivate", "cleanup", "configure"):
+            assert getattr(node, f"trigger_{transition}")() == TransitionCallbackReturn.SUCCESS
+        assert node._state_machine.current_state[0] == State.PRIMARY_STATE_INACTIVE
+        # The node's own view and the graph's, read by a peer (the DDS discovery view).
+        assert "/arm_camera/pose" not in _topics(node)
+        assert _pose_subscriptions(peer, "mrad_detector") == 0
+        assert node.count_subscribers("/arm_camera/pose") == 0
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        node._inputs.subscribe()  # what an output's subscriber brings about
+        assert [s.topic_name for s in node.subscriptions].count("/arm_camera/pose") == 1
+        node._inputs.unsubscribe()
+        assert "/arm_camera/pose" not in _topics(node)
+    finally:
+        peer.destroy_node()
+        node.destroy_node()
