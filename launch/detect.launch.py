@@ -4,20 +4,29 @@ ros2 launch allo_mrad_ros detect.launch.py [config:=/path/mrad.yaml] [namespace:
     [mesh:=/path/station.glb] [pose_source:=topic] [image_transport:=compressed]
     [use_sim_time:=true] [image_topic:=/cam/image_raw] [pose_topic:=...] [sun_topic:=...]
     [sun_strength_topic:=...] [bodies_topic:=...] [log_level:=debug] [rviz:=true]
-    [respawn:=true] [respawn_delay:=2.0]
+    [respawn:=true] [respawn_delay:=2.0] [lifecycle:=true] [autostart:=false]
 
 Only the arguments given are forwarded: the parameter file's values hold for the rest
 (allo_mrad_ros.ros.launch_arguments). The node's inputs are relative names, so
 ``namespace:=arm2`` moves inputs and outputs together; camera_info follows the image topic
 (its sibling ``camera_info``). RViz is optional: install ros-$ROS_DISTRO-rviz2 to use rviz:=true.
+
+``lifecycle:=true`` starts the managed variant ``mrad_detector_lifecycle`` instead; with
+``autostart:=true`` (the default) the launch configures it on start and activates it once it
+reaches inactive from configuring, as nav2's lifecycle manager does; ``autostart:=false``
+leaves it unconfigured for ``ros2 lifecycle set`` or a lifecycle manager.
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.conditions import IfCondition
+from launch.events import matches_action
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode, Node
+from launch_ros.event_handlers import OnStateTransition
+from launch_ros.events.lifecycle import ChangeState
 from launch_ros.substitutions import FindPackageShare
+from lifecycle_msgs.msg import Transition
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.ros import launch_arguments
@@ -25,8 +34,30 @@ from allo_mrad_ros.ros import launch_arguments
 PACKAGE = "allo_mrad_ros"
 
 
+def _autostart(detector: LifecycleNode) -> list:
+    """Configure ``detector`` now, and activate it each time a configure succeeds (its
+    transition from configuring to inactive; a deactivate, which also ends in inactive, is
+    left alone)."""
+
+    def change(transition: int) -> EmitEvent:
+        return EmitEvent(
+            event=ChangeState(
+                lifecycle_node_matcher=matches_action(detector), transition_id=transition
+            )
+        )
+
+    activate = OnStateTransition(
+        target_lifecycle_node=detector,
+        start_state="configuring",
+        goal_state="inactive",
+        entities=[change(Transition.TRANSITION_ACTIVATE)],
+    )
+    return [RegisterEventHandler(activate), change(Transition.TRANSITION_CONFIGURE)]
+
+
 def _nodes(context: object) -> list:
-    """The node and RViz, with only the launch arguments the user gave."""
+    """The node and RViz, with only the launch arguments the user gave (and, for a managed
+    node with autostart, the events that configure and activate it)."""
     values = {
         argument.name: LaunchConfiguration(argument.name).perform(context)
         for argument in launch_arguments.ARGUMENTS
@@ -34,9 +65,7 @@ def _nodes(context: object) -> list:
     overrides = launch_arguments.parameter_overrides(values)
     config = LaunchConfiguration("config").perform(context)
     namespace = values["namespace"]
-    detector = Node(
-        package=PACKAGE,
-        executable="mrad_detector",
+    common = dict(
         name=interface.NODE_NAME,
         namespace=namespace,
         output="screen",
@@ -50,6 +79,11 @@ def _nodes(context: object) -> list:
             LaunchConfiguration("respawn_delay").perform(context),
         ),
     )
+    managed = LaunchConfiguration("lifecycle").perform(context) == "true"
+    if managed:
+        detector = LifecycleNode(package=PACKAGE, executable="mrad_detector_lifecycle", **common)
+    else:
+        detector = Node(package=PACKAGE, executable="mrad_detector", **common)
     sim_time = {k: v for k, v in overrides.items() if k == "use_sim_time"}
     rviz = Node(
         package="rviz2",
@@ -60,7 +94,8 @@ def _nodes(context: object) -> list:
         parameters=[sim_time] if sim_time else [],
         condition=IfCondition(LaunchConfiguration("rviz")),
     )
-    return [detector, rviz]
+    autostart = managed and LaunchConfiguration("autostart").perform(context) == "true"
+    return [detector, rviz, *(_autostart(detector) if autostart else [])]
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -88,6 +123,19 @@ def generate_launch_description() -> LaunchDescription:
             "respawn",
             default_value="false",
             description="start the node again when its process ends",
+            choices=["true", "false"],
+        ),
+        DeclareLaunchArgument(
+            "lifecycle",
+            default_value="false",
+            description="start the managed variant mrad_detector_lifecycle instead",
+            choices=["true", "false"],
+        ),
+        DeclareLaunchArgument(
+            "autostart",
+            default_value="true",
+            description="with lifecycle:=true: configure the node on start and activate it "
+            "after each successful configure (false: it waits unconfigured)",
             choices=["true", "false"],
         ),
         DeclareLaunchArgument(

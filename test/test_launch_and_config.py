@@ -26,7 +26,10 @@ def launch_tree():
 
 def node_calls(tree):
     for call in ast.walk(tree):
-        if isinstance(call, ast.Call) and getattr(call.func, "id", None) == "Node":
+        if isinstance(call, ast.Call) and getattr(call.func, "id", None) in (
+            "Node",
+            "LifecycleNode",
+        ):
             yield {k.arg: k.value for k in call.keywords}
 
 
@@ -42,7 +45,7 @@ def test_every_executable_of_this_package_is_an_installed_console_script():
             assert executable in scripts, f"{executable} is not a console script in setup.py"
             module, function = scripts[executable].split(":")
             assert hasattr(importlib.import_module(module), function)
-    assert names == ["mrad_detector"]
+    assert sorted(names) == ["mrad_detector", "mrad_detector_lifecycle"]
 
 
 def test_every_package_file_the_launch_file_names_exists_and_is_installed():
@@ -127,6 +130,86 @@ class _DeclareLaunchArgument(_Recorded):
             )
 
 
+class _Node(_Recorded):
+    """Stands in for launch_ros's Node: keyword arguments only, as the real one takes."""
+
+    is_lifecycle_node = False
+
+    def __init__(self, *args, **kwargs):
+        if args:
+            raise TypeError("Node() takes keyword arguments only")
+        super().__init__(**kwargs)
+
+
+class _LifecycleNode(_Node):
+    """launch_ros's LifecycleNode: a ``name`` is required (Jazzy and later), and Humble's
+    takes ``namespace`` as a required keyword too."""
+
+    is_lifecycle_node = True
+
+    def __init__(self, **kwargs):
+        if kwargs.get("name") is None:
+            raise RuntimeError("'name' must not be None.'")
+        if "namespace" not in kwargs:
+            raise TypeError("LifecycleNode() missing required keyword argument: 'namespace'")
+        super().__init__(**kwargs)
+
+
+# lifecycle_msgs' Transition ids and the state labels rcl_lifecycle publishes in its
+# TransitionEvent (what OnStateTransition compares start_state and goal_state with).
+TRANSITIONS = {"configure": 1, "cleanup": 2, "activate": 3, "deactivate": 4}
+VALID_TRANSITION_IDS = range(0, 9)  # ChangeState.valid_transitions: CREATE (0) to DESTROY (8)
+STATE_LABELS = {
+    "unknown", "unconfigured", "inactive", "active", "finalized", "configuring", "cleaningup",
+    "shuttingdown", "activating", "deactivating", "errorprocessing",
+}  # fmt: skip
+
+
+class _ChangeState:
+    """launch_ros.events.lifecycle.ChangeState: keyword-only, refuses an unknown transition
+    id with ValueError, as the real event does."""
+
+    def __init__(self, *, lifecycle_node_matcher, transition_id):
+        if transition_id not in VALID_TRANSITION_IDS:
+            raise ValueError(f"given transition_id of '{transition_id}'")
+        self.lifecycle_node_matcher, self.transition_id = lifecycle_node_matcher, transition_id
+
+
+class _EmitEvent:
+    """launch.actions.EmitEvent(*, event): the event is required by keyword."""
+
+    def __init__(self, *, event):
+        self.event = event
+
+
+class _OnStateTransition:
+    """launch_ros.event_handlers.OnStateTransition: refuses a target that is not a lifecycle
+    node (RuntimeError, as the real one) and matches a transition as the real one does:
+    each of target, start_state and goal_state given must equal the event's. A state label
+    rcl never publishes is refused too: the real handler would silently never fire."""
+
+    def __init__(self, *, entities, target_lifecycle_node=None, start_state=None, goal_state=None):
+        if target_lifecycle_node is not None and not target_lifecycle_node.is_lifecycle_node:
+            raise RuntimeError('OnStateTransition requires a "LifecycleNode" action as the target')
+        for label in (start_state, goal_state):
+            if label is not None and label not in STATE_LABELS:
+                raise ValueError(f"{label!r} is no state label rcl_lifecycle publishes")
+        self.entities, self.target = entities, target_lifecycle_node
+        self.start_state, self.goal_state = start_state, goal_state
+
+    def matches(self, action, start_state, goal_state):
+        return (
+            (self.target is None or action is self.target)
+            and (self.start_state is None or self.start_state == start_state)
+            and (self.goal_state is None or self.goal_state == goal_state)
+        )
+
+
+class _RegisterEventHandler:
+    def __init__(self, event_handler):
+        self.event_handler = event_handler
+
+
 def _launch_module(monkeypatch):
     """detect.launch.py executed against stand-ins of launch and launch_ros."""
     import sys
@@ -137,15 +220,29 @@ def _launch_module(monkeypatch):
         "launch.actions": {
             "DeclareLaunchArgument": _DeclareLaunchArgument,
             "OpaqueFunction": _Recorded,
+            "EmitEvent": _EmitEvent,
+            "RegisterEventHandler": _RegisterEventHandler,
         },
         "launch.conditions": {"IfCondition": _Recorded},
+        # launch.events.matches_action: a matcher true for the one action given.
+        "launch.events": {"matches_action": lambda target: lambda action: action is target},
         "launch.substitutions": {
             "LaunchConfiguration": _LaunchConfiguration,
             "PathJoinSubstitution": _Recorded,
         },
-        "launch_ros.actions": {"Node": _Recorded},
+        "launch_ros.actions": {"Node": _Node, "LifecycleNode": _LifecycleNode},
+        "launch_ros.event_handlers": {"OnStateTransition": _OnStateTransition},
+        "launch_ros.events.lifecycle": {"ChangeState": _ChangeState},
         "launch_ros.substitutions": {"FindPackageShare": _Recorded},
     }
+    try:
+        import lifecycle_msgs.msg  # noqa: F401  (the real ids, where ROS messages are installed)
+    except ImportError:
+        transition = type(
+            "Transition", (), {f"TRANSITION_{k.upper()}": v for k, v in TRANSITIONS.items()}
+        )
+        names["lifecycle_msgs.msg"] = {"Transition": transition}
+        monkeypatch.setitem(sys.modules, "lifecycle_msgs", types.ModuleType("lifecycle_msgs"))
     monkeypatch.setitem(sys.modules, "launch_ros", types.ModuleType("launch_ros"))
     for name, attributes in names.items():
         module = types.ModuleType(name)
@@ -157,8 +254,8 @@ def _launch_module(monkeypatch):
     return module
 
 
-def launched_nodes(monkeypatch, **given):
-    """The node actions the launch file makes when the user gives ``given`` arguments."""
+def launched_entities(monkeypatch, **given):
+    """The actions the launch file makes when the user gives ``given`` arguments."""
     module = _launch_module(monkeypatch)
     description = module.generate_launch_description()
     declared = {}
@@ -171,7 +268,13 @@ def launched_nodes(monkeypatch, **given):
     context.update(given)
     for entity in arguments:  # what `ros2 launch` checks before any node is made
         entity.check(context[entity.args[0]])
-    detector, rviz = opaque.kwargs["function"](context)
+    return declared, opaque.kwargs["function"](context)
+
+
+def launched_nodes(monkeypatch, **given):
+    """The node actions' arguments the launch file makes when the user gives ``given``."""
+    declared, entities = launched_entities(monkeypatch, **given)
+    detector, rviz = entities[:2]
     return declared, detector.kwargs, rviz.kwargs
 
 
@@ -318,3 +421,76 @@ def test_respawn_is_a_launch_argument_off_by_default(monkeypatch):
     for delay in ("-1", "soon", "inf", "nan"):
         with pytest.raises(LaunchArgumentError, match="respawn_delay"):
             launched_nodes(monkeypatch, respawn="true", respawn_delay=delay)
+
+
+def _transition_ids():
+    try:
+        from lifecycle_msgs.msg import Transition
+    except ImportError:
+        return TRANSITIONS
+    return {name: getattr(Transition, f"TRANSITION_{name.upper()}") for name in TRANSITIONS}
+
+
+def test_lifecycle_starts_the_managed_node_and_autostart_configures_then_activates(monkeypatch):
+    ids = _transition_ids()
+    assert ids == TRANSITIONS  # the stand-in's ids are lifecycle_msgs' own
+    declared, entities = launched_entities(monkeypatch)
+    assert declared["lifecycle"] == "false" and declared["autostart"] == "true"
+    assert type(entities[0]) is _Node and len(entities) == 2  # the plain node, no events
+    _, entities = launched_entities(monkeypatch, lifecycle="true", namespace="arm2")
+    detector, rviz, register, configure = entities
+    assert type(detector) is _LifecycleNode
+    assert detector.kwargs["executable"] == "mrad_detector_lifecycle"
+    assert detector.kwargs["name"] == "mrad_detector" and detector.kwargs["namespace"] == "arm2"
+    plain = launched_nodes(monkeypatch, namespace="arm2")[1]
+    same = {k: v for k, v in plain.items() if k != "executable"}
+    assert {k: v for k, v in detector.kwargs.items() if k != "executable"} == same
+    # On start: configure, aimed at this node only.
+    assert configure.event.transition_id == ids["configure"]
+    assert configure.event.lifecycle_node_matcher(detector)
+    assert not configure.event.lifecycle_node_matcher(rviz)
+    # The transitions the node goes through; activate follows a successful configure only.
+    handler = register.event_handler
+    fired = [
+        (start, goal)
+        for start, goal in (
+            ("unconfigured", "configuring"),
+            ("configuring", "inactive"),
+            ("inactive", "activating"),
+            ("activating", "active"),
+            ("active", "deactivating"),
+            ("deactivating", "inactive"),  # a user's deactivate stays deactivated
+            ("configuring", "unconfigured"),  # a failed configure
+        )
+        if handler.matches(detector, start, goal)
+    ]
+    assert fired == [("configuring", "inactive")]
+    assert not handler.matches(rviz, "configuring", "inactive")
+    (activate,) = handler.entities
+    assert activate.event.transition_id == ids["activate"]
+    assert activate.event.lifecycle_node_matcher(detector)
+
+
+def test_lifecycle_without_autostart_waits_unconfigured_and_bad_values_are_refused(monkeypatch):
+    _, entities = launched_entities(monkeypatch, lifecycle="true", autostart="false")
+    assert len(entities) == 2 and type(entities[0]) is _LifecycleNode
+    _, entities = launched_entities(monkeypatch, autostart="false")
+    assert type(entities[0]) is _Node
+    for name, value in (("lifecycle", "True"), ("autostart", "yes")):
+        with pytest.raises(RuntimeError, match=f'Argument "{name}" provided value "{value}"'):
+            launched_entities(monkeypatch, **{name: value})
+
+
+def test_the_launch_stand_ins_refuse_what_real_launch_ros_refuses():
+    with pytest.raises(RuntimeError, match="'name' must not be None"):
+        _LifecycleNode(namespace="")
+    with pytest.raises(TypeError, match="namespace"):
+        _LifecycleNode(name="mrad_detector")
+    with pytest.raises(ValueError, match="transition_id"):
+        _ChangeState(lifecycle_node_matcher=lambda a: True, transition_id=42)
+    with pytest.raises(RuntimeError, match="LifecycleNode"):
+        _OnStateTransition(entities=[], target_lifecycle_node=_Node(name="x"))
+    with pytest.raises(ValueError, match="INACTIVE"):
+        _OnStateTransition(entities=[], goal_state="INACTIVE")
+    with pytest.raises(TypeError):
+        _EmitEvent(_ChangeState(lifecycle_node_matcher=lambda a: True, transition_id=1))
