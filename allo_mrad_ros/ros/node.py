@@ -46,7 +46,7 @@ from sensor_msgs.msg import CompressedImage, Image
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.pipeline import ProcessedFrame
-from allo_mrad_ros.ros import process_tuning
+from allo_mrad_ros.ros import process_tuning, rclpy_compat
 from allo_mrad_ros.ros.arguments import (
     check_command_line,
     check_params_files,
@@ -79,7 +79,8 @@ QOS_POLICIES = tuple(
     for kind in QoSPolicyKind
     if kind not in (QoSPolicyKind.INVALID, QoSPolicyKind.AVOID_ROS_NAMESPACE_CONVENTIONS)
 )
-# How often the node looks whether any output has a subscriber (to subscribe to its inputs).
+# How often the node looks whether any output has a subscriber (to subscribe to its inputs),
+# where rclpy has no publisher matched event to say so (Humble).
 INPUT_POLL_S = 0.25
 
 
@@ -150,6 +151,10 @@ class MradDetectorNode(Node):
         # Made here, not in _build: an unconfigured managed node takes parameter changes too.
         self._inputs = NodeInputs(self, config, self._outputs_wanted, qos_overriding)
         self._input_timer = None
+        # Whether the inputs follow the outputs' subscribers now (built and, if managed,
+        # active), and whether the outputs' matched events say when they change.
+        self._watching_inputs = False
+        self._matched_events = False
         self._worker: ProcessingWorker | None = None
         if not managed:
             self._build()
@@ -215,12 +220,27 @@ class MradDetectorNode(Node):
         )
 
     def _start_inputs(self) -> None:
-        """Subscribe to the inputs while an output has a subscriber, from now on."""
+        """Subscribe to the inputs while an output has a subscriber, from now on: on each
+        matched event of the outputs' publishers, or, where rclpy has none (Humble), every
+        :data:`INPUT_POLL_S`."""
+        self._watching_inputs = True
         self._inputs.update()  # unsubscribes the inputs while no output is subscribed
-        self._input_timer = self.create_timer(INPUT_POLL_S, self._inputs.update)
+        if not self._matched_events:
+            self._input_timer = self.create_timer(INPUT_POLL_S, self._inputs.update)
+
+    def _on_output_matched(self, _status: object) -> None:
+        """A subscription matched or left an output: subscribe or drop the inputs."""
+        if self._watching_inputs:
+            self._inputs.update()
+
+    @property
+    def inputs_watched(self) -> bool:
+        """Whether the inputs are subscribed and dropped with the outputs' subscribers now."""
+        return self._watching_inputs
 
     def _stop_inputs(self) -> None:
         """Stop watching the outputs and unsubscribe from the image and camera_info."""
+        self._watching_inputs = False
         if self._input_timer is not None:
             self.destroy_timer(self._input_timer)
             self._input_timer = None
@@ -294,6 +314,10 @@ class MradDetectorNode(Node):
         with self._lock:
             self._values, self._config = proposed, config
             self._inputs.configure(config)
+        if self._matched_events and self._watching_inputs:
+            # publish_overlay / publish_reference change what counts as wanted; no matched
+            # event says so.
+            self._inputs.update()
         return SetParametersResult(successful=True)
 
     # --- topics -------------------------------------------------------------------------
@@ -312,7 +336,9 @@ class MradDetectorNode(Node):
         # image topic, so remapping the image moves both.
         self._info_topic = camera_info_topic(base)
         self._inputs.open(image_type, self._image_topic, self._info_topic, state, self._diagnostics)
-        self._outputs = Outputs(self, overriding=qos_overriding)
+        callbacks = rclpy_compat.matched_event_callbacks(self._on_output_matched)
+        self._matched_events = callbacks is not None
+        self._outputs = Outputs(self, overriding=qos_overriding, event_callbacks=callbacks)
         self._inputs.subscribe()  # once at start: declares the inputs' QoS override parameters
 
     def _outputs_wanted(self) -> bool:

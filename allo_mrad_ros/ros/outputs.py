@@ -139,11 +139,20 @@ class Outputs:
         node: Node,
         *,
         overriding: Callable[[], QoSOverridingOptions] = QoSOverridingOptions.with_default_policies,
+        event_callbacks: Any | None = None,
     ) -> None:
+        """``event_callbacks``: rclpy's ``PublisherEventCallbacks`` given to every publisher
+        (the node's matched event, which subscribes its inputs), or None."""
         self._node = node
 
         def publisher(kind: type, topic: str, depth: int):
-            return node.create_publisher(kind, topic, depth, qos_overriding_options=overriding())
+            return node.create_publisher(
+                kind,
+                topic,
+                depth,
+                qos_overriding_options=overriding(),
+                event_callbacks=event_callbacks,
+            )
 
         self.score = publisher(Image, interface.SCORE_OUTPUT, 5)
         self.score_info = publisher(CameraInfo, interface.SCORE_INFO_OUTPUT, 5)

@@ -8,11 +8,16 @@ gave when rclpy refuses to declare it, to warn about an override that names no p
 to refuse a ``qos_overrides.*`` override that nothing applied. ``test/ros/test_rclpy_compat.py``
 checks this module against the rclpy installed (the CI's Kilted wheels; a venv without rclpy
 skips it), so a change of rclpy shows there, not as a wrong value in the node.
+
+It also says what differs between the distributions the node runs on: a publisher's
+``matched`` event (rclpy of Iron and later: Jazzy, Kilted), which Humble's rclpy lacks
+(:func:`matched_event_callbacks`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import inspect
+from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
@@ -40,3 +45,20 @@ def parameter_overrides(node: Any) -> Mapping[str, Any]:
             "allo_mrad_ros.ros.rclpy_compat must learn where it keeps them now"
         )
     return MappingProxyType(overrides)
+
+
+def matched_event_callbacks(on_matched: Callable[[Any], None]) -> Any | None:
+    """Publisher event callbacks that call ``on_matched`` each time a subscription matches
+    or leaves the publisher, where this rclpy has the publishers' matched event
+    (``PublisherEventCallbacks(matched=...)``, Iron and later); None where it has not
+    (Humble), so the caller polls ``get_subscription_count`` instead.
+
+    The other events keep rclpy's default callbacks (the incompatible QoS warning).
+    """
+    try:
+        from rclpy.event_handler import PublisherEventCallbacks
+    except ImportError:  # Humble keeps them in rclpy.qos_event
+        from rclpy.qos_event import PublisherEventCallbacks
+    if "matched" not in inspect.signature(PublisherEventCallbacks).parameters:
+        return None
+    return PublisherEventCallbacks(matched=on_matched)

@@ -32,12 +32,12 @@ def test_configure_builds_activate_starts_and_cleanup_removes(ros):
         assert node._state_machine.current_state[0] == State.PRIMARY_STATE_INACTIVE
         assert node._worker is not None and node._worker.is_alive()
         assert "/mrad_detector/mask" in _topics(node)
-        assert node._input_timer is None  # inactive: no input is watched or subscribed
+        assert not node.inputs_watched  # inactive: no input is watched or subscribed
         assert "/arm_camera/image_raw" not in _topics(node)
         assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
-        assert node._input_timer is not None
+        assert node.inputs_watched
         assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
-        assert node._input_timer is None and not node._inputs.subscriptions
+        assert not node.inputs_watched and not node._inputs.subscriptions
         worker = node._worker
         assert node.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
         assert not worker.is_alive() and node._worker is None
