@@ -8,7 +8,10 @@ image_proc's resize node scales it); with ``score_full_resolution`` it is upscal
 image's size (8.3 MB at 1080p) and ``~/score/camera_info`` is the image's camera_info.
 ``~/result`` (DiagnosticArray) and ``~/regions`` (ImageMarker boxes) carry the image's header,
 so a flag can be matched to its image; ``~/reference/camera_info`` describes the 1/8-size
-reference. Every publisher accepts QoS overrides (``qos_overrides.<topic>.publisher.*``).
+reference. ``~/mask/camera_info`` and ``~/overlay/camera_info`` describe the mask (the image's
+resolution) and the overlay (the image's or the processing resolution), so a
+CameraSubscriber on either gets its pair; each camera_info is published only while
+subscribed. Every publisher accepts QoS overrides (``qos_overrides.<topic>.publisher.*``).
 
 ``~/result``, ``~/regions`` and ``~/detections`` format the detector's regions
 (``DetectionResult.regions``, grown and labelled with ``mrad.connectivity``); nothing here
@@ -157,12 +160,14 @@ class Outputs:
         self.score = publisher(Image, interface.SCORE_OUTPUT, 5)
         self.score_info = publisher(CameraInfo, interface.SCORE_INFO_OUTPUT, 5)
         self.mask = publisher(Image, interface.MASK_OUTPUT, 5)
+        self.mask_info = publisher(CameraInfo, interface.MASK_INFO_OUTPUT, 5)
         self.anomaly = publisher(Bool, interface.ANOMALY_OUTPUT, 10)
         self.result = publisher(DiagnosticArray, interface.RESULT_OUTPUT, 10)
         self.regions = publisher(ImageMarker, interface.REGIONS_OUTPUT, 10)
         self.reference = publisher(Image, interface.REFERENCE_OUTPUT, 5)
         self.reference_info = publisher(CameraInfo, interface.REFERENCE_INFO_OUTPUT, 5)
         self.overlay = publisher(Image, interface.OVERLAY_OUTPUT, 5)
+        self.overlay_info = publisher(CameraInfo, interface.OVERLAY_INFO_OUTPUT, 5)
         self._vision = vision_msgs_module()
         self.detections = (
             None
@@ -173,7 +178,15 @@ class Outputs:
     def wanted(self, config: NodeConfig) -> bool:
         """Whether any output has a subscriber (if not, a frame need not be processed);
         ``~/reference`` and ``~/overlay`` count only where ``config`` publishes them."""
-        always = [self.mask, self.score, self.score_info, self.anomaly, self.result, self.regions]
+        always = [
+            self.mask,
+            self.mask_info,
+            self.score,
+            self.score_info,
+            self.anomaly,
+            self.result,
+            self.regions,
+        ]
         if self.detections is not None:
             always.append(self.detections)
         if any(p.get_subscription_count() for p in always):
@@ -182,7 +195,12 @@ class Outputs:
             self.reference.get_subscription_count() or self.reference_info.get_subscription_count()
         ):
             return True
-        return bool(config.publish_overlay and self.overlay.get_subscription_count())
+        return bool(
+            config.publish_overlay
+            and (
+                self.overlay.get_subscription_count() or self.overlay_info.get_subscription_count()
+            )
+        )
 
     def publish(
         self,
@@ -213,21 +231,14 @@ class Outputs:
         # would otherwise delay them by its serialisation.
         if self.mask.get_subscription_count():
             self.mask.publish(fill(Image(), header, result.mask, interface.MONO8))
+        self._publish_info(self.mask_info, header, camera_info, image.shape, result.mask.shape)
         self.anomaly.publish(Bool(data=bool(result.anomalous)))
         # The map as the detector made it: upscaling it is a 1080p float32 resize and 16 times
         # the bytes to send, worth it only to a consumer that asked for it.
         score = result.score if config.score_full_resolution else result.work_score
         if score_map and self.score.get_subscription_count():
             self.score.publish(fill(Image(), header, score, interface.SCORE_ENCODING))
-        if camera_info is not None and self.score_info.get_subscription_count():
-            info = messages.scaled_camera_info(
-                CameraInfo(),
-                camera_info,
-                (image.shape[1], image.shape[0]),
-                (score.shape[1], score.shape[0]),
-            )
-            info.header = header
-            self.score_info.publish(info)
+        self._publish_info(self.score_info, header, camera_info, image.shape, score.shape)
         # The detector's own regions (its connectivity), formatted: no second labelling.
         if self.detections is not None and self.detections.get_subscription_count():
             self.detections.publish(detection_array(self._vision, header, result.regions))
@@ -251,9 +262,38 @@ class Outputs:
                 info = messages.fill_camera_info(CameraInfo(), reference_camera)
                 info.header = header
                 self.reference_info.publish(info)
-        if config.publish_overlay and self.overlay.get_subscription_count():
-            overlay = _overlay(image, result, config.overlay_full_resolution)
-            self.overlay.publish(fill(Image(), header, overlay, interface.RGB8))
+        if config.publish_overlay:
+            if self.overlay.get_subscription_count():
+                overlay = _overlay(image, result, config.overlay_full_resolution)
+                self.overlay.publish(fill(Image(), header, overlay, interface.RGB8))
+            shape = _overlay_shape(image, result, config.overlay_full_resolution)
+            self._publish_info(self.overlay_info, header, camera_info, image.shape, shape)
+
+    @staticmethod
+    def _publish_info(
+        publisher: Any,
+        header: object,
+        camera_info: Any | None,
+        image_shape: tuple[int, ...],
+        shape: tuple[int, ...],
+    ) -> None:
+        """Publish, to a subscriber, the image's ``camera_info`` scaled to an output of
+        ``shape`` (rows, columns) made from the image of ``image_shape``, with the image's
+        header (as image_proc's resize node scales it; the image's own for the same size)."""
+        if camera_info is None or not publisher.get_subscription_count():
+            return
+        info = messages.scaled_camera_info(
+            CameraInfo(), camera_info, (image_shape[1], image_shape[0]), (shape[1], shape[0])
+        )
+        info.header = header
+        publisher.publish(info)
+
+
+def _overlay_shape(image: np.ndarray, result: Any, full_resolution: bool) -> tuple[int, int]:
+    """The (rows, columns) :func:`_overlay` gives, without drawing it."""
+    if full_resolution:
+        return image.shape[:2]
+    return result.work_score.shape[:2]
 
 
 def _overlay(image: np.ndarray, result: Any, full_resolution: bool) -> np.ndarray:

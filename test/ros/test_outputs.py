@@ -46,6 +46,8 @@ NAMES = (
     "reference",
     "reference_info",
     "overlay",
+    "mask_info",
+    "overlay_info",
 )
 
 
@@ -255,9 +257,11 @@ def test_wanted_only_with_a_subscriber_to_an_enabled_output(outputs):
     assert wanted(True, True) and not wanted(True, False)
     subscribe(outputs, "reference_info")
     assert wanted(True, False) and not wanted(False, True)
-    for name in ("mask", "score", "score_info", "anomaly", "result", "regions"):
+    for name in ("mask", "mask_info", "score", "score_info", "anomaly", "result", "regions"):
         subscribe(outputs, name)
         assert wanted(False, False), name
+    subscribe(outputs, "overlay_info")
+    assert wanted(False, True) and not wanted(True, False)
 
 
 def test_the_outline_marker_draws_each_region_box():
@@ -320,3 +324,31 @@ def test_published_boxes_are_the_detectors_regions_with_its_connectivity(outputs
     assert len(points) == 8 * len(boxes)
     assert {(x, y) for x, y, _, _ in boxes} <= set(points)
     assert {(x + w, y + h) for x, y, w, h in boxes} <= set(points)
+
+
+@pytest.mark.parametrize("full_resolution", [False, True], ids=["processing", "full"])
+def test_the_mask_and_the_overlay_have_camera_infos_of_their_own_resolution(
+    outputs, full_resolution
+):
+    fakes = subscribe(outputs, "mask", "mask_info", "overlay", "overlay_info")
+    publish(outputs, overlay_full_resolution=full_resolution)
+    for image_name in ("mask", "overlay"):
+        image, info = fakes[image_name].sent[0], fakes[f"{image_name}_info"].sent[0]
+        assert (info.width, info.height) == (image.width, image.height), image_name
+        assert info.header.stamp.sec == image.header.stamp.sec == 7
+        assert info.header.frame_id == image.header.frame_id == "cam"
+    # The mask is at the image's resolution: the image's camera_info itself.
+    mask_info = fakes["mask_info"].sent[0]
+    assert list(mask_info.k) == [100.0, 0.0, 80.0, 0.0, 100.0, 45.0, 0.0, 0.0, 1.0]
+    overlay_info = fakes["overlay_info"].sent[0]
+    assert overlay_info.k[0] == (100.0 if full_resolution else 50.0)
+
+
+def test_the_mask_and_overlay_camera_infos_only_when_subscribed_and_enabled(outputs):
+    fakes = subscribe(outputs, "mask", "overlay")
+    publish(outputs)
+    assert fakes["mask_info"].sent == fakes["overlay_info"].sent == []
+    fakes = subscribe(outputs, "mask_info", "overlay_info")
+    publish(outputs, overlay=False)
+    assert len(fakes["mask_info"].sent) == 1 and fakes["overlay_info"].sent == []
+    assert fakes["mask"].sent == fakes["overlay"].sent == []  # the images are not made
