@@ -84,6 +84,10 @@ def shutdowns(runs: int, signum: signal.Signals, settle: int, work: Path) -> int
         failed += not clean
         detail = "clean" if clean else (problems[0][:200] if problems else "no mask published")
         print(f"run {run}: exit {code}, {len(feed.arrival['mask'])} masks, {detail}", flush=True)
+        if not clean:
+            # The end of the node's log, so that a rare failure can be read afterwards.
+            tail = log.read_text().splitlines()[-40:]
+            print("\n".join(f"    | {line}" for line in tail), flush=True)
     feed.node.destroy_node()
     print(f"{runs - failed}/{runs} clean shutdowns by {signum.name}")
     return failed
