@@ -27,7 +27,7 @@ import numpy as np
 
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.backends import ArrayBackendError, select_backend
-from allo_mrad_ros.detector.params import params_from
+from allo_mrad_ros.detector.params import add_params_options, params_from
 from allo_mrad_ros.detector.score import cross_score
 from allo_mrad_ros.example_scene import example_pair
 from allo_mrad_ros.render import DEFAULT_SCALE
@@ -275,14 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--reference-scale", type=float, default=DEFAULT_SCALE, help="reference scale"
     )
-    parser.add_argument("--profile", default="default", help="detector parameter profile")
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="detector parameter over the profile (repeatable)",
-    )
+    add_params_options(parser)
     parser.add_argument(
         "--array-backends",
         help="comma-separated array backends to compare (default: numpy, and torch where "

@@ -34,6 +34,16 @@ from allo_mrad_ros.ros import launch_arguments
 PACKAGE = "allo_mrad_ros"
 
 
+def _switch(name: str, default: bool, description: str) -> DeclareLaunchArgument:
+    """A true/false launch argument (real launch compares choices exactly)."""
+    return DeclareLaunchArgument(
+        name,
+        default_value=str(default).lower(),
+        description=description,
+        choices=["true", "false"],
+    )
+
+
 def _autostart(detector: LifecycleNode) -> list:
     """Configure ``detector`` now, and activate it each time a configure succeeds (its
     transition from configuring to inactive; a deactivate, which also ends in inactive, is
@@ -106,12 +116,7 @@ def generate_launch_description() -> LaunchDescription:
             default_value=PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "mrad.yaml"]),
             description="parameter file of the node",
         ),
-        DeclareLaunchArgument(
-            "rviz",
-            default_value="false",
-            description="also start RViz with the package's view (needs rviz2 installed)",
-            choices=["true", "false"],
-        ),
+        _switch("rviz", False, "also start RViz with the package's view (needs rviz2 installed)"),
         DeclareLaunchArgument(
             "log_level",
             default_value="info",
@@ -119,24 +124,13 @@ def generate_launch_description() -> LaunchDescription:
             "theirs)",
             choices=list(launch_arguments.LOG_LEVELS),
         ),
-        DeclareLaunchArgument(
-            "respawn",
-            default_value="false",
-            description="start the node again when its process ends",
-            choices=["true", "false"],
-        ),
-        DeclareLaunchArgument(
-            "lifecycle",
-            default_value="false",
-            description="start the managed variant mrad_detector_lifecycle instead",
-            choices=["true", "false"],
-        ),
-        DeclareLaunchArgument(
+        _switch("respawn", False, "start the node again when its process ends"),
+        _switch("lifecycle", False, "start the managed variant mrad_detector_lifecycle instead"),
+        _switch(
             "autostart",
-            default_value="true",
-            description="with lifecycle:=true: configure the node on start and activate it "
+            True,
+            "with lifecycle:=true: configure the node on start and activate it "
             "after each successful configure (false: it waits unconfigured)",
-            choices=["true", "false"],
         ),
         DeclareLaunchArgument(
             "respawn_delay",

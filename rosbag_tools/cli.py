@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from allo_mrad_ros.detector import PROFILES
+from allo_mrad_ros.detector.params import add_params_options
 from allo_mrad_ros.errors import AlloError, InvalidInput
 from allo_mrad_ros.options import keyword_options
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
@@ -130,10 +130,7 @@ def _parser() -> argparse.ArgumentParser:
             "--limit", type=int, help="at most this many frames, evenly spread over the split"
         )
         sub.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
-        sub.add_argument("--profile", default="default", help=f"one of {sorted(PROFILES)}")
-        sub.add_argument(
-            "--set", action="append", default=[], metavar="KEY=VALUE", help="MRAD parameter"
-        )
+        add_params_options(sub)
         sub.add_argument(
             "--reference-scale",
             type=float,

@@ -12,6 +12,7 @@ is chosen; docs/detector.md ("How the defaults were chosen") gives the measureme
 
 from __future__ import annotations
 
+import argparse
 import math
 import numbers
 import textwrap
@@ -477,4 +478,17 @@ def params_from(profile_name: str, changes: Mapping[str, Any] | Sequence[str] = 
         raise ParamsError(f"unknown MRAD parameter(s) {unknown}")
     return profile(
         profile_name, **{k: coerce_value(k, PARAMETER_SPECS[k], v) for k, v in changes.items()}
+    )
+
+
+def add_params_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--profile NAME`` and repeatable ``--set KEY=VALUE`` to a command line, read back
+    with ``params_from(args.profile, args.set)``."""
+    parser.add_argument("--profile", default="default", help=f"one of {sorted(PROFILES)}")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an MRAD parameter over the profile (repeatable)",
     )
