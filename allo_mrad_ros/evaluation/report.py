@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from allo_mrad_ros.evaluation.ablate import AblationResult
     from allo_mrad_ros.evaluation.evaluate import EvaluationResult
 
-# Which computation each is: allo_mrad_ros/metrics.py's module docstring.
+# Which computation each is: the docstring of the allo_mrad_ros.metrics package.
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_aupr", "p_fpr95", "p_fpr95_interp")
 METRIC_TITLES = (
     "I.AUROC",
