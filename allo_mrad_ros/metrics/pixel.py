@@ -30,7 +30,7 @@ from .curves import (
     fpr_at_tpr_from_curve,
     fpr_at_tpr_interpolated_from_curve,
 )
-from .score_counts import ScoreCounts
+from .score_counts import ScoreCounts, group_sums, key_scores
 
 PIXEL_KEYS = ("p_auroc", "p_ap", "p_aupr", "p_fpr95", "p_fpr95_interp")
 
@@ -51,10 +51,11 @@ def _entries(table: ScoreCounts) -> _Entries:
     starts[1:] = has_positive[1:] | has_positive[:-1]
     index = np.flatnonzero(starts)
     lengths = np.diff(np.append(index, table.size))
-    positives = np.add.reduceat(table.positives.astype(np.int64), index)
-    negatives = np.add.reduceat(table.negatives.astype(np.int64), index)
+    # An entry with positives is a run of its own; runs without sum their negatives.
+    positives = table.positives[index].astype(np.int64)
+    negatives = group_sums(table.negatives, index, table.pixels).astype(np.int64)
     ranged = (lengths > 1) | (table.high[index + lengths - 1] != table.low[index])
-    scores = table.scores()[index]
+    scores = key_scores(table.low[index]).astype(np.float64)
     return _Entries(positives[::-1], negatives[::-1], scores[::-1], ranged[::-1])
 
 

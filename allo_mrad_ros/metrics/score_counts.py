@@ -24,12 +24,8 @@ import numpy as np
 
 from .curves import POSITIVE_CLASS, MetricsError
 
-DEFAULT_MAX_ENTRIES = 1 << 22
+DEFAULT_MAX_ENTRIES = 1 << 20
 """Entries a pooled table may hold before it is coarsened (12 to 16 bytes each)."""
-
-MIN_PENDING_ENTRIES = 1 << 20
-"""Frame entries collected before they are merged into a small pooled table (or
-``max_entries``, if lower)."""
 
 _UINT32_MAX = np.iinfo(np.uint32).max
 
@@ -165,12 +161,16 @@ class ScoreCounts:
         values = scores.astype(np.float64 if wide else np.float32, copy=False).ravel()
         if not np.isfinite(values).all():
             raise MetricsError("score map contains NaN or Inf")
-        if not positive.any():
-            keys, counts = _runs(values)
-            return cls(keys, keys, np.zeros_like(counts), counts, values.size)
-        neg_keys, neg_counts = _runs(values[~positive])
-        pos_keys, pos_counts = _runs(values[positive])
-        return _insert_positives(neg_keys, neg_counts, pos_keys, pos_counts, values.size)
+        # Every pixel's runs, then the (fewer) positives' runs taken out of them: no copy of
+        # the negatives is made.
+        keys, counts = _runs(values)
+        positives = np.zeros_like(counts)
+        if positive.any():
+            pos_keys, pos_counts = _runs(values[positive])
+            place = np.searchsorted(keys, pos_keys)
+            positives[place] = pos_counts
+            counts -= positives
+        return cls(keys, keys, positives, counts, values.size)
 
 
 def _insert_positives(
@@ -215,12 +215,90 @@ def _runs(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return score_keys(ordered[starts]), _compact(counts)
 
 
-def _group_sums(counts: np.ndarray, starts: np.ndarray, total: int) -> np.ndarray:
+def group_sums(counts: np.ndarray, starts: np.ndarray, total: int) -> np.ndarray:
     """Sums of ``counts`` over the groups beginning at ``starts``, as :func:`_compact` keeps
-    them; in ``uint32`` when no sum can pass it (casting each element is the slow path)."""
+    them: in ``uint32`` when no sum can pass it (NumPy would otherwise widen them)."""
     if counts.dtype == np.uint32 and total <= _UINT32_MAX:
-        return np.add.reduceat(counts, starts)
+        return np.add.reduceat(counts, starts, dtype=np.uint32)
     return _compact(np.add.reduceat(counts.astype(np.int64, copy=False), starts))
+
+
+def _narrow_counts(table: ScoreCounts) -> bool:
+    return table.positives.dtype == np.uint32 and table.negatives.dtype == np.uint32
+
+
+_LOW_32 = np.uint64(_UINT32_MAX)
+_SHIFT_32 = np.uint64(32)
+
+
+def _merge_class(tables: list[ScoreCounts], name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Keys and summed counts of one class over exact ``uint32``-keyed tables.
+
+    Each nonzero count is packed with its key into one ``uint64`` (key high), so a plain
+    sort of the values orders them (no index array, no gathers) and equal keys meet.
+    """
+    packed = []
+    for table in tables:
+        counts = getattr(table, name)
+        present = counts > 0
+        keys, counts = (
+            (table.low, counts) if present.all() else (table.low[present], counts[present])
+        )
+        packed.append((keys.astype(np.uint64) << _SHIFT_32) | counts)
+    values = np.concatenate(packed)
+    del packed
+    if not values.size:
+        return np.zeros(0, np.uint32), np.zeros(0, np.uint32)
+    values.sort()
+    keys = (values >> _SHIFT_32).astype(np.uint32)
+    last = np.flatnonzero(np.concatenate([keys[1:] != keys[:-1], [True]]))
+    counts = values & _LOW_32
+    del values
+    if last.size == keys.size:
+        return keys, counts.astype(np.uint32)
+    # Sums over runs of equal keys: differences of the running sum at each run's end.
+    total = np.cumsum(counts)[last]
+    total[1:] -= total[:-1].copy()
+    return keys[last], _compact(total)
+
+
+def _merge_into(big: ScoreCounts, small: ScoreCounts) -> ScoreCounts:
+    """``big`` (exact or coarsened) and an exact ``small`` merged by adding each entry of
+    ``small`` to the entry of ``big`` that holds its score, or inserting it."""
+    index = np.searchsorted(big.low, small.low, side="right") - 1
+    found = index >= 0
+    found[found] = small.low[found] <= big.high[index[found]]
+    new = ~found
+    index[new] += 1  # where a new entry goes: before the first entry above it
+    # Where each entry of small lands: its index moved on by the new entries before it.
+    place = index + np.cumsum(new) - new
+    pixels = big.pixels + small.pixels
+    any_new = bool(new.any())
+    if any_new:
+        low = np.insert(big.low, index[new], small.low[new])
+        high = low if big.exact else np.insert(big.high, index[new], small.low[new])
+    else:
+        low, high = big.low, big.high
+    targets = place[found]
+    counts = []
+    for name in ("positives", "negatives"):
+        mine, theirs = getattr(big, name), getattr(small, name)
+        if not any_new and not theirs.any():
+            counts.append(mine)  # nothing to add (a normal frame's positives): share
+            continue
+        if pixels > _UINT32_MAX:
+            mine, theirs = mine.astype(np.int64), theirs.astype(np.int64)
+        merged = np.insert(mine, index[new], theirs[new]) if any_new else mine.copy()
+        np.add.at(merged, targets, theirs[found])  # several may land in one range
+        counts.append(_compact(merged) if pixels > _UINT32_MAX else merged)
+    return ScoreCounts(low, high, *counts, pixels)
+
+
+def _merge_packed(tables: list[ScoreCounts]) -> ScoreCounts:
+    neg_keys, negatives = _merge_class(tables, "negatives")
+    pos_keys, positives = _merge_class(tables, "positives")
+    pixels = sum(t.pixels for t in tables)
+    return _insert_positives(neg_keys, negatives, pos_keys, positives, pixels)
 
 
 def merge(tables: Iterable[ScoreCounts]) -> ScoreCounts:
@@ -237,7 +315,16 @@ def merge(tables: Iterable[ScoreCounts]) -> ScoreCounts:
         tables = [t.widened() for t in tables]
     if len(tables) == 1:
         return tables[0]
-    exact = all(t.exact for t in tables)
+    coarse = [t for t in tables if not t.exact]
+    exact = not coarse
+    # Exact entries into a coarsened table's ranges, or few entries into many: insert
+    # them rather than sort everything again.
+    big = coarse[0] if len(coarse) == 1 else max(tables, key=lambda t: t.size)
+    rest = [t for t in tables if t is not big]
+    if len(coarse) == 1 or (exact and big.size >= 4 * sum(t.size for t in rest)):
+        return _merge_into(big, rest[0] if len(rest) == 1 else merge(rest))
+    if exact and not tables[0].wide and all(_narrow_counts(t) for t in tables):
+        return _merge_packed(tables)
     low = np.concatenate([t.low for t in tables])
     order = np.argsort(low, kind="stable")  # timsort: near linear on a few sorted runs
     low = low[order]
@@ -257,7 +344,9 @@ def merge(tables: Iterable[ScoreCounts]) -> ScoreCounts:
 
     def summed(name: str) -> np.ndarray:
         counts = np.concatenate([getattr(t, name) for t in tables])[order]
-        return _group_sums(counts, starts, total)
+        if starts.size == counts.size:  # no two entries met
+            return _compact(counts) if counts.dtype != np.uint32 else counts
+        return group_sums(counts, starts, total)
 
     return ScoreCounts(low, high, summed("positives"), summed("negatives"), total)
 
@@ -294,8 +383,8 @@ def coarsen(table: ScoreCounts, target: int) -> ScoreCounts:
     return ScoreCounts(
         table.low[starts],
         table.high[ends],
-        _group_sums(table.positives, starts, table.pixels),
-        _group_sums(table.negatives, starts, table.pixels),
+        group_sums(table.positives, starts, table.pixels),
+        group_sums(table.negatives, starts, table.pixels),
         table.pixels,
     )
 
@@ -304,12 +393,11 @@ def coarsen(table: ScoreCounts, target: int) -> ScoreCounts:
 class PooledScoreCounts:
     """The counts of many frames, exact up to ``max_entries`` distinct scores.
 
-    Frames' tables are collected and merged into the pooled table once they hold as many
-    entries as it does (at least :data:`MIN_PENDING_ENTRIES` or ``max_entries``), so each
-    entry is merged a few times at most; a pooled table past ``max_entries`` is coarsened
-    to half of it. The pooled table (at most ``max_entries`` entries of 12 to 16 bytes)
-    and the frames waiting (at most ``max_entries`` entries of 12 bytes, plus one frame's)
-    are all that is kept; a merge works on copies of both.
+    Each frame's table is merged into the pooled table as it comes (inserted, where the
+    pooled table is the larger); a pooled table past ``max_entries`` is coarsened to half
+    of it, after which a frame's scores that fall in one of its ranges are added to that
+    range. The pooled table, at most ``max_entries`` entries of 12 to 16 bytes, is all
+    that is kept; a merge works on a copy of it and the frame's table.
 
     Parameters
     ----------
@@ -322,44 +410,29 @@ class PooledScoreCounts:
             raise MetricsError(f"max_entries must be at least 4, got {max_entries}")
         self.max_entries = max_entries
         self._pooled = ScoreCounts.empty()
-        self._pending: list[ScoreCounts] = []
-        self._pending_entries = 0
 
     def update(self, scores: np.ndarray, mask: np.ndarray) -> None:
         """Add one frame: ``scores`` H x W and its ground-truth ``mask`` (class 2 = anomaly)."""
         self.add(ScoreCounts.of_frame(scores, mask))
 
     def add(self, table: ScoreCounts) -> None:
-        """Add a frame's (or another pool's) table."""
+        """Add a frame's table (or any other)."""
         if not table.size:
             return
-        self._pending.append(table)
-        self._pending_entries += table.size
-        if self._pending_entries >= max(
-            self._pooled.size, min(MIN_PENDING_ENTRIES, self.max_entries)
-        ):
-            self._fold()
+        pooled = merge([self._pooled, table])
+        if pooled.size > self.max_entries:
+            pooled = coarsen(pooled, self.max_entries // 2)
+        self._pooled = pooled
 
     def add_pool(self, other: PooledScoreCounts) -> None:
-        """Add every frame of ``other`` (its tables are shared, not copied, until the next
-        merge)."""
-        self._pending.extend([t for t in (other._pooled, *other._pending) if t.size])
-        self._pending_entries += other._pooled.size + other._pending_entries
+        """Add every frame of ``other``."""
+        self.add(other.table())
 
     def table(self) -> ScoreCounts:
         """The pooled table of every frame added so far."""
-        if self._pending:
-            self._fold()
         return self._pooled
 
     @property
     def nbytes(self) -> int:
-        """Bytes held now: the pooled table and the frames not yet merged into it."""
-        return self._pooled.nbytes + sum(t.nbytes for t in self._pending)
-
-    def _fold(self) -> None:
-        pooled = merge([self._pooled, *self._pending])
-        self._pending, self._pending_entries = [], 0
-        if pooled.size > self.max_entries:
-            pooled = coarsen(pooled, self.max_entries // 2)
-        self._pooled = pooled
+        """Bytes of the pooled table."""
+        return self._pooled.nbytes
