@@ -1,15 +1,15 @@
 """Pixel-metric accumulation: time per frame and memory, exact counts against the old binning.
 
-Synthetic score maps shaped like the detector's (a map at a quarter of the resolution,
-70 % of its normal pixels tied at 1.0 and the rest spread, upscaled bilinearly to 1080p, so
-some 0.4-1 M distinct values a frame and many near 1.0; a few anomalous discs scoring
+Synthetic score maps shaped like the detector's (a map at a quarter of the resolution, 70 %
+of it in patches tied at 1.0 and the rest spread, upscaled bilinearly to 1080p: about 60 %
+of the pixels at 1.0 and some 0.7 M distinct values a frame; a few anomalous discs scoring
 higher) are fed to :class:`~allo_mrad_ros.metrics.MetricsAccumulator`. Each frame is also
 added to the 1/64-unit histogram the metrics were read from before, in the same loop, so
 the two per-frame times are measured side by side, as CPU time of this process (so other
-processes on a shared machine do not count). A second pass under ``tracemalloc``
-gives the accumulator's peak memory over the whole run (the score maps themselves are made
-outside what is counted: the peak is the largest of the pooled counts held before a frame
-plus what that frame's update and the final computation allocate at their height).
+processes on a shared machine do not count). A second pass under ``tracemalloc`` gives the
+accumulator's peak memory over the whole run (the score maps themselves are made outside
+what is counted: the peak is the largest of the pooled counts held before a frame plus
+what that frame's update and the final computation allocate at their height).
 
     python -m benchmarks.metrics_update --frames 100
 """
@@ -39,8 +39,10 @@ def synthetic_frame(
     """One score map (float32, 0..255) and its mask (2: anomaly, 1: station, 0: space)."""
     width, height = size
     small = (max(8, width // 4), max(8, height // 4))
+    # Plateaus in patches, as a detector's floor is: a smoothed random field's lowest 70 %.
+    field = cv2.GaussianBlur(rng.random((small[1], small[0])).astype(np.float32), (0, 0), 3)
     work = np.where(
-        rng.random((small[1], small[0])) < 0.7,
+        field < np.quantile(field, 0.7),
         np.float32(1.0),
         rng.gamma(1.5, 6.0, (small[1], small[0])).astype(np.float32),
     )
