@@ -27,7 +27,9 @@ class AlloMetrics:
     p_fpr95: float
     p_aupr: float = float("nan")
     p_fpr95_interp: float = float("nan")
-    error_bounds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(PIXEL_KEYS, 0.0))
+    error_bounds: dict[str, float] = field(
+        default_factory=lambda: dict.fromkeys(PIXEL_KEYS, 0.0), hash=False
+    )
 
     @property
     def exact(self) -> bool:

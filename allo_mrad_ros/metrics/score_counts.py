@@ -6,13 +6,14 @@ metrics depend only on how many positive and negative pixels hold each distinct 
 pattern mapped to an unsigned integer of the same order (float32 scores to ``uint32``,
 float64 to ``uint64``), so counting is exact, with no binning and no rounding.
 
-:class:`PooledScoreCounts` adds frames' tables. Their union grows with every frame of a
-float map (a bilinearly upscaled 1080p map holds some 0.4 M distinct values), so once it
-exceeds ``max_entries`` the table is coarsened: adjacent entries holding the fewest pixels
-are merged into one entry spanning a key range, until half the limit remains. A heavily
-tied score (the floor of a map, a block of normal pixels at one value) keeps its own exact
-entry. A range entry is what makes a metric inexact, and only where it holds both classes;
-:mod:`allo_mrad_ros.metrics.pixel` states the resulting error bound of each metric.
+:class:`PooledScoreCounts` merges frames' tables into one. Their union grows with every
+frame of a float map (a bilinearly upscaled 1080p map holds some 0.4-0.9 M distinct
+values), so once it passes ``max_entries`` the table is coarsened (:func:`coarsen`):
+neighbouring entries are merged into runs of about equal pixel count, each spanning a key
+range, while the entries holding the most pixels (a map's floor, a block of normal pixels
+at one value) keep their exact entry. A range entry is what makes a metric inexact, and
+only where it holds both classes; :mod:`allo_mrad_ros.metrics.pixel` bounds each metric's
+error.
 """
 
 from __future__ import annotations
@@ -103,19 +104,10 @@ class ScoreCounts:
         return self.high is self.low
 
     @property
-    def ranged(self) -> np.ndarray:
-        """Per entry, whether it spans more than one score (bool)."""
-        return self.high != self.low
-
-    @property
     def nbytes(self) -> int:
         """Bytes of the table's arrays."""
         arrays = (self.low, self.positives, self.negatives)
         return sum(a.nbytes for a in arrays) + (0 if self.exact else self.high.nbytes)
-
-    def scores(self) -> np.ndarray:
-        """The lowest score of each entry, as float64."""
-        return key_scores(self.low).astype(np.float64)
 
     def widened(self) -> ScoreCounts:
         """The same counts keyed for float64 scores (exact: float32 widens exactly)."""
