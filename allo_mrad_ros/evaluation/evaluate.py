@@ -2,10 +2,10 @@
 
 Every frame goes through :meth:`allo_mrad_ros.pipeline.Pipeline.process`, the step the
 detector node runs: the reference is rendered at the frame's pose with the input's own
-station model, then each method detects. Pixel scores are pooled into per-frame histograms
-in the workers (exactly what :class:`~allo_mrad_ros.metrics.MetricsAccumulator` would add),
-so only counts travel between processes; histograms add up, so the totals equal a single
-accumulator fed every frame.
+station model, then each method detects. The workers count each frame's pixels per distinct
+score (exactly what :class:`~allo_mrad_ros.metrics.MetricsAccumulator` would add), so only
+counts travel between processes; counts add up, so the totals equal a single accumulator
+fed every frame.
 
 Per anomaly type, the metrics use that type's anomalous frames together with all normal
 frames (the usual per-category reading).
@@ -46,7 +46,6 @@ from allo_mrad_ros.metrics import (
     POSITIVE_CLASS,
     AlloMetrics,
     Curve,
-    MetricsAccumulator,
 )
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
 from allo_mrad_ros.staging import hold_point
@@ -196,13 +195,6 @@ def _jobs(
         yield frame, want
 
 
-def _curve(accumulator: MetricsAccumulator) -> Curve | None:
-    pixels = accumulator.pixels
-    if pixels.positives.sum() == 0 or pixels.negatives.sum() == 0:
-        return None
-    return pixels.curve()
-
-
 def evaluate(
     source: FrameSource | str | PathLike[str],
     config: EvaluationConfig | None = None,
@@ -273,7 +265,7 @@ def evaluate(
     for name in methods:
         accumulator = merged_accumulator(list(tallies[name].values()))
         metrics[name] = accumulator.compute()
-        curves[name] = _curve(accumulator)
+        curves[name] = accumulator.curve()
         detection[name] = confusion(list(tallies[name].values()))
     per_type = {}
     types = sorted(g for g in frames_by_group if g != NORMAL_GROUP)

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from allo_mrad_ros.evaluation.ablate import AblationResult
     from allo_mrad_ros.evaluation.evaluate import EvaluationResult
 
-# Which computation each is: allo_mrad_ros/metrics.py's module docstring.
+# Which computation each is: the docstring of the allo_mrad_ros.metrics package.
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_aupr", "p_fpr95", "p_fpr95_interp")
 METRIC_TITLES = (
     "I.AUROC",
@@ -119,6 +119,7 @@ def evaluation_json(result: EvaluationResult) -> dict[str, Any]:
     return {
         "frames": result.frames,
         "methods": {name: m.as_dict() for name, m in result.metrics.items()},
+        "pixel_error_bounds": {name: m.error_bounds for name, m in result.metrics.items()},
         "split": result.split,
         "input": {"path": result.input, "kind": result.kind, "name": result.name},
         "per_anomaly_type": result.per_type,
@@ -148,6 +149,23 @@ def _latency_rows(
     return rows
 
 
+def _exactness(metrics: Mapping[str, AlloMetrics]) -> str:
+    """Whether the pixel metrics are exact, or the largest bound on their error."""
+    largest = {
+        name: max((b for b in m.error_bounds.values() if math.isfinite(b)), default=0.0)
+        for name, m in metrics.items()
+    }
+    inexact = {name: bound for name, bound in largest.items() if bound > 0}
+    if not inexact:
+        return "Pixel metrics are exact (pixels counted per distinct score)."
+    bounds = ", ".join(f"{name} {100 * bound:.2g}" for name, bound in inexact.items())
+    return (
+        "Pixel metrics are exact up to a bound where a run holds more distinct scores than "
+        f"are kept apart; the largest bound, in percentage points: {bounds} (each metric's "
+        "bound: `pixel_error_bounds` in metrics.json)."
+    )
+
+
 def evaluation_markdown(result: EvaluationResult) -> str:
     """The content of ``metrics.md``."""
     config = result.config
@@ -163,6 +181,8 @@ def evaluation_markdown(result: EvaluationResult) -> str:
         header,
         rule,
         *(_metrics_row(name, m.as_dict()) for name, m in result.metrics.items()),
+        "",
+        _exactness(result.metrics),
         "",
         "Image-level decisions (anomalous when the detected area exceeds the threshold):",
         "",

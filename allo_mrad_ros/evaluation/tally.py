@@ -1,8 +1,8 @@
-"""Per-frame outcomes and their totals: sparse pixel histograms, image scores, decisions, latencies.
+"""Per-frame outcomes and their totals: pixel counts per score, image scores, decisions, latencies.
 
-Workers send a :class:`FrameOutcome` per frame (counts only, so little travels between
-processes); the parent adds them into one :class:`Tally` per method and group. Histograms add
-up, so the totals equal a single :class:`~allo_mrad_ros.metrics.MetricsAccumulator` fed every
+Workers send a :class:`FrameOutcome` per frame (counts per distinct score, not the score
+maps); the parent adds them into one :class:`Tally` per method and group. Counts add up,
+so the totals equal a single :class:`~allo_mrad_ros.metrics.MetricsAccumulator` fed every
 frame."""
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from allo_mrad_ros.localisation import ObjectOverlap, object_overlap
 from allo_mrad_ros.metrics import (
     POSITIVE_CLASS,
     MetricsAccumulator,
-    PixelScoreHistogram,
+    PooledScoreCounts,
+    ScoreCounts,
 )
 
 NORMAL_GROUP = "normal"
@@ -25,30 +26,10 @@ NORMAL_GROUP = "normal"
 
 # ----------------------------------------------------------------- per-frame outcome
 @dataclass
-class SparseCounts:
-    """Non-zero bins of a :class:`PixelScoreHistogram` (positives and negatives)."""
-
-    bins: np.ndarray
-    positives: np.ndarray
-    negatives: np.ndarray
-
-    @classmethod
-    def of(cls, histogram: PixelScoreHistogram) -> SparseCounts:
-        """Compress a histogram to its non-empty bins."""
-        bins = np.flatnonzero(histogram.positives + histogram.negatives)
-        return cls(bins, histogram.positives[bins], histogram.negatives[bins])
-
-    def add_to(self, histogram: PixelScoreHistogram) -> None:
-        """Add these counts into ``histogram``."""
-        histogram.positives[self.bins] += self.positives
-        histogram.negatives[self.bins] += self.negatives
-
-
-@dataclass
 class MethodOutcome:
     """One method on one frame: pixel counts, image score and decision, timings."""
 
-    counts: SparseCounts
+    counts: ScoreCounts
     image_score: float
     anomalous: bool
     timings_ms: dict[str, float]
@@ -97,11 +78,9 @@ class FrameOutcome:
         return self.anomaly if self.truth_anomalous else NORMAL_GROUP
 
 
-def frame_counts(score: np.ndarray, mask: np.ndarray) -> SparseCounts:
-    """Per-frame pixel histogram, as :class:`MetricsAccumulator` would pool it."""
-    histogram = PixelScoreHistogram()
-    histogram.update(score, mask)
-    return SparseCounts.of(histogram)
+def frame_counts(score: np.ndarray, mask: np.ndarray) -> ScoreCounts:
+    """Per-frame pixel counts per distinct score, as :class:`MetricsAccumulator` pools them."""
+    return ScoreCounts.of_frame(score, mask)
 
 
 # ----------------------------------------------------------------- parent side
@@ -109,14 +88,14 @@ def frame_counts(score: np.ndarray, mask: np.ndarray) -> SparseCounts:
 class Tally:
     """Accumulated counts of one method over one group of frames."""
 
-    histogram: PixelScoreHistogram = field(default_factory=PixelScoreHistogram)
+    pixels: PooledScoreCounts = field(default_factory=PooledScoreCounts)
     image_scores: list[float] = field(default_factory=list)
     image_labels: list[bool] = field(default_factory=list)
     decisions: list[bool] = field(default_factory=list)
 
     def add(self, outcome: MethodOutcome, truth: bool) -> None:
         """Add one frame."""
-        outcome.counts.add_to(self.histogram)
+        self.pixels.add(outcome.counts)
         self.image_scores.append(outcome.image_score)
         self.image_labels.append(truth)
         self.decisions.append(outcome.anomalous)
@@ -126,8 +105,7 @@ def merged_accumulator(tallies: Sequence[Tally]) -> MetricsAccumulator:
     """A :class:`MetricsAccumulator` holding the frames of all ``tallies``."""
     accumulator = MetricsAccumulator()
     for tally in tallies:
-        accumulator.pixels.positives += tally.histogram.positives
-        accumulator.pixels.negatives += tally.histogram.negatives
+        accumulator.pixels.add_pool(tally.pixels)
         accumulator.image_scores.extend(tally.image_scores)
         accumulator.image_labels.extend(tally.image_labels)
     return accumulator

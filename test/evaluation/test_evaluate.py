@@ -133,6 +133,11 @@ def test_evaluate_report_equals_a_direct_computation(data, capsys):
             _same(entry["localisation"][name], _direct.localisation[anomaly, name])
     for value in report["methods"]["MRAD"].values():
         assert 0.0 <= value <= 1.0
+    # Small maps: every distinct score kept apart, so the pixel metrics are exact.
+    assert report["pixel_error_bounds"]["MRAD"] == dict.fromkeys(
+        ("p_auroc", "p_ap", "p_aupr", "p_fpr95", "p_fpr95_interp"), 0.0
+    )
+    assert "Pixel metrics are exact" in (out / "metrics.md").read_text()
     latency = report["latency_ms"]
     for stage in ("render", "MRAD", "PAD", "RXD", "total"):
         assert latency[stage]["count"] == 6
