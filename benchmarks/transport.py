@@ -66,8 +66,10 @@ DEPLOYMENT_PROFILE = Path("config") / "fastdds_large_images.xml"
 NOISE_SIGMA = 2.0
 # The node's /diagnostics period while measured: the counter is read twice per run.
 DIAGNOSTICS_PERIOD_S = 0.5
-# Quiet time around the window: frames in flight arrive, a fresh counter is published.
+# Quiet time around the window: frames in flight arrive, and (with the node) a fresh counter
+# is published after them.
 QUIET_S = 1.5
+QUIET_WITHOUT_NODE_S = 0.5
 REQUIRED_KEYS = (
     "setting",
     "mode",
@@ -344,21 +346,20 @@ def publish(args: argparse.Namespace) -> int:
             if not args.node or feed.arrival["result"]:
                 break
         report["node_processed_in_warm_up"] = bool(feed.arrival["result"])
-        feed.spin(QUIET_S)
+        quiet_s = QUIET_S if args.node else QUIET_WITHOUT_NODE_S
+        feed.spin(quiet_s)
         before = counter_after(time.time()) if args.node else None
         feed.arrival["result"].clear()
         stamps: list[int] = []
         print("window start", flush=True)
         play(args.duration, stamps)
         print("window end", flush=True)
-        feed.spin(QUIET_S)
+        feed.spin(quiet_s)
         after = counter_after(time.time()) if args.node else None
         report.update(
             published=stamps,
             result_arrivals={str(k): v for k, v in feed.arrival["result"].items()},
-            node_frames_received=(
-                None if before is None or after is None else after - before
-            ),
+            node_frames_received=(None if before is None or after is None else after - before),
             node_stage_latency=_stage_latency(feed) if args.node else {},
         )
     finally:
@@ -512,9 +513,7 @@ def measure(
         "load_average": load,
         "description": setting.description,
     }
-    arrivals = {
-        int(k): v for k, v in json.loads((run / "subscriber.json").read_text()).items()
-    }
+    arrivals = {int(k): v for k, v in json.loads((run / "subscriber.json").read_text()).items()}
     rows = [
         make_row(
             setting=setting.name,
