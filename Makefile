@@ -99,10 +99,14 @@ profile-node: $(STAMP)
 
 # Full-HD frames into Python processes: a publisher, the node and a plain subscriber at
 # 1080p30 and 720p60, 30 s each, under Fast DDS's defaults, LARGE_DATA, the deployment
-# profile (config/fastdds_large_images.xml) and compressed input; delivered frames, latency,
-# CPU of both sides (docs/distro.md). In a private network namespace: the defaults stay here.
+# profile (config/fastdds_large_images.xml; best-effort and reliable) and compressed input;
+# delivered frames, latency, CPU of both sides (docs/distro.md). In a private network
+# namespace: the defaults stay on this machine.
 TRANSPORT_SECONDS ?= 30
+# First its short run (2 s per setting, too long for `make test`).
 bench-transport: $(STAMP)
+	$(ISOLATED) env ALLO_TRANSPORT_SMOKE=1 $(PY) -m pytest -q -p no:cacheprovider --timeout=300 \
+	  test/benchmarks/test_transport.py
 	$(ISOLATED) $(PY) -m benchmarks.transport --duration $(TRANSPORT_SECONDS) --out reports/bench_transport.json
 
 # Only the output comparison of bench-node: CPU per frame of ~/mask alone, plus each output, every output.

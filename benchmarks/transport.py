@@ -9,6 +9,9 @@ rclpy subscriber of the image topic. The settings (:data:`SETTINGS`):
 - ``LARGE_DATA``: ``FASTDDS_BUILTIN_TRANSPORTS=LARGE_DATA`` (Fast DDS's own switch);
 - ``shm_profile``: ``config/fastdds_large_images.xml``, the deployment profile (a shared-memory
   segment that holds several full-HD frames, UDP on every interface as by default);
+- ``shm_profile_reliable``: the same profile, the image published and subscribed reliable
+  (the node's ``qos_overrides.<image topic>.subscription.reliability:=reliable``), as where a
+  camera driver publishes reliable and the best-effort loss of large samples must be repaired;
 - ``compressed``: JPEG ``CompressedImage`` on ``<image>/compressed`` (the node's
   ``image_transport:=compressed``) under the defaults; the publisher encodes every frame
   (quality 95, image_transport's default), so its CPU includes the encoding.
@@ -95,6 +98,7 @@ class Setting:
     description: str
     environment: Mapping[str, str]
     compressed: bool = False
+    reliable: bool = False
 
 
 SETTINGS: dict[str, Setting] = {
@@ -110,6 +114,12 @@ SETTINGS: dict[str, Setting] = {
             "shm_profile",
             f"FASTDDS_DEFAULT_PROFILES_FILE={DEPLOYMENT_PROFILE.as_posix()}",
             {"FASTDDS_DEFAULT_PROFILES_FILE": str(REPO / DEPLOYMENT_PROFILE)},
+        ),
+        Setting(
+            "shm_profile_reliable",
+            "the same profile, image publisher and subscriptions reliable",
+            {"FASTDDS_DEFAULT_PROFILES_FILE": str(REPO / DEPLOYMENT_PROFILE)},
+            reliable=True,
         ),
         Setting(
             "compressed",
@@ -219,7 +229,7 @@ def table(rows: Sequence[dict]) -> str:
         return "n/a" if value is None else f"{value:.1f}"
 
     lines = [
-        f"{'setting':<12} {'mode':<8} {'receiver':<10} {'delivered':>15} {'p50 ms':>8} "
+        f"{'setting':<20} {'mode':<8} {'receiver':<10} {'delivered':>15} {'p50 ms':>8} "
         f"{'p95 ms':>8} {'CPU pub %':>9} {'CPU recv %':>10} {'load':>5}"
     ]
     for row in rows:
@@ -229,7 +239,7 @@ def table(rows: Sequence[dict]) -> str:
         )
         mark = " *" if row["deployment"] else ""
         lines.append(
-            f"{row['setting']:<12} {row['mode']:<8} {row['receiver']:<10} {delivered:>15} "
+            f"{row['setting']:<20} {row['mode']:<8} {row['receiver']:<10} {delivered:>15} "
             f"{ms(row['latency_ms_p50']):>8} {ms(row['latency_ms_p95']):>8} "
             f"{row['cpu_publisher_percent']:>9.0f} {row['cpu_receiver_percent']:>10.0f} "
             f"{row.get('load_average', [float('nan')])[0]:>5.2f}{mark}"
@@ -283,6 +293,10 @@ def publish(args: argparse.Namespace) -> int:
         compression="jpeg" if args.compressed else "",
         outputs=(),
     )
+    if args.reliable:  # a driver's reliable publisher in place of the feed's best-effort one
+        topic = feed.pub_image.topic_name
+        feed.node.destroy_publisher(feed.pub_image)
+        feed.pub_image = feed.node.create_publisher(Image, topic, _reliable_qos())
     if args.node:
         feed.subscribe("result", DiagnosticArray)
     messages = []
@@ -394,7 +408,8 @@ def subscribe(args: argparse.Namespace) -> int:
     node = rclpy.create_node("transport_subscriber")
     topic = interface.IMAGE_TOPIC + (interface.COMPRESSED_SUFFIX if args.compressed else "")
     kind = CompressedImage if args.compressed else Image
-    node.create_subscription(kind, topic, record, qos_profile_sensor_data)
+    qos = _reliable_qos() if args.reliable else qos_profile_sensor_data
+    node.create_subscription(kind, topic, record, qos)
     try:
         while not args.stop_file.exists():
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -403,6 +418,18 @@ def subscribe(args: argparse.Namespace) -> int:
         node.destroy_node()
         rclpy.shutdown()
     return 0
+
+
+def _reliable_qos() -> object:
+    """The sensor-data QoS (keep last 5, volatile) made reliable."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+    return QoSProfile(
+        history=qos_profile_sensor_data.history,
+        depth=qos_profile_sensor_data.depth,
+        durability=qos_profile_sensor_data.durability,
+        reliability=ReliabilityPolicy.RELIABLE,
+    )
 
 
 @contextmanager
@@ -434,12 +461,14 @@ def measure(
 ) -> list[dict]:
     """One run: publisher, node (unless ``node`` is False) and subscriber under ``setting``;
     the rows of each receiver."""
+    from allo_mrad_ros import interface
     from allo_mrad_ros.ros.node_process import start_node, stop_node
 
     environment = setting_environment(os.environ, setting, domain_id)
     run = work / f"{setting.name}_{mode}"
     run.mkdir()
-    compressed = ["--compressed"] if setting.compressed else []
+    # The image's message type and QoS, for both peers.
+    flags = ["--compressed"] * setting.compressed + ["--reliable"] * setting.reliable
     processes: list[subprocess.Popen] = []
     node_process = None
     try:
@@ -447,20 +476,23 @@ def measure(
             parameters = [f"diagnostics_period_s:={DIAGNOSTICS_PERIOD_S}"]
             if setting.compressed:
                 parameters.append("image_transport:=compressed")
+            if setting.reliable:
+                topic = interface.IMAGE_TOPIC
+                parameters.append(f"qos_overrides.{topic}.subscription.reliability:=reliable")
             with _environment(environment):
                 node_process = start_node(run / "node.log", *parameters)
         stop_file = run / "stop"
         with (run / "subscriber.log").open("w") as log:
             subscriber = subprocess.Popen(
                 _role("subscribe", "--out", str(run / "subscriber.json"), "--stop-file",
-                      str(stop_file), *compressed),
+                      str(stop_file), *flags),
                 env=environment, stdout=log, stderr=subprocess.STDOUT, cwd=REPO,
             )  # fmt: skip
         processes.append(subscriber)
         with (run / "publisher.log").open("w") as log:
             publisher = subprocess.Popen(
                 _role("publish", "--mode", mode, "--duration", str(duration_s), "--frames",
-                      str(frames), "--out", str(run / "publisher.json"), *compressed,
+                      str(frames), "--out", str(run / "publisher.json"), *flags,
                       *([] if node else ["--no-node"])),
                 env=environment, stdout=subprocess.PIPE, stderr=log, text=True, cwd=REPO,
             )  # fmt: skip
@@ -652,6 +684,7 @@ def _role_main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog=f"benchmarks.transport {argv[0]}")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--compressed", action="store_true")
+    parser.add_argument("--reliable", action="store_true")
     if argv[0] == "publish":
         parser.add_argument("--mode", choices=list(MODES), required=True)
         parser.add_argument("--duration", type=float, required=True)
