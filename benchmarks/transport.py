@@ -30,7 +30,9 @@ The defaults and ``LARGE_DATA`` do not confine traffic to this machine: run the 
 private network namespace (``make bench-transport`` does); it refuses to run where any other
 interface than loopback exists unless ``--allow-network``.
 
-Usage: ``python -m benchmarks.transport --duration 30 --out reports/bench_transport.json``
+Usage: ``python -m benchmarks.transport --duration 30 --out reports/bench_transport.json``;
+``--settings``, ``--modes`` pick a part, ``--profile FILE`` adds a Fast DDS profile of one's own
+(a segment size, say) as setting ``profile:<file stem>``, ``--no-node`` leaves the node out.
 """
 
 from __future__ import annotations
@@ -603,18 +605,29 @@ def render_frames(mode: str, path: Path, seed: int = 0) -> Path:
     return path
 
 
+def profile_setting(path: Path) -> Setting:
+    """A setting of one's own: Fast DDS profile file ``path``, named ``profile:<file stem>``."""
+    if not path.is_file():
+        raise TransportBenchError(f"{path}: no such profile file")
+    return Setting(
+        f"profile:{path.stem}",
+        f"FASTDDS_DEFAULT_PROFILES_FILE={path}",
+        {"FASTDDS_DEFAULT_PROFILES_FILE": str(path.resolve())},
+    )
+
+
 def bench(
-    modes: Sequence[str], settings: Sequence[str], *, duration_s: float, node: bool, work: Path
+    modes: Sequence[str], settings: Sequence[Setting], *, duration_s: float, node: bool, work: Path
 ) -> dict:
     """Every setting for each mode (settings interleaved within a mode); the report."""
     rows = []
     domain_id = 100 + os.getpid() % 100
     for mode in modes:
         frames = render_frames(mode, work / f"frames_{mode}.npz")
-        for name in settings:
+        for setting in settings:
             before = os.getloadavg()
             mode_rows = measure(
-                SETTINGS[name], mode, frames, duration_s=duration_s, node=node, work=work,
+                setting, mode, frames, duration_s=duration_s, node=node, work=work,
                 domain_id=domain_id,
             )  # fmt: skip
             for row in mode_rows:
@@ -625,7 +638,7 @@ def bench(
         "rows": rows,
         "duration_s": duration_s,
         "deployment_setting": DEPLOYMENT_SETTING,
-        "settings": {name: SETTINGS[name].description for name in settings},
+        "settings": {setting.name: setting.description for setting in settings},
         "noise_sigma": NOISE_SIGMA,
         **machine_facts(),
     }
@@ -647,6 +660,13 @@ def main(argv: list[str] | None = None) -> int:
         help=f"comma-separated, of {', '.join(SETTINGS)}",
     )
     parser.add_argument(
+        "--profile",
+        type=Path,
+        action="append",
+        default=[],
+        help="also measure under this Fast DDS profile file (repeatable; setting profile:<stem>)",
+    )
+    parser.add_argument(
         "--no-node", action="store_true", help="publisher and plain subscriber only"
     )
     parser.add_argument(
@@ -656,11 +676,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=Path("reports/bench_transport.json"))
     args = parser.parse_args(argv)
-    modes, settings = args.modes.split(","), args.settings.split(",")
+    modes, names = args.modes.split(","), [n for n in args.settings.split(",") if n]
     for name, known in (("mode", MODES), ("setting", SETTINGS)):
-        unknown = [v for v in (modes if name == "mode" else settings) if v not in known]
+        unknown = [v for v in (modes if name == "mode" else names) if v not in known]
         if unknown:
             parser.error(f"unknown {name} {unknown[0]!r}; choose from {', '.join(known)}")
+    try:
+        settings = [SETTINGS[n] for n in names] + [profile_setting(p) for p in args.profile]
+    except TransportBenchError as error:
+        parser.error(str(error))
     interfaces = other_interfaces()
     if interfaces and not args.allow_network:
         parser.error(

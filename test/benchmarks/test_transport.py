@@ -136,6 +136,17 @@ def test_each_setting_starts_from_no_dds_choice_of_the_caller():
     assert [n for n, s in transport.SETTINGS.items() if s.reliable] == ["shm_profile_reliable"]
 
 
+def test_a_profile_of_ones_own_is_a_setting_named_by_its_file(tmp_path):
+    profile = tmp_path / "segment_8mib.xml"
+    profile.write_text(PROFILE.read_text())
+    setting = transport.profile_setting(profile)
+    assert setting.name == "profile:segment_8mib"
+    environment = transport.setting_environment({}, setting, 1)
+    assert environment["FASTDDS_DEFAULT_PROFILES_FILE"] == str(profile)
+    with pytest.raises(transport.TransportBenchError, match="missing.xml: no such profile"):
+        transport.profile_setting(tmp_path / "missing.xml")
+
+
 def test_interfaces_besides_loopback_are_read_from_proc_net_dev():
     text = (
         "Inter-|   Receive |  Transmit\n"
