@@ -143,7 +143,7 @@ def test_a_profile_of_ones_own_is_a_setting_named_by_its_file(tmp_path):
     assert setting.name == "profile:segment_8mib"
     environment = transport.setting_environment({}, setting, 1)
     assert environment["FASTDDS_DEFAULT_PROFILES_FILE"] == str(profile)
-    with pytest.raises(transport.TransportBenchError, match="missing.xml: no such profile"):
+    with pytest.raises(transport.TransportBenchError, match=r"missing\.xml: no such profile"):
         transport.profile_setting(tmp_path / "missing.xml")
 
 
