@@ -193,7 +193,8 @@ def test_the_deployment_profile_fits_a_full_hd_frame_in_shared_memory_and_hides_
 
 
 # A process that creates a participant and a writer and prints the sizes of the Fast DDS
-# shared-memory segments it has mapped (its own, with no peer around).
+# shared-memory segments it has mapped (its own, with no peer around): fastdds_<id> from
+# Fast DDS 3 on, fastrtps_<id> before.
 _SEGMENT_PROBE = """
 import json, os, re, rclpy
 from std_msgs.msg import String
@@ -202,7 +203,7 @@ node = rclpy.create_node("segment_probe")
 node.create_publisher(String, "segment_probe", 10)
 sizes = {}
 for line in open("/proc/self/maps"):
-    found = re.search(r"(/dev/shm/fastdds_[0-9a-f]+)$", line.strip())
+    found = re.search(r"(/dev/shm/fast(dds|rtps)_[0-9a-f]+)$", line.strip())
     if found:
         sizes[found.group(1)] = os.path.getsize(found.group(1))
 print(json.dumps(sorted(sizes.values())))
