@@ -88,6 +88,13 @@ REQUIRED_KEYS = (
 )
 
 
+def profile_variables(path: Path) -> dict[str, str]:
+    """The environment that makes Fast DDS read profile file ``path``: Fast DDS 3 (Kilted)
+    reads ``FASTDDS_DEFAULT_PROFILES_FILE``, Fast DDS 2 (Humble's 2.6, Jazzy's 2.14) only
+    ``FASTRTPS_DEFAULT_PROFILES_FILE``."""
+    return {"FASTDDS_DEFAULT_PROFILES_FILE": str(path), "FASTRTPS_DEFAULT_PROFILES_FILE": str(path)}
+
+
 class TransportBenchError(RuntimeError):
     """A run of the transport bench could not be measured (a process failed or hung)."""
 
@@ -115,12 +122,12 @@ SETTINGS: dict[str, Setting] = {
         Setting(
             "shm_profile",
             f"FASTDDS_DEFAULT_PROFILES_FILE={DEPLOYMENT_PROFILE.as_posix()}",
-            {"FASTDDS_DEFAULT_PROFILES_FILE": str(REPO / DEPLOYMENT_PROFILE)},
+            profile_variables(REPO / DEPLOYMENT_PROFILE),
         ),
         Setting(
             "shm_profile_reliable",
             "the same profile, image publisher and subscriptions reliable",
-            {"FASTDDS_DEFAULT_PROFILES_FILE": str(REPO / DEPLOYMENT_PROFILE)},
+            profile_variables(REPO / DEPLOYMENT_PROFILE),
             reliable=True,
         ),
         Setting(
@@ -612,7 +619,7 @@ def profile_setting(path: Path) -> Setting:
     return Setting(
         f"profile:{path.stem}",
         f"FASTDDS_DEFAULT_PROFILES_FILE={path}",
-        {"FASTDDS_DEFAULT_PROFILES_FILE": str(path.resolve())},
+        profile_variables(path.resolve()),
     )
 
 
