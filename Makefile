@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
 
 setup: $(STAMP)
 
@@ -118,6 +118,18 @@ bench-node-compare: $(STAMP)
 # One frame of the node's path under cProfile (decode, render, detect, outputs), 1080p.
 profile-node: $(STAMP)
 	$(ISOLATED) $(PY) -m benchmarks.node_profile --frames 20 --out reports/profile_node.json
+
+# Full-HD frames into Python processes: a publisher, the node and a plain subscriber at
+# 1080p30 and 720p60, 30 s each, under Fast DDS's defaults, LARGE_DATA, the deployment
+# profile (config/fastdds_large_images.xml; best-effort and reliable) and compressed input;
+# delivered frames, latency, CPU of both sides (docs/distro.md). In a private network
+# namespace: the defaults stay on this machine.
+TRANSPORT_SECONDS ?= 30
+# First its short run (2 s per setting, too long for `make test`).
+bench-transport: $(STAMP)
+	$(ISOLATED) env ALLO_TRANSPORT_SMOKE=1 $(PY) -m pytest -q -p no:cacheprovider --timeout=300 \
+	  test/benchmarks/test_transport.py
+	$(ISOLATED) $(PY) -m benchmarks.transport --duration $(TRANSPORT_SECONDS) --out reports/bench_transport.json
 
 # Only the output comparison of bench-node: CPU per frame of ~/mask alone, plus each output, every output.
 bench-node-outputs: $(STAMP)

@@ -60,6 +60,7 @@ ROS_EDGE_MODULES = {
     "benchmarks.node_outputs",
     "benchmarks.node_profile",
     "benchmarks.flood",
+    "benchmarks.transport",
 }
 
 
