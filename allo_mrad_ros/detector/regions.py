@@ -8,15 +8,25 @@ those records instead of labelling the mask again.
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.params import SCORE_RANGE
+from allo_mrad_ros.errors import AlloError
 
 _FILL_VALUE = 255
+
+PEAK_TABLE = Path(__file__).resolve().parent.parent / "data" / "region_peaks_normal.json"
+"""The shipped calibration table (installed as package data beside the detector)."""
+
+
+class RegionTableError(AlloError):
+    """The calibration table of region peaks is missing or malformed."""
 
 
 def seed_window(sigma: float) -> int:
@@ -154,10 +164,11 @@ class Region:
     mean_score : float
         Mean of the evidence map over the region's pixels, 0..255.
     score : float
-        ``peak_score / 255``, in [0, 1]: the region's strongest evidence as a fraction of
-        the map's full scale, a non-decreasing function of ``peak_score``. With ``fixed``
-        scaling, 1 means a cross score of ``score_ref`` or more all around the peak; every
-        region of the default hysteresis growth has at least ``seed_score / 255``.
+        In [0, 1]: the fraction of the regions the detector grew on normal (anomaly-free)
+        validation frames whose peak is below this region's ``peak_score`` (ties count
+        half), read from the shipped table (:func:`region_score`). 0.9 means the region's
+        peak exceeds 90 % of those regions' peaks. A non-decreasing function of
+        ``peak_score``, calibrated for MRAD with the default parameters.
     """
 
     box: Box
@@ -170,9 +181,40 @@ class Region:
     score: float
 
 
-def region_score(peak_score: float) -> float:
-    """A region's score in [0, 1] from its peak evidence (0..255): ``peak / 255``, clipped."""
-    return min(1.0, max(0.0, float(peak_score) / SCORE_RANGE))
+@functools.cache
+def normal_peaks(path: Path = PEAK_TABLE) -> np.ndarray:
+    """The sorted peaks (0..255) of the table at ``path``, read once per path.
+
+    Raises
+    ------
+    RegionTableError
+        If the file cannot be read, or its ``peaks`` are empty, not finite or not sorted.
+    """
+    try:
+        table = json.loads(Path(path).read_text(encoding="utf-8"))
+        peaks = np.asarray(table["peaks"], dtype=np.float64)
+    except (OSError, ValueError, TypeError, KeyError) as error:
+        raise RegionTableError(f"{path}: cannot read the region peak table: {error}") from None
+    if peaks.ndim != 1 or peaks.size == 0:
+        raise RegionTableError(f"{path}: 'peaks' must be a non-empty list of numbers")
+    if not np.all(np.isfinite(peaks)) or np.any(np.diff(peaks) < 0):
+        raise RegionTableError(f"{path}: 'peaks' must be finite and sorted ascending")
+    peaks.setflags(write=False)
+    return peaks
+
+
+def region_score(peak_score: float, peaks: np.ndarray | None = None) -> float:
+    """A region's score in [0, 1]: where its peak evidence ranks among normal regions' peaks.
+
+    ``(number of peaks < p + 0.5 * number equal to p) / N`` for ``N`` sorted ``peaks`` (the
+    shipped table of :func:`normal_peaks` when None), the mid-rank empirical distribution
+    function: non-decreasing in ``p``, 0 below every peak and 1 above every peak.
+    """
+    table = normal_peaks() if peaks is None else peaks
+    value = float(peak_score)
+    below = int(np.searchsorted(table, value, side="left"))
+    equal = int(np.searchsorted(table, value, side="right")) - below
+    return (below + 0.5 * equal) / len(table)
 
 
 def extract_regions(

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import itertools
+import json
+import math
 
 import cv2
 import numpy as np
@@ -10,10 +12,27 @@ import pytest
 from scipy import ndimage
 
 from allo_mrad_ros.detector import MradParams, Region, detect
-from allo_mrad_ros.detector.regions import extract_regions, region_score
+from allo_mrad_ros.detector.regions import (
+    PEAK_TABLE,
+    RegionTableError,
+    extract_regions,
+    normal_peaks,
+    region_score,
+)
 from allo_mrad_ros.example_scene import example_pair
 
 STRUCTURE = {4: ndimage.generate_binary_structure(2, 1), 8: np.ones((3, 3), bool)}
+
+
+def empirical_fraction(peak: float, table: list[float]) -> float:
+    """The share of ``table`` below ``peak``, ties counting half, by a loop over the table."""
+    below = sum(1 for value in table if value < peak)
+    equal = sum(1 for value in table if value == peak)
+    return (below + 0.5 * equal) / len(table)
+
+
+def shipped_table() -> dict:
+    return json.loads(PEAK_TABLE.read_text(encoding="utf-8"))
 
 
 def oracle_regions(
@@ -76,7 +95,8 @@ def assert_match(regions: tuple[Region, ...], expected: list[dict]) -> None:
         np.testing.assert_allclose(region.centroid, want["centroid"], rtol=0, atol=1e-9)
         assert region.peak_score == want["peak_score"]
         assert region.mean_score == pytest.approx(want["mean_score"], rel=1e-12, abs=1e-9)
-        assert region.score == pytest.approx(want["peak_score"] / 255.0, rel=1e-15)
+        table = shipped_table()["peaks"]
+        assert region.score == pytest.approx(empirical_fraction(want["peak_score"], table))
         assert 0.0 <= region.score <= 1.0
 
 
@@ -160,14 +180,17 @@ def test_the_baselines_regions_are_their_masks_regions(pair, method):
 
 
 def test_the_region_score_is_a_monotone_map_of_the_peak_onto_zero_to_one():
-    peaks = np.concatenate([[-5.0, 0.0], np.linspace(0.0, 255.0, 1021), [255.0, 300.0]])
+    table = normal_peaks()
+    peaks = np.concatenate(
+        [[-5.0, 0.0], np.linspace(0.0, 255.0, 1021), table, np.nextafter(table, 0.0), [300.0]]
+    )
+    peaks.sort()
     scores = [region_score(peak) for peak in peaks]
     assert all(0.0 <= score <= 1.0 for score in scores)
     assert all(a <= b for a, b in itertools.pairwise(scores))
-    assert region_score(0.0) == 0.0 and region_score(255.0) == 1.0
-    # Strictly increasing inside the map's range: a stronger region scores higher.
-    inside = [region_score(peak) for peak in np.linspace(0.0, 255.0, 1021)]
-    assert all(a < b for a, b in itertools.pairwise(inside))
+    # Below every normal region's peak 0, above all of them 1, and the scale is used.
+    assert region_score(table[0] - 1.0) == 0.0 and region_score(table[-1] + 1.0) == 1.0
+    assert len(set(scores)) > len(np.unique(table))
     # On detected regions too: ordered by peak, ordered by score.
     rng = np.random.default_rng(7)
     work_mask = random_mask(rng, (40, 60))
@@ -175,3 +198,51 @@ def test_the_region_score_is_a_monotone_map_of_the_peak_onto_zero_to_one():
     regions = sorted(extract_regions(work_mask, evidence, (40, 60), 8), key=lambda r: r.peak_score)
     assert len(regions) > 3
     assert all(a.score <= b.score for a, b in itertools.pairwise(regions))
+
+
+@pytest.mark.parametrize("source", ["shipped", "ties"])
+def test_the_region_score_is_the_empirical_fraction_of_normal_peaks_below(source):
+    if source == "shipped":
+        table = [float(v) for v in shipped_table()["peaks"]]
+        score = region_score
+    else:  # repeated values: each tie counts half
+        table = [10.0, 20.0, 20.0, 20.0, 30.0, 40.0, 40.0]
+        score = lambda peak: region_score(peak, np.asarray(table))  # noqa: E731
+    for peak in table:
+        assert score(peak) == pytest.approx(empirical_fraction(peak, table), abs=1e-12)
+    # Between and beyond the samples too.
+    for low, high in itertools.pairwise(sorted(set(table))):
+        middle = (low + high) / 2.0
+        assert score(middle) == pytest.approx(empirical_fraction(middle, table), abs=1e-12)
+
+
+def test_the_shipped_table_is_sorted_finite_and_says_how_it_was_made():
+    table = shipped_table()
+    peaks = table["peaks"]
+    assert len(peaks) == table["count"] >= 50
+    assert all(math.isfinite(value) and 0.0 <= value <= 255.0 for value in peaks)
+    assert peaks == sorted(peaks)
+    assert table["command"].startswith("python -m benchmarks.region_calibration")
+    assert table["sequence_command"].startswith("allo-synth generate --preset bench-val")
+    assert "normal" in table["description"]
+    np.testing.assert_array_equal(normal_peaks(), np.asarray(peaks))
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("not json", "cannot read"),
+        ('{"rows": []}', "cannot read"),
+        ('{"peaks": []}', "non-empty"),
+        ('{"peaks": [2.0, 1.0]}', "sorted"),
+        ('{"peaks": [1.0, NaN]}', "finite"),
+    ],
+)
+def test_a_malformed_table_is_named(tmp_path, text, problem):
+    path = tmp_path / "peaks.json"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(RegionTableError, match=problem) as caught:
+        normal_peaks(path)
+    assert str(path) in str(caught.value)
+    with pytest.raises(RegionTableError, match="cannot read"):
+        normal_peaks(tmp_path / "absent.json")
