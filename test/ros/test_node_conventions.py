@@ -22,7 +22,7 @@ from std_msgs.msg import Header
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.pipeline import DetectionResult
-from allo_mrad_ros.detector.regions import extract_regions
+from allo_mrad_ros.detector.regions import extract_regions, region_score
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.diagnostics import Diagnostics
@@ -317,13 +317,15 @@ def test_detections_carry_one_box_and_anomaly_hypothesis_per_region(connectivity
     assert (centre.x, centre.y) == (3 + width / 2, 2 + height / 2)
     assert (first.bbox.size_x, first.bbox.size_y) == (width, height)
     (hypothesis,) = first.results
-    # vision_msgs' score lies in [0, 1]: the region's score, its peak evidence / 255.
+    # vision_msgs' score lies in [0, 1]: the region's calibrated score, the share of the
+    # shipped table's normal-region peaks below its peak evidence.
     assert hypothesis.hypothesis.class_id == "anomaly"
-    assert hypothesis.hypothesis.score == 80.0 / 255
-    assert last.results[0].hypothesis.score == 200.0 / 255
+    assert hypothesis.hypothesis.score == region_score(80.0)
+    assert last.results[0].hypothesis.score == region_score(200.0)
+    assert 0.0 <= hypothesis.hypothesis.score <= last.results[0].hypothesis.score <= 1.0
     assert (last.bbox.size_x, last.bbox.size_y) == (5.0, 10.0)
     assert [d.results[0].hypothesis.score for d in middle] == (
-        [30.0 / 255] if connectivity == 4 else []
+        [region_score(30.0)] if connectivity == 4 else []
     )
 
 
