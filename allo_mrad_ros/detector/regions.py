@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from allo_mrad_ros.errors import AlloError
+from allo_mrad_ros.errors import BackendError
 
 _FILL_VALUE = 255
 
@@ -25,8 +25,9 @@ PEAK_TABLE = Path(__file__).resolve().parent.parent / "data" / "region_peaks_nor
 """The shipped calibration table (installed as package data beside the detector)."""
 
 
-class RegionTableError(AlloError):
-    """The calibration table of region peaks is missing or malformed."""
+class RegionTableError(BackendError):
+    """The calibration table of region peaks shipped with the package is missing or
+    malformed (an installation fault, not a user input)."""
 
 
 def seed_window(sigma: float) -> int:
