@@ -51,7 +51,9 @@ def test_a_closed_renderer_leaves_nothing_in_pyopengls_context_storage(station):
     before = stored()
     for camera in CAMERAS * 3:
         _rebuild(station, camera)
-    assert stored() == before
+    # At most what was there: renderers of earlier tests may release theirs meanwhile (their
+    # finalisers run when the collector gets to them), so the count can also fall.
+    assert stored() <= before
 
 
 def _resident_kb(libc: ctypes.CDLL | None) -> float:
