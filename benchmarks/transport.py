@@ -48,10 +48,14 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from benchmarks import finish, machine_facts
+
+if TYPE_CHECKING:  # the ROS side is imported by the processes that need it, not by the tests
+    from harness.feed import CameraFeed
 
 REPO = Path(__file__).resolve().parents[1]
 # Camera modes: name -> (width, height, frame rate in Hz); as benchmarks.node measures.
@@ -392,9 +396,9 @@ def publish(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stage_latency(feed: object) -> dict[str, str]:
+def _stage_latency(feed: CameraFeed) -> dict[str, str]:
     """The node's latest ``latency_*`` values of /diagnostics (its receive-to-publish time)."""
-    values = feed.diagnostic_values()  # type: ignore[attr-defined]
+    values = feed.diagnostic_values()
     return {key: value for key, value in values.items() if key.startswith("latency_")}
 
 
