@@ -1,6 +1,7 @@
 """The node's counters and its ``/diagnostics`` statuses.
 
-Three statuses per message: ``<node>: pipeline`` (rate, per-stage latency, problems, counters),
+Three statuses per message: ``<node>: pipeline`` (rate, per-stage latency, the age of the frames
+when taken and when published, problems, counters),
 ``<node>: input rate`` and ``<node>: input stamp``, the last two with the keys and levels of
 diagnostic_updater's FrequencyStatus and TimeStampStatus. Levels describe the recent past: a
 problem counts towards WARN only while younger than a sliding window; no image for
@@ -166,8 +167,11 @@ class Diagnostics:
             "inputs_subscribed": str(self._inputs_subscribed()).lower(),
         }
         for stage, (p50, p95) in self.stages.percentiles().items():
-            values[f"latency_{stage}_ms_p50"] = f"{p50:.1f}"
-            values[f"latency_{stage}_ms_p95"] = f"{p95:.1f}"
+            # A stage's time is latency_<stage>; a frame's age (since its image was
+            # published) when taken and when published is input_age_<taken|published>.
+            key = f"input_{stage}" if stage.startswith("age_") else f"latency_{stage}"
+            values[f"{key}_ms_p50"] = f"{p50:.1f}"
+            values[f"{key}_ms_p95"] = f"{p95:.1f}"
         values.update({name: str(count) for name, count in sorted(counters.items())})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         problems = sorted(

@@ -20,7 +20,7 @@ from __future__ import annotations
 import copy
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
@@ -40,12 +40,15 @@ from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.ros.pose_source import PoseSource
-from allo_mrad_ros.ros.worker import Snapshot
+from allo_mrad_ros.ros.worker import Arrival, Snapshot
 from allo_mrad_ros.view import View
 
 # Longest wait of the processing thread for the camera_info of an image's stamp: the two
 # topics arrive in no guaranteed order.
 CAMERA_INFO_WAIT_S = 0.5
+# Whether this rclpy passes a subscription callback of two arguments the message info (the
+# middleware's source and reception timestamps): Iron and later; Humble does not.
+MESSAGE_INFO = hasattr(Subscription, "CallbackType")
 
 
 class NodeInputs:
@@ -162,7 +165,8 @@ class NodeInputs:
             node.create_subscription(
                 self._image_type,
                 self._image_topic,
-                self.on_image,
+                # Two arguments: rclpy passes the message info, when each image was sent.
+                (lambda msg, info: self.on_image(msg, info)) if MESSAGE_INFO else self.on_image,
                 inputs(),
                 qos_overriding_options=self._overriding(),
             ),
@@ -217,9 +221,11 @@ class NodeInputs:
 
     # --- callbacks ------------------------------------------------------------------------
 
-    def on_image(self, msg: Image | CompressedImage) -> None:
+    def on_image(self, msg: Image | CompressedImage, info: Mapping[str, int] | None = None) -> None:
         """Keep the image for the processing threads; none is kept while no output has a
-        subscriber."""
+        subscriber. ``info``: rclpy's message info, whose source and reception timestamps
+        say when the image was published and when the middleware received it."""
+        received = time.monotonic()
         stamp_ns = messages.stamp_to_ns(msg.header.stamp)
         self._diagnostics.input_seen(
             msg.header.frame_id, stamp_ns, self._node.get_clock().now().nanoseconds
@@ -228,7 +234,7 @@ class NodeInputs:
             # Nobody listens: neither render nor detect.
             self._diagnostics.count("frames_skipped_no_subscribers")
             return
-        if self.images.put((msg, time.monotonic())):
+        if self.images.put(arrival_of(msg, received, info, time.time_ns())):
             self._diagnostics.count("frames_dropped_stale")
 
     def on_camera_info(self, msg: CameraInfo) -> None:
@@ -358,3 +364,22 @@ class NodeInputs:
         )
         sun = state.sun_direction if stamped is None else stamped
         return View(pose, sun, state.sun_strength, state.bodies)
+
+
+def arrival_of(
+    msg: Image | CompressedImage, received: float, info: Mapping[str, int] | None, now_ns: int
+) -> Arrival:
+    """The image with its instants on the monotonic clock: the callback's (``received``) and,
+    from rclpy's message info, its publication and reception by the middleware.
+
+    The middleware's timestamps are on the system clock (the source timestamp on the
+    publisher's host's, so hosts' clocks must agree, as TF needs them to); ``now_ns`` is
+    this host's system clock at ``received``. A timestamp of 0 is unknown (None); one after
+    ``now_ns`` (a publisher's clock ahead of this host's) counts as ``received``.
+    """
+
+    def instant(key: str) -> float | None:
+        stamp = 0 if info is None else int(info.get(key) or 0)
+        return None if stamp <= 0 else received - max(0, now_ns - stamp) / 1e9
+
+    return Arrival(msg, received, instant("source_timestamp"), instant("received_timestamp"))
