@@ -49,6 +49,10 @@ CAMERA_INFO_WAIT_S = 0.5
 # Whether this rclpy passes a subscription callback of two arguments the message info (the
 # middleware's source and reception timestamps): Iron and later; Humble does not.
 MESSAGE_INFO = hasattr(Subscription, "CallbackType")
+# Samples the middleware keeps of the image and of its camera_info until the node takes them:
+# the newest only, so a node short of CPU takes the newest frame, not the oldest of a queue
+# (sensor-data QoS keeps 5). qos_overrides.<topic>.subscription.depth keeps more.
+INPUT_DEPTH = 1
 
 
 class NodeInputs:
@@ -153,7 +157,9 @@ class NodeInputs:
 
         def inputs() -> QoSProfile:
             # A copy each: an override sets the policy on the profile object it is given.
-            return copy.copy(qos_profile_sensor_data)
+            profile = copy.copy(qos_profile_sensor_data)
+            profile.depth = INPUT_DEPTH
+            return profile
 
         node = self._node
         self.subscriptions = [

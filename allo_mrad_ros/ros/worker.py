@@ -19,7 +19,9 @@ Each processed frame's path is timed on the monotonic clock from the publication
 image (the middleware's source timestamp, where rclpy passes it) through the callback, the
 take from the newest-frame slot, the render, the hand-over and the detection to the end of
 its publication (:data:`STAGES`); :class:`~.diagnostics.Diagnostics` reports each stage and
-the frame's age when taken and when published.
+the frame's age when taken and when published. A frame older than ``max_input_age_s`` when
+the render thread takes it is dropped and counted, not processed: its outputs would describe
+a scene that has moved on, and the next frame is at most a frame period away.
 
 A failure once the run is over (:meth:`ProcessingWorker.stop` called, or the ROS context
 gone: a publish into a context a signal shut down) is the end of the run, not a failed
@@ -166,6 +168,9 @@ class ProcessingWorker:
     context_ok : callable
         Whether the ROS context lives (``Context.ok``); asked only when something fails,
         to tell a failed frame from the end of the run.
+    max_input_age_s : callable
+        The oldest a frame may be when taken, in seconds (``max_input_age_s`` in force;
+        0: no limit); an older one is dropped and counted as ``frames_dropped_too_old``.
     """
 
     def __init__(
@@ -179,6 +184,7 @@ class ProcessingWorker:
         pipelined: bool = True,
         score_wanted: Callable[[], bool] = lambda: True,
         context_ok: Callable[[], bool] = lambda: True,
+        max_input_age_s: Callable[[], float] = lambda: 0.0,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -189,6 +195,7 @@ class ProcessingWorker:
         self.pipelined = pipelined
         self._score_wanted = score_wanted
         self._context_ok = context_ok
+        self._max_input_age_s = max_input_age_s
         hold = os.environ.get(HOLD_AT)
         self._hold = hold if hold in (HOLD_PUBLISH, HOLD_PUBLISH_STUCK) else None
         self._running = True
@@ -238,6 +245,8 @@ class ProcessingWorker:
                     break
                 try:
                     arrival = None if item is None else Arrival(*item)
+                    if arrival is not None and self._too_old(arrival, taken):
+                        continue
                     state = self._snapshot(None if arrival is None else arrival.msg)
                     pipeline, built_for = self._pipeline_for(state, pipeline, built_for)
                     rendered = (
@@ -298,6 +307,22 @@ class ProcessingWorker:
         )
         if remaining_s > 0:
             self._stopping.wait(min(remaining_s, 1.0))
+
+    def _too_old(self, arrival: Arrival, taken: float) -> bool:
+        """Whether the frame is older than ``max_input_age_s`` at ``taken``; if so it is
+        counted (and logged, throttled), not processed."""
+        bound_s = self._max_input_age_s()
+        age_s = taken - arrival.origin
+        if bound_s <= 0 or age_s <= bound_s:
+            return False
+        self._diagnostics.count("frames_dropped_too_old")
+        self._logger.warning(
+            f"frame {_stamp_of(arrival)} ns taken {1e3 * age_s:.0f} ms after its publication, "
+            f"older than max_input_age_s ({bound_s:g} s): dropped (counted in /diagnostics as "
+            "frames_dropped_too_old)",
+            throttle_duration_sec=10.0,
+        )
+        return True
 
     def _report_failure(self, item: tuple[Any, float] | None, error: Exception) -> None:
         self._diagnostics.report(

@@ -124,9 +124,8 @@ class Quiet:
         return lambda *args, **kwargs: None
 
 
-def a_worker(monkeypatch, diagnostics, published, **options):
-    """A pipelined worker on stand-in render and detect stages, publishing into
-    ``published``."""
+def a_worker(monkeypatch, diagnostics, published, pipelined=True, **options):
+    """A worker on stand-in render and detect stages, publishing into ``published``."""
 
     class Pipeline:
         provider = types.SimpleNamespace(
@@ -156,7 +155,7 @@ def a_worker(monkeypatch, diagnostics, published, **options):
         lambda *a: published.append(a),
         diagnostics,
         Quiet(),
-        True,
+        pipelined,
         **options,
     )
     return slot, worker
@@ -203,3 +202,51 @@ def test_the_diagnostics_carry_each_stage_and_the_input_ages_of_the_frames_proce
 
 def status_values(diagnostics):
     return {kv.key: kv.value for kv in diagnostics.status().values}
+
+
+def counter(diagnostics, name):
+    return int(status_values(diagnostics).get(name, "0"))
+
+
+@pytest.mark.parametrize("pipelined", [True, False])
+def test_a_frame_older_than_the_bound_when_taken_is_dropped_and_counted_not_processed(
+    monkeypatch, pipelined
+):
+    diagnostics = Diagnostics(
+        StubNode(), default_config(), received=lambda: 1, pose_source=lambda: "topic"
+    )
+    published = []
+    # A bound of an hour: a frame published two hours ago is older on any machine, one
+    # published now is not.
+    slot, worker = a_worker(
+        monkeypatch, diagnostics, published, max_input_age_s=lambda: 3600.0, pipelined=pipelined
+    )
+    try:
+        now = time.monotonic()
+        stale = image()
+        stale.header.stamp.sec = 1
+        slot.put(Arrival(stale, now, published=now - 7200.0))
+        assert wait_for(lambda: counter(diagnostics, "frames_dropped_too_old") == 1)
+        fresh = image()
+        fresh.header.stamp.sec = 2
+        slot.put(Arrival(fresh, time.monotonic(), published=time.monotonic()))
+        assert wait_for(lambda: counter(diagnostics, "frames_processed") == 1)
+    finally:
+        worker.stop()
+    assert [call[0].header.stamp.sec for call in published] == [2]
+    assert counter(diagnostics, "frames_dropped_too_old") == 1
+
+
+def test_without_a_bound_no_frame_is_too_old(monkeypatch):
+    diagnostics = Diagnostics(
+        StubNode(), default_config(), received=lambda: 1, pose_source=lambda: "topic"
+    )
+    published = []
+    slot, worker = a_worker(monkeypatch, diagnostics, published, max_input_age_s=lambda: 0.0)
+    try:
+        slot.put(Arrival(image(), time.monotonic(), published=time.monotonic() - 7200.0))
+        assert wait_for(lambda: counter(diagnostics, "frames_processed") == 1)
+    finally:
+        worker.stop()
+    assert len(published) == 1 and counter(diagnostics, "frames_dropped_too_old") == 0
+    assert float(status_values(diagnostics)["input_age_taken_ms_p50"]) >= 7200e3
