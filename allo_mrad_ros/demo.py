@@ -11,6 +11,11 @@ Steps (each reuses the package's own tools):
 5. the live metrics and latency are printed next to an offline ``allo-bag evaluate`` of
    MRAD, PAD and RXD on the same bag, and the report (with overlay images) is written.
 
+The latency this process measures (input published to outputs received here) is shown
+beside the node's own figures from its ``/diagnostics``: the frames' age since their image
+was published when the node took them and when it had published their outputs, and the
+frames it dropped, so a recorder short of CPU does not pass for a slow node.
+
 The live row is computed as the offline one is (the node's score map and image score), so
 when the node processes all the frames the live and offline MRAD rows are equal.
 
@@ -44,6 +49,19 @@ from allo_mrad_ros.targets import OutputArgumentParser, output_path
 from allo_mrad_ros.visualise import outline
 
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
+# The node's own figures the report carries, from its /diagnostics pipeline status.
+NODE_AGES = (
+    "input_age_taken_ms_p50",
+    "input_age_taken_ms_p95",
+    "input_age_published_ms_p50",
+    "input_age_published_ms_p95",
+)
+NODE_COUNTERS = (
+    "frames_received",
+    "frames_processed",
+    "frames_dropped_stale",
+    "frames_dropped_too_old",
+)
 
 
 class DemoError(BackendError):
@@ -288,9 +306,9 @@ def _play_bag(listener: object, paths: DemoPaths, rate: float) -> None:
         raise DemoError(f"allo-bag play failed; see {log}")
 
 
-def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
+def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> dict[str, str]:
     """Steps 3 and 4: start the node, play the bag into it and feed its outputs to
-    ``tally``."""
+    ``tally``; returns the values of the node's last ``/diagnostics`` pipeline status."""
     import rclpy
 
     from allo_mrad_ros.ros.node_process import start_node, stop_node
@@ -300,7 +318,7 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
     node_log = paths.logs / "node.log"
     rclpy.init()
     listener = rclpy.create_node("mrad_demo_recorder")
-    OutputRecorder(listener, tally.add)
+    recorder = OutputRecorder(listener, tally.add)
     # The live metrics rank the full-resolution map, as the offline evaluation does.
     node = start_node(node_log, "publish_overlay:=false", "score_full_resolution:=true")
     try:
@@ -314,6 +332,7 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
         stop_node(node)
         listener.destroy_node()
         rclpy.shutdown()
+    return recorder.node_status
 
 
 def evaluate_offline(paths: DemoPaths) -> dict:
@@ -336,20 +355,61 @@ def evaluate_offline(paths: DemoPaths) -> dict:
     return json.loads((paths.offline / "metrics.json").read_text())
 
 
-def write_report(paths: DemoPaths, tally: LiveTally, offline: dict) -> dict:
-    """Write ``demo.json``: the live and offline metrics, latency and overlay names."""
-    report = {
+def node_figures(status: dict[str, str]) -> dict[str, float | int | None]:
+    """The node's own figures of a ``/diagnostics`` pipeline status's values: the input ages
+    (:data:`NODE_AGES`, ms) and frame counters (:data:`NODE_COUNTERS`); None for one it
+    did not report (no frame processed, or a counter never raised: 0)."""
+    figures: dict[str, float | int | None] = {}
+    for key in NODE_AGES:
+        try:
+            figures[key] = float(status[key])
+        except (KeyError, ValueError):
+            figures[key] = None
+    for key in NODE_COUNTERS:
+        value = status.get(key, "0" if key.startswith("frames_dropped") else "")
+        figures[key] = int(value) if value.isdigit() else None
+    return figures
+
+
+def build_report(tally: LiveTally, offline: dict, node_status: dict[str, str]) -> dict:
+    """The demo's report: the live and offline metrics, the latency this process measured,
+    the node's own figures (:func:`node_figures`) and the overlay names."""
+    return {
         "frames_in_bag": len(tally.by_stamp),
         "frames_processed_live": tally.frames,
         "frames_missing_live": tally.missing(),
         "live": {"MRAD": tally.metrics()},
         "latency_ms_p50": tally.latency_ms(50),
         "latency_ms_p95": tally.latency_ms(95),
+        "node": node_figures(node_status),
         "offline": offline,
         "overlays": tally.overlays,
     }
+
+
+def write_report(
+    paths: DemoPaths, tally: LiveTally, offline: dict, node_status: dict[str, str]
+) -> dict:
+    """Write ``demo.json`` (:func:`build_report`) and return it."""
+    report = build_report(tally, offline, node_status)
     (paths.out / "demo.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
+
+
+def node_line(report: dict) -> str:
+    """The node's own figures in words, or why there are none."""
+    node = report.get("node") or {}
+    if node.get("input_age_published_ms_p50") is None:
+        return "node: no input-age figures in its /diagnostics (no frame processed)"
+    return (
+        f"node (its /diagnostics): age since the image was published when taken p50 "
+        f"{node['input_age_taken_ms_p50']:.0f} ms, p95 {node['input_age_taken_ms_p95']:.0f} "
+        f"ms; when its outputs were published p50 {node['input_age_published_ms_p50']:.0f} "
+        f"ms, p95 {node['input_age_published_ms_p95']:.0f} ms; {node['frames_processed']} of "
+        f"{node['frames_received']} images received processed, "
+        f"{node['frames_dropped_too_old']} dropped as older than max_input_age_s, "
+        f"{node['frames_dropped_stale']} replaced by a newer one before being taken"
+    )
 
 
 def print_summary(paths: DemoPaths, report: dict) -> None:
@@ -371,6 +431,7 @@ def print_summary(paths: DemoPaths, report: dict) -> None:
             f"{report['latency_ms_p50']:.0f} ms, p95 {report['latency_ms_p95']:.0f} ms"
         )
     print(line)
+    print(node_line(report))
     if live_frames < report["frames_in_bag"]:
         missing = report["frames_missing_live"]
         shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
@@ -396,9 +457,9 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     generate_sequence(paths, seed)
     write_bag(paths)
     tally = LiveTally(read_sequence(paths.sequence), paths.overlays)
-    run_node_on_bag(paths, tally, rate)
+    node_status = run_node_on_bag(paths, tally, rate)
     offline = evaluate_offline(paths)
-    print_summary(paths, write_report(paths, tally, offline))
+    print_summary(paths, write_report(paths, tally, offline, node_status))
     return 0
 
 

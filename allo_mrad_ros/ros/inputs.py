@@ -40,15 +40,13 @@ from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.ros.pose_source import PoseSource
+from allo_mrad_ros.ros.rclpy_compat import message_info_callback
 from allo_mrad_ros.ros.worker import Arrival, Snapshot
 from allo_mrad_ros.view import View
 
 # Longest wait of the processing thread for the camera_info of an image's stamp: the two
 # topics arrive in no guaranteed order.
 CAMERA_INFO_WAIT_S = 0.5
-# Whether this rclpy passes a subscription callback of two arguments the message info (the
-# middleware's source and reception timestamps): Iron and later; Humble does not.
-MESSAGE_INFO = hasattr(Subscription, "CallbackType")
 # Samples the middleware keeps of the image and of its camera_info until the node takes them:
 # the newest only, so a node short of CPU takes the newest frame, not the oldest of a queue
 # (sensor-data QoS keeps 5). qos_overrides.<topic>.subscription.depth keeps more.
@@ -171,8 +169,8 @@ class NodeInputs:
             node.create_subscription(
                 self._image_type,
                 self._image_topic,
-                # Two arguments: rclpy passes the message info, when each image was sent.
-                (lambda msg, info: self.on_image(msg, info)) if MESSAGE_INFO else self.on_image,
+                # With the message info, where rclpy passes it: when each image was sent.
+                message_info_callback(self.on_image),
                 inputs(),
                 qos_overriding_options=self._overriding(),
             ),

@@ -8,11 +8,16 @@ gave when rclpy refuses to declare it, to warn about an override that names no p
 to refuse a ``qos_overrides.*`` override that nothing applied. ``test/ros/test_rclpy_compat.py``
 checks this module against the rclpy installed (the CI's Kilted wheels; a venv without rclpy
 skips it), so a change of rclpy shows there, not as a wrong value in the node.
+
+It also hides one difference between distributions: from Iron on, rclpy passes a
+subscription callback of two arguments the message info (the middleware's source and
+reception timestamps, which time a frame from its publication); Humble's passes none
+(:func:`message_info_callback`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
@@ -40,3 +45,16 @@ def parameter_overrides(node: Any) -> Mapping[str, Any]:
             "allo_mrad_ros.ros.rclpy_compat must learn where it keeps them now"
         )
     return MappingProxyType(overrides)
+
+
+def message_info_callback(
+    callback: Callable[[Any, Mapping[str, int] | None], None],
+) -> Callable[..., None]:
+    """A subscription callback that calls ``callback(msg, info)``: ``info`` is rclpy's
+    message info (``source_timestamp``, ``received_timestamp``, ns on the system clock)
+    where rclpy passes one, else None."""
+    from rclpy.subscription import Subscription
+
+    if hasattr(Subscription, "CallbackType"):  # rclpy tells the two kinds of callback apart
+        return lambda msg, info: callback(msg, info)
+    return lambda msg: callback(msg, None)
