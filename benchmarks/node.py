@@ -82,6 +82,8 @@ COUNTERS = (
     "references_reused",
     "frames_dropped_stale",
     "frames_dropped_too_old",
+    "errors_camera_info",
+    "pose_lookup_failures",
 )
 
 
@@ -369,7 +371,9 @@ def stages_summary(report: dict) -> str:
         + (", ".join(ages) or "n/a")
         + f"; received {delta.get('frames_received', 'n/a')}, processed "
         f"{delta.get('frames_processed', 'n/a')}, dropped: stale "
-        f"{delta.get('frames_dropped_stale', 0)}, too old {delta.get('frames_dropped_too_old', 0)}",
+        f"{delta.get('frames_dropped_stale', 0)}, too old {delta.get('frames_dropped_too_old', 0)}"
+        f"; skipped: no camera_info {delta.get('errors_camera_info', 0)}, no pose "
+        f"{delta.get('pose_lookup_failures', 0)}",
         f"  feed: mask latency p50/p95 {report['latency_frames_p50']:.1f}/"
         f"{report['latency_frames_p95']:.1f} frame periods; load {report.get('load', 0)} busy "
         f"loops, {report.get('priority', '')}; node nice {report.get('node_nice', 'n/a')}",

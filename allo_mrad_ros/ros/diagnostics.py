@@ -199,6 +199,9 @@ class Diagnostics:
         elif recent.get("frames_processed", 0) == 0:
             status.level = DiagnosticStatus.WARN
             status.message = f"images arrive but none processed in the last {self.window_s:g} s"
+            too_old = recent.get("frames_dropped_too_old", 0)
+            if too_old:
+                status.message += f" ({too_old} dropped as older than max_input_age_s)"
         else:
             status.level = DiagnosticStatus.OK
             status.message = "running"

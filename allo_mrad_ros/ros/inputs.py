@@ -47,10 +47,12 @@ from allo_mrad_ros.view import View
 # Longest wait of the processing thread for the camera_info of an image's stamp: the two
 # topics arrive in no guaranteed order.
 CAMERA_INFO_WAIT_S = 0.5
-# Samples the middleware keeps of the image and of its camera_info until the node takes them:
-# the newest only, so a node short of CPU takes the newest frame, not the oldest of a queue
-# (sensor-data QoS keeps 5). qos_overrides.<topic>.subscription.depth keeps more.
-INPUT_DEPTH = 1
+# Images the middleware keeps until the node takes them: the newest only, so a node short of
+# CPU takes the newest frame, not the oldest of a queue (sensor-data QoS keeps 5);
+# qos_overrides.<topic>.subscription.depth keeps more. camera_info keeps sensor-data's 5: an
+# image is paired with the camera_info of its own stamp, which a queue of one loses whenever
+# the next camera_info arrives before the node has taken it (under load, measured).
+IMAGE_DEPTH = 1
 
 
 class NodeInputs:
@@ -153,10 +155,10 @@ class NodeInputs:
     def subscribe(self) -> None:
         """Subscribe to the Sun direction, the image, its camera_info and the pose topic."""
 
-        def inputs() -> QoSProfile:
+        def inputs(depth: int | None = None) -> QoSProfile:
             # A copy each: an override sets the policy on the profile object it is given.
             profile = copy.copy(qos_profile_sensor_data)
-            profile.depth = INPUT_DEPTH
+            profile.depth = depth or profile.depth
             return profile
 
         node = self._node
@@ -171,7 +173,7 @@ class NodeInputs:
                 self._image_topic,
                 # With the message info, where rclpy passes it: when each image was sent.
                 message_info_callback(self.on_image),
-                inputs(),
+                inputs(IMAGE_DEPTH),
                 qos_overriding_options=self._overriding(),
             ),
             node.create_subscription(

@@ -13,6 +13,7 @@ import types
 import numpy as np
 import pytest
 import rclpy  # noqa: F401 - the worker's diagnostics need rclpy (skipped on the distro route)
+from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics
@@ -250,3 +251,15 @@ def test_without_a_bound_no_frame_is_too_old(monkeypatch):
         worker.stop()
     assert len(published) == 1 and counter(diagnostics, "frames_dropped_too_old") == 0
     assert float(status_values(diagnostics)["input_age_taken_ms_p50"]) >= 7200e3
+
+
+def test_when_every_frame_is_too_old_the_warning_says_so():
+    diagnostics = Diagnostics(
+        StubNode(), default_config(), received=lambda: 3, pose_source=lambda: "topic"
+    )
+    diagnostics.input_seen("camera")
+    for _ in range(3):
+        diagnostics.count("frames_dropped_too_old")
+    status = diagnostics.status()
+    assert status.level == DiagnosticStatus.WARN
+    assert status.message.endswith("(3 dropped as older than max_input_age_s)")
