@@ -28,8 +28,10 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -318,7 +320,15 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> dict[str
     node_log = paths.logs / "node.log"
     rclpy.init()
     listener = rclpy.create_node("mrad_demo_recorder")
-    recorder = OutputRecorder(listener, tally.add)
+    # The tally (PNG masks read, metrics updated, overlays written) runs beside the
+    # recorder's callbacks, so that they take the node's outputs as they come.
+    recorded: queue.Queue = queue.Queue()
+    failures: list[Exception] = []
+    tallying = threading.Thread(
+        target=_tally_all, args=(recorded, tally, failures), name="demo_tally"
+    )
+    tallying.start()
+    recorder = OutputRecorder(listener, recorded.put)
     # The live metrics rank the full-resolution map, as the offline evaluation does.
     node = start_node(node_log, "publish_overlay:=false", "score_full_resolution:=true")
     try:
@@ -332,7 +342,22 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> dict[str
         stop_node(node)
         listener.destroy_node()
         rclpy.shutdown()
+        recorded.put(None)
+        tallying.join()
+    if failures:
+        raise failures[0]
     return recorder.node_status
+
+
+def _tally_all(recorded: queue.Queue, tally: LiveTally, failures: list[Exception]) -> None:
+    """Add each recorded frame to ``tally`` until None arrives; a failure is kept in
+    ``failures`` (the later frames are then only taken off the queue)."""
+    for frame in iter(recorded.get, None):
+        if not failures:
+            try:
+                tally.add(frame)
+            except Exception as error:  # raised again in the demo's own thread
+                failures.append(error)
 
 
 def evaluate_offline(paths: DemoPaths) -> dict:
@@ -412,6 +437,19 @@ def node_line(report: dict) -> str:
     )
 
 
+def missing_reason(report: dict) -> str:
+    """Why the live row lacks frames, from the node's own count: the node's drops (it keeps
+    the newest image), or this recorder's missing outputs the node did publish."""
+    processed = (report.get("node") or {}).get("frames_processed")
+    live = report["frames_processed_live"]
+    if processed is not None and processed > live:
+        return (
+            f"the node processed {processed} frames: this recorder, short of CPU itself, "
+            f"missed the outputs of {processed - live}"
+        )
+    return "the node keeps the newest image and drops the ones it cannot keep up with"
+
+
 def print_summary(paths: DemoPaths, report: dict) -> None:
     """The table of both rows, the live frame count and latency, and where the report is."""
     offline = report["offline"]
@@ -435,10 +473,8 @@ def print_summary(paths: DemoPaths, report: dict) -> None:
     if live_frames < report["frames_in_bag"]:
         missing = report["frames_missing_live"]
         shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
-        print(
-            f"no outputs for {shown}: the live row covers fewer frames than the offline rows "
-            "(the node keeps the newest image and drops the ones it cannot keep up with)"
-        )
+        print(f"no outputs for {shown}: the live row covers fewer frames than the offline rows")
+        print(f"  {missing_reason(report)}")
     print(
         f"report: {paths.out}/demo.json, overlays (green: truth, red: detected) in "
         f"{paths.overlays}/, offline report with curves in {paths.offline}/"

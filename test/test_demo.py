@@ -9,6 +9,7 @@ from allo_mrad_ros.demo import (
     DemoPaths,
     LiveTally,
     build_report,
+    missing_reason,
     node_figures,
     node_line,
     print_summary,
@@ -123,3 +124,18 @@ def test_a_node_that_processed_nothing_has_no_ages_and_says_so(tmp_path):
     assert node_figures({})["frames_processed"] is None  # no status received at all
     report = build_report(LiveTally(FakeSequence(), tmp_path), {}, {})
     assert "no input-age figures" in node_line(report)
+
+
+def test_frames_missing_from_the_live_row_are_blamed_on_whoever_lost_them(tmp_path):
+    tally = LiveTally(FakeSequence(), tmp_path, max_overlays=0)
+    for recorded in FRAMES[:2]:
+        tally.add(recorded)
+    # The node processed all four; this recorder got the outputs of two.
+    report = build_report(tally, {}, {**NODE_STATUS, "frames_processed": "4"})
+    assert missing_reason(report) == (
+        "the node processed 4 frames: this recorder, short of CPU itself, missed the outputs of 2"
+    )
+    # The node processed two: it dropped the others.
+    report = build_report(tally, {}, {**NODE_STATUS, "frames_processed": "2"})
+    assert "the node keeps the newest image" in missing_reason(report)
+    assert "the node keeps the newest image" in missing_reason(build_report(tally, {}, {}))
