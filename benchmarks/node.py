@@ -163,10 +163,15 @@ def _fresh_values(feed: CameraFeed, seconds: float = 2.5) -> dict[str, str]:
 def node_stages(values: dict[str, str]) -> dict[str, dict[str, float]]:
     """The node's per-stage latency and input ages, ``{name: {"p50": ms, "p95": ms}}``, from
     a ``/diagnostics`` pipeline status's values: each of :data:`STAGES` (``latency_<stage>``),
-    then ``age_taken`` and ``age_published`` (``input_age_<when>``); those it does not
-    report are left out."""
+    ``middleware_queue`` (the part of ``middleware`` in the subscription's queue), then
+    ``age_taken`` and ``age_published`` (``input_age_<when>``); those it does not report are
+    left out."""
     keys = {stage: f"latency_{stage}" for stage in STAGES}
-    keys.update(age_taken="input_age_taken", age_published="input_age_published")
+    keys.update(
+        middleware_queue="latency_middleware_queue",
+        age_taken="input_age_taken",
+        age_published="input_age_published",
+    )
     figures = {}
     for name, key in keys.items():
         try:

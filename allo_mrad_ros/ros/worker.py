@@ -533,10 +533,12 @@ def render_delay_s(
 def frame_timings_ms(
     rendered: RenderedFrame, detect_start: float, detect_end: float, published: float
 ) -> dict[str, float]:
-    """A processed frame's :data:`STAGES`, its ages when taken and when published
-    (``age_taken``, ``age_published``: from its publication, else from the callback) and
-    ``receive_to_publish`` (the callback to the end of publication), in ms, from its
-    instants (monotonic s). ``middleware`` only where the publication is known."""
+    """A processed frame's :data:`STAGES`, the part of ``middleware`` it spent in the
+    subscription's queue (``middleware_queue``: the middleware's reception to the callback),
+    its ages when taken and when published (``age_taken``, ``age_published``: from its
+    publication, else from the callback) and ``receive_to_publish`` (the callback to the end
+    of publication), in ms, from its instants (monotonic s). ``middleware`` and
+    ``middleware_queue`` only where the middleware's timestamps are known."""
     arrival = rendered.arrival or Arrival(rendered.msg, rendered.received)
     instants = [
         arrival.published,
@@ -553,6 +555,8 @@ def frame_timings_ms(
         for stage, start, end in zip(STAGES, instants[:-1], instants[1:], strict=True)
         if start is not None
     }
+    if arrival.arrived is not None:
+        timings["middleware_queue"] = 1e3 * (arrival.received - arrival.arrived)
     timings["age_taken"] = 1e3 * (rendered.taken - arrival.origin)
     timings["age_published"] = 1e3 * (published - arrival.origin)
     timings["receive_to_publish"] = 1e3 * (published - arrival.received)

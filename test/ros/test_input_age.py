@@ -68,6 +68,7 @@ def test_a_frame_s_stages_are_the_gaps_between_its_instants_and_add_up_to_its_ag
     }
     assert list(timings)[: len(STAGES)] == list(STAGES)
     assert {stage: timings[stage] for stage in STAGES} == pytest.approx(expected)
+    assert timings["middleware_queue"] == pytest.approx(3.0)  # of the middleware's 4
     assert timings["age_taken"] == pytest.approx(10.0)
     assert timings["age_published"] == pytest.approx(55.0)
     assert sum(timings[stage] for stage in STAGES) == pytest.approx(timings["age_published"])
@@ -80,7 +81,7 @@ def test_without_its_publication_instant_a_frame_s_age_counts_from_the_callback(
     timings = frame_timings_ms(
         rendered_with(arrival, 10.010, 10.011, 10.031), 10.040, 10.052, 10.055
     )
-    assert "middleware" not in timings
+    assert "middleware" not in timings and "middleware_queue" not in timings
     assert timings["age_taken"] == pytest.approx(6.0)
     assert timings["age_published"] == pytest.approx(51.0)
     # A plain (message, received) tuple, as tests and older callers put, is such an Arrival.
@@ -196,6 +197,7 @@ def test_the_diagnostics_carry_each_stage_and_the_input_ages_of_the_frames_proce
         assert float(values[f"latency_{stage}_ms_p50"]) >= 0.0
         assert f"latency_{stage}_ms_p95" in values
     assert float(values["latency_middleware_ms_p50"]) == pytest.approx(2000.0)
+    assert float(values["latency_middleware_queue_ms_p50"]) == pytest.approx(1000.0)
     taken = float(values["input_age_taken_ms_p50"])
     sent = float(values["input_age_published_ms_p95"])
     assert 2000.0 <= taken <= sent
