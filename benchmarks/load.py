@@ -63,12 +63,27 @@ def busy_loops(count: int) -> Iterator[list[subprocess.Popen]]:
                 loop.wait()
 
 
-def _threads() -> list[int]:
-    """This process's thread ids (Linux: each thread has its own nice value)."""
+def _threads(pid: int | str = "self") -> list[int]:
+    """A process's thread ids (Linux: each thread has its own nice value)."""
     try:
-        return [int(task.name) for task in Path("/proc/self/task").iterdir()]
+        return [int(task.name) for task in Path(f"/proc/{pid}/task").iterdir()]
     except OSError:
-        return [0]
+        return [0] if pid == "self" else [int(pid)]
+
+
+def renice(pid: int, nice: int) -> str:
+    """Give every thread of process ``pid`` the nice value ``nice`` (threads it starts later
+    inherit it from their creator); what was done, in words."""
+    done, refused = 0, ""
+    for thread in _threads(pid):
+        try:
+            os.setpriority(os.PRIO_PROCESS, thread, nice)
+            done += 1
+        except OSError as error:  # PermissionError without CAP_SYS_NICE, or a thread gone
+            refused = refused or type(error).__name__
+    if refused and not done:
+        return f"node at its own priority (renicing it: {refused})"
+    return f"node threads at nice {nice}" + (f" (some: {refused})" if refused else "")
 
 
 @contextmanager

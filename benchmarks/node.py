@@ -55,7 +55,7 @@ from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.ros.worker import STAGES
 from benchmarks import finish, thread_cpu
-from benchmarks.load import busy_loops, prioritised
+from benchmarks.load import busy_loops, prioritised, renice
 from benchmarks.node_outputs import compare_outputs, outputs_table
 from benchmarks.node_session import SUN, node_session, still_frames
 from benchmarks.trajectory import (
@@ -228,13 +228,15 @@ def run(
     plan: FeedPlan | None = None,
     load: int = 0,
     seconds: float | None = None,
+    node_nice: int | None = None,
 ) -> dict:
     """Drive the node at ``rate_hz`` until ``frames`` masks arrived (or for ``seconds``);
     the report dictionary.
 
     ``node_parameters`` are extra ``name:=value`` parameters of the node; ``trajectory``
     one of :data:`~.trajectory.TRAJECTORIES` (``plan``: its frames, rendered already);
-    ``load``: busy loops beside the node (:mod:`.load`), with this process raised above them.
+    ``load``: busy loops beside the node (:mod:`.load`), with this process raised above them;
+    ``node_nice``: the node's threads reniced (None: left at the default priority, 0).
     """
     plan = plan or plan_feed(trajectory, rate_hz, camera)
     node_args = (f"pipelined:={str(pipelined).lower()}", *node_parameters)
@@ -244,6 +246,8 @@ def run(
         node_session(log_path, {}, *node_args, camera=camera) as (feed, node),
         prioritised(load > 0) as priority,
     ):
+        if node_nice is not None:
+            priority += "; " + renice(node.pid, node_nice)
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
             feed.publish_frame(time.time_ns(), plan.images[0], plan.poses[0], SUN)
@@ -446,6 +450,13 @@ def main(argv: list[str] | None = None) -> int:
         help="publish for this many seconds per run instead of until --frames masks arrived; "
         f"the latency is also reported per {WINDOW_S:.0f} s window",
     )
+    parser.add_argument(
+        "--node-nice",
+        type=int,
+        default=None,
+        help="renice the node's threads to this value (as a robot's deployment may give it "
+        "priority over other jobs); default: the node stays at the default priority",
+    )
     parser.add_argument("--rounds", type=int, default=5, help="blocks per output set (compare)")
     parser.add_argument("--block", type=int, default=16, help="frames per block (compare)")
     parser.add_argument(
@@ -522,6 +533,7 @@ def main(argv: list[str] | None = None) -> int:
                     plan=plan,
                     load=args.load,
                     seconds=args.seconds,
+                    node_nice=args.node_nice,
                 )
                 results[name, trajectory, pipelined] = report
                 print(summary_line(name, report), flush=True)
