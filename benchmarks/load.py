@@ -105,7 +105,7 @@ def prioritised(enabled: bool, nice: int = FEED_NICE) -> Iterator[str]:
             refused = refused or type(error).__name__
     try:
         if changed and not refused:
-            yield f"feed and recorder threads at nice {nice}; node and busy loops at 0"
+            yield f"feed and recorder threads at nice {nice}, busy loops at 0"
         elif changed:
             yield f"feed and recorder partly at nice {nice} (some threads: {refused})"
         else:
