@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-node-load bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
 
 setup: $(STAMP)
 
@@ -106,6 +106,13 @@ bench-render: $(STAMP)
 bench-node: $(STAMP)
 	$(ISOLATED) $(PY) -m benchmarks.node --frames 1000 --out reports/bench_node.json
 	$(ISOLATED) $(PY) -m benchmarks.node --compare-outputs --out reports/bench_node_outputs.json
+
+# The node's latency under a busy CPU: LOAD busy loops beside it (one per core) for 2 minutes
+# at 1080p30, the feed and recorder raised above them; per-stage figures from /diagnostics.
+LOAD ?= 2
+bench-node-load: $(STAMP)
+	$(ISOLATED) $(PY) -m benchmarks.node --load $(LOAD) --modes 1080p30 --trajectory moving \
+	  --seconds 120 --out reports/bench_node_load.json
 
 # Accuracy cost of reference reuse on moving-arm trajectories (renders per frame, P.AP).
 bench-reuse: $(STAMP)

@@ -11,6 +11,11 @@ Steps (each reuses the package's own tools):
 5. the live metrics and latency are printed next to an offline ``allo-bag evaluate`` of
    MRAD, PAD and RXD on the same bag, and the report (with overlay images) is written.
 
+The latency this process measures (input published to outputs received here) is shown
+beside the node's own figures from its ``/diagnostics``: the frames' age since their image
+was published when the node took them and when it had published their outputs, and the
+frames it dropped, so a recorder short of CPU does not pass for a slow node.
+
 The live row is computed as the offline one is (the node's score map and image score), so
 when the node processes all the frames the live and offline MRAD rows are equal.
 
@@ -22,8 +27,10 @@ synthetic example instead, without ROS.
 from __future__ import annotations
 
 import json
+import queue
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +49,19 @@ from allo_mrad_ros.targets import OutputArgumentParser, output_path
 from allo_mrad_ros.visualise import outline
 
 METRIC_KEYS = ("i_auroc", "p_auroc", "p_ap", "p_fpr95")
+# The node's own figures the report carries, from its /diagnostics pipeline status.
+NODE_AGES = (
+    "input_age_taken_ms_p50",
+    "input_age_taken_ms_p95",
+    "input_age_published_ms_p50",
+    "input_age_published_ms_p95",
+)
+NODE_COUNTERS = (
+    "frames_received",
+    "frames_processed",
+    "frames_dropped_stale",
+    "frames_dropped_too_old",
+)
 
 
 class DemoError(BackendError):
@@ -286,9 +306,9 @@ def _play_bag(listener: object, paths: DemoPaths, rate: float) -> None:
         raise DemoError(f"allo-bag play failed; see {log}")
 
 
-def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
+def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> dict[str, str]:
     """Steps 3 and 4: start the node, play the bag into it and feed its outputs to
-    ``tally``."""
+    ``tally``; returns the values of the node's last ``/diagnostics`` pipeline status."""
     import rclpy
 
     from allo_mrad_ros.ros.node_process import start_node, stop_node
@@ -298,7 +318,15 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
     node_log = paths.logs / "node.log"
     rclpy.init()
     listener = rclpy.create_node("mrad_demo_recorder")
-    OutputRecorder(listener, tally.add)
+    # The tally (PNG masks read, metrics updated, overlays written) runs beside the
+    # recorder's callbacks, so that they take the node's outputs as they come.
+    recorded: queue.Queue = queue.Queue()
+    failures: list[Exception] = []
+    tallying = threading.Thread(
+        target=_tally_all, args=(recorded, tally, failures), name="demo_tally"
+    )
+    tallying.start()
+    recorder = OutputRecorder(listener, recorded.put)
     # The live metrics rank the full-resolution map, as the offline evaluation does.
     node = start_node(node_log, "publish_overlay:=false", "score_full_resolution:=true")
     try:
@@ -312,6 +340,22 @@ def run_node_on_bag(paths: DemoPaths, tally: LiveTally, rate: float) -> None:
         stop_node(node)
         listener.destroy_node()
         rclpy.shutdown()
+        recorded.put(None)
+        tallying.join()
+    if failures:
+        raise failures[0]
+    return recorder.node_status
+
+
+def _tally_all(recorded: queue.Queue, tally: LiveTally, failures: list[Exception]) -> None:
+    """Add each recorded frame to ``tally`` until None arrives; a failure is kept in
+    ``failures`` (the later frames are then only taken off the queue)."""
+    for frame in iter(recorded.get, None):
+        if not failures:
+            try:
+                tally.add(frame)
+            except Exception as error:  # raised again in the demo's own thread
+                failures.append(error)
 
 
 def evaluate_offline(paths: DemoPaths) -> dict:
@@ -334,20 +378,74 @@ def evaluate_offline(paths: DemoPaths) -> dict:
     return json.loads((paths.offline / "metrics.json").read_text())
 
 
-def write_report(paths: DemoPaths, tally: LiveTally, offline: dict) -> dict:
-    """Write ``demo.json``: the live and offline metrics, latency and overlay names."""
-    report = {
+def node_figures(status: dict[str, str]) -> dict[str, float | int | None]:
+    """The node's own figures of a ``/diagnostics`` pipeline status's values: the input ages
+    (:data:`NODE_AGES`, ms) and frame counters (:data:`NODE_COUNTERS`); None for one it
+    did not report (no frame processed, or a counter never raised: 0)."""
+    figures: dict[str, float | int | None] = {}
+    for key in NODE_AGES:
+        try:
+            figures[key] = float(status[key])
+        except (KeyError, ValueError):
+            figures[key] = None
+    for key in NODE_COUNTERS:
+        value = status.get(key, "0" if key.startswith("frames_dropped") else "")
+        figures[key] = int(value) if value.isdigit() else None
+    return figures
+
+
+def build_report(tally: LiveTally, offline: dict, node_status: dict[str, str]) -> dict:
+    """The demo's report: the live and offline metrics, the latency this process measured,
+    the node's own figures (:func:`node_figures`) and the overlay names."""
+    return {
         "frames_in_bag": len(tally.by_stamp),
         "frames_processed_live": tally.frames,
         "frames_missing_live": tally.missing(),
         "live": {"MRAD": tally.metrics()},
         "latency_ms_p50": tally.latency_ms(50),
         "latency_ms_p95": tally.latency_ms(95),
+        "node": node_figures(node_status),
         "offline": offline,
         "overlays": tally.overlays,
     }
+
+
+def write_report(
+    paths: DemoPaths, tally: LiveTally, offline: dict, node_status: dict[str, str]
+) -> dict:
+    """Write ``demo.json`` (:func:`build_report`) and return it."""
+    report = build_report(tally, offline, node_status)
     (paths.out / "demo.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
+
+
+def node_line(report: dict) -> str:
+    """The node's own figures in words, or why there are none."""
+    node = report.get("node") or {}
+    if node.get("input_age_published_ms_p50") is None:
+        return "node: no input-age figures in its /diagnostics (no frame processed)"
+    return (
+        f"node (its /diagnostics): age since the image was published when taken p50 "
+        f"{node['input_age_taken_ms_p50']:.0f} ms, p95 {node['input_age_taken_ms_p95']:.0f} "
+        f"ms; when its outputs were published p50 {node['input_age_published_ms_p50']:.0f} "
+        f"ms, p95 {node['input_age_published_ms_p95']:.0f} ms; {node['frames_processed']} of "
+        f"{node['frames_received']} images received processed, "
+        f"{node['frames_dropped_too_old']} dropped as older than max_input_age_s, "
+        f"{node['frames_dropped_stale']} replaced by a newer one before being taken"
+    )
+
+
+def missing_reason(report: dict) -> str:
+    """Why the live row lacks frames, from the node's own count: the node's drops (it keeps
+    the newest image), or this recorder's missing outputs the node did publish."""
+    processed = (report.get("node") or {}).get("frames_processed")
+    live = report["frames_processed_live"]
+    if processed is not None and processed > live:
+        return (
+            f"the node processed {processed} frames: this recorder, short of CPU itself, "
+            f"missed the outputs of {processed - live}"
+        )
+    return "the node keeps the newest image and drops the ones it cannot keep up with"
 
 
 def print_summary(paths: DemoPaths, report: dict) -> None:
@@ -369,13 +467,12 @@ def print_summary(paths: DemoPaths, report: dict) -> None:
             f"{report['latency_ms_p50']:.0f} ms, p95 {report['latency_ms_p95']:.0f} ms"
         )
     print(line)
+    print(node_line(report))
     if live_frames < report["frames_in_bag"]:
         missing = report["frames_missing_live"]
         shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
-        print(
-            f"no outputs for {shown}: the live row covers fewer frames than the offline rows "
-            "(the node keeps the newest image and drops the ones it cannot keep up with)"
-        )
+        print(f"no outputs for {shown}: the live row covers fewer frames than the offline rows")
+        print(f"  {missing_reason(report)}")
     print(
         f"report: {paths.out}/demo.json, overlays (green: truth, red: detected) in "
         f"{paths.overlays}/, offline report with curves in {paths.offline}/"
@@ -393,9 +490,9 @@ def run_live(data: Path, out: Path, seed: int, rate: float) -> int:
     generate_sequence(paths, seed)
     write_bag(paths)
     tally = LiveTally(read_sequence(paths.sequence), paths.overlays)
-    run_node_on_bag(paths, tally, rate)
+    node_status = run_node_on_bag(paths, tally, rate)
     offline = evaluate_offline(paths)
-    print_summary(paths, write_report(paths, tally, offline))
+    print_summary(paths, write_report(paths, tally, offline, node_status))
     return 0
 
 

@@ -16,7 +16,19 @@ kind of thread's share, :mod:`.thread_cpu`) and its resident memory after 100 an
 1,000 processed frames. ROS traffic stays on loopback
 (``config/fastdds_loopback.xml``).
 
+Where the time goes: after each run the node's own figures from ``/diagnostics`` (over its
+last 1,000 processed frames): each stage of a frame's path from the image's publication to
+the end of its outputs' (middleware, slot, prepare, render, hand-over, detect, publish,
+:data:`allo_mrad_ros.ros.worker.STAGES`) and the frame's age when taken and when published,
+p50 and p95, and the frames it dropped. ``--load N`` runs N busy loops beside the node
+(:mod:`.load`: separate processes, one per core in turn, at the node's priority) and raises
+the priority of this process, the feed and the recorder of the masks, where permitted, so
+that a late feed or recorder is not what is measured; ``--seconds S`` publishes for S
+seconds instead of until ``--frames`` masks arrived, and the latency is reported per
+30-second window as well, to show whether it grows.
+
 Usage: ``python -m benchmarks.node --frames 1000 --out reports/bench_node.json``;
+``python -m benchmarks.node --load 2 --modes 1080p30 --trajectory moving --seconds 120``;
 ``--serial`` runs the node with ``pipelined:=false`` (one thread) and
 ``--compare-serial`` runs, per mode, the serial node and then the pipelined one back to back,
 so both are measured under the same machine load.
@@ -41,7 +53,9 @@ import rclpy
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.render import ReferenceRenderer
+from allo_mrad_ros.ros.worker import STAGES
 from benchmarks import finish, thread_cpu
+from benchmarks.load import busy_loops, prioritised, renice
 from benchmarks.node_outputs import compare_outputs, outputs_table
 from benchmarks.node_session import SUN, node_session, still_frames
 from benchmarks.trajectory import (
@@ -58,6 +72,19 @@ from harness.feed import CameraFeed
 # Camera modes measured: name -> (width, height, frame rate in Hz). The first is reported at
 # the top level of the JSON report (the keys of earlier reports), the others under their name.
 MODES = {"1080p30": (1920, 1080, 30.0), "720p60": (1280, 720, 60.0)}
+# Seconds of image stamps per window of the latency over time (--seconds runs).
+WINDOW_S = 30.0
+# The node's counters read before and after a run.
+COUNTERS = (
+    "frames_processed",
+    "frames_received",
+    "references_rendered",
+    "references_reused",
+    "frames_dropped_stale",
+    "frames_dropped_too_old",
+    "errors_camera_info",
+    "pose_lookup_failures",
+)
 
 
 def camera_of(width: int, height: int) -> CameraIntrinsics:
@@ -120,22 +147,61 @@ def plan_feed(trajectory: str, rate_hz: float, camera: CameraIntrinsics) -> Feed
     return FeedPlan(trajectory, poses, images, rate_hz)
 
 
-def _counters(feed: CameraFeed) -> dict[str, int]:
-    """The node's cumulative counters of the latest ``/diagnostics`` pipeline status."""
-    counters = {}
-    for key in ("frames_processed", "references_rendered", "references_reused"):
-        value = feed.diagnostic_values().get(key)
-        if value is not None and value.isdigit():
-            counters[key] = int(value)
-    return counters
+def _counters(values: dict[str, str]) -> dict[str, int]:
+    """The node's cumulative counters of a ``/diagnostics`` pipeline status's values."""
+    return {key: int(values[key]) for key in COUNTERS if key in values and values[key].isdigit()}
 
 
-def _fresh_counters(feed: CameraFeed, seconds: float = 2.5) -> dict[str, int]:
-    """Counters from a ``/diagnostics`` message published after this call (the node
+def _fresh_values(feed: CameraFeed, seconds: float = 2.5) -> dict[str, str]:
+    """The values of a ``/diagnostics`` pipeline status published after this call (the node
     publishes one a second), so they include every frame it processed before."""
     feed.diagnostics.clear()
     feed.wait_for(lambda: len(feed.diagnostics) >= 2, seconds)
-    return _counters(feed)
+    return feed.diagnostic_values()
+
+
+def node_stages(values: dict[str, str]) -> dict[str, dict[str, float]]:
+    """The node's per-stage latency and input ages, ``{name: {"p50": ms, "p95": ms}}``, from
+    a ``/diagnostics`` pipeline status's values: each of :data:`STAGES` (``latency_<stage>``),
+    ``middleware_queue`` (the part of ``middleware`` in the subscription's queue), then
+    ``age_taken`` and ``age_published`` (``input_age_<when>``); those it does not report are
+    left out."""
+    keys = {stage: f"latency_{stage}" for stage in STAGES}
+    keys.update(
+        middleware_queue="latency_middleware_queue",
+        age_taken="input_age_taken",
+        age_published="input_age_published",
+    )
+    figures = {}
+    for name, key in keys.items():
+        try:
+            figures[name] = {q: float(values[f"{key}_ms_{q}"]) for q in ("p50", "p95")}
+        except (KeyError, ValueError):
+            continue
+    return figures
+
+
+def latency_windows(
+    arrivals: dict[int, float], window_s: float = WINDOW_S
+) -> list[dict[str, float]]:
+    """Latency (image stamp to mask received, ms) per ``window_s`` of image stamps from the
+    first: ``start_s``, ``frames``, ``p50``, ``p95`` of each window with a mask."""
+    if not arrivals:
+        return []
+    first = min(arrivals)
+    windows: dict[int, list[float]] = {}
+    for stamp, arrived in arrivals.items():
+        index = int((stamp - first) / 1e9 // window_s)
+        windows.setdefault(index, []).append(1e3 * (arrived - stamp / 1e9))
+    return [
+        {
+            "start_s": index * window_s,
+            "frames": len(latencies),
+            "p50": float(np.median(latencies)),
+            "p95": float(np.percentile(latencies, 95)),
+        }
+        for index, latencies in sorted(windows.items())
+    ]
 
 
 def renders_per_frame(before: dict[str, int], after: dict[str, int]) -> float | None:
@@ -160,21 +226,33 @@ def run(
     node_parameters: tuple[str, ...] = (),
     trajectory: str = "moving",
     plan: FeedPlan | None = None,
+    load: int = 0,
+    seconds: float | None = None,
+    node_nice: int | None = None,
 ) -> dict:
-    """Drive the node at ``rate_hz`` until ``frames`` masks arrived; the report dictionary.
+    """Drive the node at ``rate_hz`` until ``frames`` masks arrived (or for ``seconds``);
+    the report dictionary.
 
     ``node_parameters`` are extra ``name:=value`` parameters of the node; ``trajectory``
-    one of :data:`~.trajectory.TRAJECTORIES` (``plan``: its frames, rendered already).
+    one of :data:`~.trajectory.TRAJECTORIES` (``plan``: its frames, rendered already);
+    ``load``: busy loops beside the node (:mod:`.load`), with this process raised above them;
+    ``node_nice``: the node's threads reniced (None: left at the default priority, 0).
     """
     plan = plan or plan_feed(trajectory, rate_hz, camera)
     node_args = (f"pipelined:={str(pipelined).lower()}", *node_parameters)
     load_before = list(os.getloadavg())
-    with node_session(log_path, {}, *node_args, camera=camera) as (feed, node):
+    with (
+        busy_loops(load),
+        node_session(log_path, {}, *node_args, camera=camera) as (feed, node),
+        prioritised(load > 0) as priority,
+    ):
+        if node_nice is not None:
+            priority += "; " + renice(node.pid, node_nice)
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
             feed.publish_frame(time.time_ns(), plan.images[0], plan.poses[0], SUN)
             feed.spin(0.5)
-        counters_before = _fresh_counters(feed)
+        counters_before = _counters(_fresh_values(feed))
         feed.arrival["mask"].clear()
         published: list[int] = []
         rss_mb: dict[int, float] = {}
@@ -182,7 +260,10 @@ def run(
         cpu_before, threads_before = node.cpu_times(), thread_cpu.sample(node.pid)
         start = time.monotonic()
         next_time = start
-        while len(feed.arrival["mask"]) < frames and time.monotonic() - start < timeout_s:
+        limit_s = timeout_s if seconds is None else seconds
+        goal = frames if seconds is None else float("inf")
+        rss_marks = (100, frames) if seconds is None else (100,)
+        while len(feed.arrival["mask"]) < goal and time.monotonic() - start < limit_s:
             if time.monotonic() >= next_time:
                 stamp = time.time_ns()
                 index = plan.frame(len(published))
@@ -191,12 +272,17 @@ def run(
                 next_time += period
             rclpy.spin_once(feed.node, timeout_sec=0.002)
             done = len(feed.arrival["mask"])
-            for mark in (100, frames):
+            for mark in rss_marks:
                 if done >= mark and mark not in rss_mb:
                     rss_mb[mark] = node.memory_info().rss / 2**20
         cpu_after, threads_after = node.cpu_times(), thread_cpu.sample(node.pid)
+        if seconds is not None:
+            frames = len(feed.arrival["mask"])
+            rss_mb[frames] = node.memory_info().rss / 2**20
+        node_nice = node.nice()
         feed.spin(1.0)
-        counters_after = _fresh_counters(feed)
+        values_after = _fresh_values(feed)
+        counters_after = _counters(values_after)
     arrivals = feed.arrival["mask"]
     stamps = sorted(arrivals)
     latencies = np.array([1e3 * (arrivals[s] - s / 1e9) for s in stamps])
@@ -205,7 +291,11 @@ def run(
     cpu_s = (cpu_after.user - cpu_before.user) + (cpu_after.system - cpu_before.system)
     before, after = rss_mb.get(100), rss_mb.get(frames)
     reused = [c.get("references_reused") for c in (counters_before, counters_after)]
+    frame_ms = 1e3 / rate_hz
     return {
+        "load": load,
+        "priority": priority,
+        "node_nice": node_nice,
         "image": f"{camera.width}x{camera.height}",
         "input_rate_hz": rate_hz,
         "pipelined": pipelined,
@@ -223,6 +313,13 @@ def run(
         "latency_ms_p95": float(np.percentile(latencies, 95)),
         "latency_ms_p99": float(np.percentile(latencies, 99)),
         "latency_ms_max": float(latencies.max()),
+        "latency_frames_p50": float(np.median(latencies)) / frame_ms,
+        "latency_frames_p95": float(np.percentile(latencies, 95)) / frame_ms,
+        "latency_windows": latency_windows(arrivals),
+        "node_stages_ms": node_stages(values_after),
+        "node_counters_delta": {
+            key: counters_after[key] - counters_before.get(key, 0) for key in counters_after
+        },
         "cpu_s_per_frame": cpu_s / max(len(stamps), 1),
         "thread_cpu_ms_per_frame": thread_cpu.per_frame_ms(
             threads_before, threads_after, len(stamps)
@@ -257,6 +354,49 @@ def summary_line(name: str, report: dict) -> str:
         f"{float('nan') if growth is None else growth:+6.1f}% "
         f"{report['load_average_before'][0]:4.2f}-{report['load_average_after'][0]:4.2f}"
     )
+
+
+def stages_summary(report: dict) -> str:
+    """The node's own figures of a run, two lines: each stage's p50/p95 in ms and the
+    input ages (in frame periods too), then the frames it received, processed and
+    dropped; the latency per window when there are several."""
+    stages = report.get("node_stages_ms") or {}
+    frame_ms = 1e3 / report["input_rate_hz"]
+    cells = [
+        f"{name} {f['p50']:.1f}/{f['p95']:.1f}"
+        for name, f in stages.items()
+        if not name.startswith("age_")
+    ]
+    ages = [
+        f"{name[4:]} {f['p50']:.0f}/{f['p95']:.0f} ms "
+        f"({f['p50'] / frame_ms:.1f}/{f['p95'] / frame_ms:.1f} frames)"
+        for name, f in stages.items()
+        if name.startswith("age_")
+    ]
+    delta = report.get("node_counters_delta", {})
+    lines = [
+        "  node stages p50/p95 ms: " + (", ".join(cells) or "n/a (not reported)"),
+        "  node input age p50/p95: "
+        + (", ".join(ages) or "n/a")
+        + f"; received {delta.get('frames_received', 'n/a')}, processed "
+        f"{delta.get('frames_processed', 'n/a')}, dropped: stale "
+        f"{delta.get('frames_dropped_stale', 0)}, too old {delta.get('frames_dropped_too_old', 0)}"
+        f"; skipped: no camera_info {delta.get('errors_camera_info', 0)}, no pose "
+        f"{delta.get('pose_lookup_failures', 0)}",
+        f"  feed: mask latency p50/p95 {report['latency_frames_p50']:.1f}/"
+        f"{report['latency_frames_p95']:.1f} frame periods; load {report.get('load', 0)} busy "
+        f"loops, {report.get('priority', '')}; node nice {report.get('node_nice', 'n/a')}",
+    ]
+    windows = report.get("latency_windows") or []
+    if len(windows) > 1:
+        lines.append(
+            "  mask latency per window p50/p95 ms: "
+            + ", ".join(
+                f"{w['start_s']:.0f}s {w['p50']:.0f}/{w['p95']:.0f} ({w['frames']})"
+                for w in windows
+            )
+        )
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -295,6 +435,27 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         metavar="NAME:=VALUE",
         help="a node parameter for the runs (repeatable), e.g. opencv_threads:=0",
+    )
+    parser.add_argument(
+        "--load",
+        type=int,
+        default=0,
+        help="busy loops beside the node (separate processes, one per core in turn); this "
+        "process (feed and recorder) is raised above them where permitted",
+    )
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=None,
+        help="publish for this many seconds per run instead of until --frames masks arrived; "
+        f"the latency is also reported per {WINDOW_S:.0f} s window",
+    )
+    parser.add_argument(
+        "--node-nice",
+        type=int,
+        default=None,
+        help="renice the node's threads to this value (as a robot's deployment may give it "
+        "priority over other jobs); default: the node stays at the default priority",
     )
     parser.add_argument("--rounds", type=int, default=5, help="blocks per output set (compare)")
     parser.add_argument("--block", type=int, default=16, help="frames per block (compare)")
@@ -338,11 +499,15 @@ def main(argv: list[str] | None = None) -> int:
     bad = [text for text in args.node_param if ":=" not in text]
     if bad:
         parser.error(f"--node-param needs NAME:=VALUE, got {bad}")
+    if args.load < 0 or (args.seconds is not None and args.seconds <= 0):
+        parser.error("--load must be >= 0 and --seconds > 0")
     variants = [False, True] if args.compare_serial else [not args.serial]
     results: dict[tuple[str, str, bool], dict] = {}
     print(
         f"mrad_detector, {' '.join(args.node_param) or 'default parameters'}; outputs mask, "
-        f"score, overlay; {args.frames} frames per run, {os.cpu_count()} CPUs; rend/f: "
+        f"score, overlay; "
+        f"{f'{args.seconds:g} s' if args.seconds else f'{args.frames} frames'} per run, "
+        f"{os.cpu_count()} CPUs, {args.load} busy loops; rend/f: "
         f"references rendered per processed frame (/diagnostics)\n{SUMMARY_HEADER}",
         flush=True,
     )
@@ -358,10 +523,21 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 parameters = tuple(args.node_param)
                 report = run(
-                    args.frames, rate, log, args.timeout, camera, pipelined, parameters, plan=plan
+                    args.frames,
+                    rate,
+                    log,
+                    args.timeout,
+                    camera,
+                    pipelined,
+                    parameters,
+                    plan=plan,
+                    load=args.load,
+                    seconds=args.seconds,
+                    node_nice=args.node_nice,
                 )
                 results[name, trajectory, pipelined] = report
                 print(summary_line(name, report), flush=True)
+                print(stages_summary(report), flush=True)
                 print(thread_cpu.summary(report.get("thread_cpu_ms_per_frame")), flush=True)
             del plan
     first, main_variant = modes[0], variants[-1]

@@ -1,6 +1,7 @@
 """The node's counters and its ``/diagnostics`` statuses.
 
-Three statuses per message: ``<node>: pipeline`` (rate, per-stage latency, problems, counters),
+Three statuses per message: ``<node>: pipeline`` (rate, per-stage latency, the age of the frames
+when taken and when published, problems, counters),
 ``<node>: input rate`` and ``<node>: input stamp``, the last two with the keys and levels of
 diagnostic_updater's FrequencyStatus and TimeStampStatus. Levels describe the recent past: a
 problem counts towards WARN only while younger than a sliding window; no image for
@@ -174,8 +175,11 @@ class Diagnostics:
         for name, count in self._input_publishers().items():
             values[f"{name}_publishers"] = str(count)
         for stage, (p50, p95) in self.stages.percentiles().items():
-            values[f"latency_{stage}_ms_p50"] = f"{p50:.1f}"
-            values[f"latency_{stage}_ms_p95"] = f"{p95:.1f}"
+            # A stage's time is latency_<stage>; a frame's age (since its image was
+            # published) when taken and when published is input_age_<taken|published>.
+            key = f"input_{stage}" if stage.startswith("age_") else f"latency_{stage}"
+            values[f"{key}_ms_p50"] = f"{p50:.1f}"
+            values[f"{key}_ms_p95"] = f"{p95:.1f}"
         values.update({name: str(count) for name, count in sorted(counters.items())})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         problems = sorted(
@@ -203,6 +207,9 @@ class Diagnostics:
         elif recent.get("frames_processed", 0) == 0:
             status.level = DiagnosticStatus.WARN
             status.message = f"images arrive but none processed in the last {self.window_s:g} s"
+            too_old = recent.get("frames_dropped_too_old", 0)
+            if too_old:
+                status.message += f" ({too_old} dropped as older than max_input_age_s)"
         else:
             status.level = DiagnosticStatus.OK
             status.message = "running"

@@ -20,7 +20,7 @@ from __future__ import annotations
 import copy
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
@@ -40,12 +40,19 @@ from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.ros.pose_source import PoseSource
-from allo_mrad_ros.ros.worker import Snapshot
+from allo_mrad_ros.ros.rclpy_compat import message_info_callback
+from allo_mrad_ros.ros.worker import Arrival, Snapshot
 from allo_mrad_ros.view import View
 
 # Longest wait of the processing thread for the camera_info of an image's stamp: the two
 # topics arrive in no guaranteed order.
 CAMERA_INFO_WAIT_S = 0.5
+# Images the middleware keeps until the node takes them: the newest only, so a node short of
+# CPU takes the newest frame, not the oldest of a queue (sensor-data QoS keeps 5);
+# qos_overrides.<topic>.subscription.depth keeps more. camera_info keeps sensor-data's 5: an
+# image is paired with the camera_info of its own stamp, which a queue of one loses whenever
+# the next camera_info arrives before the node has taken it (under load, measured).
+IMAGE_DEPTH = 1
 
 
 class NodeInputs:
@@ -150,17 +157,20 @@ class NodeInputs:
     def subscribe(self) -> None:
         """Subscribe to the Sun direction, the image, its camera_info and the pose topic."""
 
-        def inputs() -> QoSProfile:
+        def inputs(depth: int | None = None) -> QoSProfile:
             # A copy each: an override sets the policy on the profile object it is given.
-            return copy.copy(qos_profile_sensor_data)
+            profile = copy.copy(qos_profile_sensor_data)
+            profile.depth = depth or profile.depth
+            return profile
 
         node = self._node
         self._camera = {
             "image": node.create_subscription(
                 self._image_type,
                 self._image_topic,
-                self.on_image,
-                inputs(),
+                # With the message info, where rclpy passes it: when each image was sent.
+                message_info_callback(self.on_image),
+                inputs(IMAGE_DEPTH),
                 qos_overriding_options=self._overriding(),
             ),
             "camera_info": node.create_subscription(
@@ -237,9 +247,11 @@ class NodeInputs:
 
     # --- callbacks ------------------------------------------------------------------------
 
-    def on_image(self, msg: Image | CompressedImage) -> None:
+    def on_image(self, msg: Image | CompressedImage, info: Mapping[str, int] | None = None) -> None:
         """Keep the image for the processing threads; none is kept while no output has a
-        subscriber."""
+        subscriber. ``info``: rclpy's message info, whose source and reception timestamps
+        say when the image was published and when the middleware received it."""
+        received = time.monotonic()
         stamp_ns = messages.stamp_to_ns(msg.header.stamp)
         self._diagnostics.input_seen(
             msg.header.frame_id, stamp_ns, self._node.get_clock().now().nanoseconds
@@ -248,7 +260,7 @@ class NodeInputs:
             # Nobody listens: neither render nor detect.
             self._diagnostics.count("frames_skipped_no_subscribers")
             return
-        if self.images.put((msg, time.monotonic())):
+        if self.images.put(arrival_of(msg, received, info, time.time_ns())):
             self._diagnostics.count("frames_dropped_stale")
 
     def on_camera_info(self, msg: CameraInfo) -> None:
@@ -387,3 +399,22 @@ def matched_publishers(node: Node, subscription: Subscription) -> int:
     if count is not None:
         return count()
     return node.count_publishers(subscription.topic_name)
+
+
+def arrival_of(
+    msg: Image | CompressedImage, received: float, info: Mapping[str, int] | None, now_ns: int
+) -> Arrival:
+    """The image with its instants on the monotonic clock: the callback's (``received``) and,
+    from rclpy's message info, its publication and reception by the middleware.
+
+    The middleware's timestamps are on the system clock (the source timestamp on the
+    publisher's host's, so hosts' clocks must agree, as TF needs them to); ``now_ns`` is
+    this host's system clock at ``received``. A timestamp of 0 is unknown (None); one after
+    ``now_ns`` (a publisher's clock ahead of this host's) counts as ``received``.
+    """
+
+    def instant(key: str) -> float | None:
+        stamp = 0 if info is None else int(info.get(key) or 0)
+        return None if stamp <= 0 else received - max(0, now_ns - stamp) / 1e9
+
+    return Arrival(msg, received, instant("source_timestamp"), instant("received_timestamp"))

@@ -210,6 +210,7 @@ class MradDetectorNode(Node):
             config.pipelined,
             lambda: self._outputs.score.get_subscription_count() > 0,
             self.context.ok,
+            max_input_age_s=lambda: self._config.max_input_age_s,
         )
         self.get_logger().info(self._tuning)
         self.get_logger().info(

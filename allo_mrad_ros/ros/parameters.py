@@ -251,6 +251,17 @@ NODE_TABLE: tuple[Section, ...] = (
                 ),
                 read_only=True,
             ),
+            "max_input_age_s": NodeParameter(
+                0.1,
+                _number(
+                    "a frame older than this when the render thread takes it (since its image "
+                    "was published: the middleware's source timestamp, else its arrival) is "
+                    "dropped and counted in /diagnostics (frames_dropped_too_old), not "
+                    "processed; 0: no limit. The default is three frame periods at 30 Hz",
+                    0.0,
+                    3600.0,
+                ),
+            ),
             "opencv_threads": NodeParameter(
                 1,
                 _integer(
@@ -477,6 +488,7 @@ class NodeConfig:
     sun_direction: tuple[float, float, float]
     sun_strength: float
     pipelined: bool
+    max_input_age_s: float
     opencv_threads: int
     keep_freed_memory_mb: int
     publish_reference: bool

@@ -11,7 +11,9 @@ skips it), so a change of rclpy shows there, not as a wrong value in the node.
 
 It also says what differs between the distributions the node runs on: a publisher's
 ``matched`` event (rclpy of Iron and later: Jazzy, Kilted), which Humble's rclpy lacks
-(:func:`matched_event_callbacks`).
+(:func:`matched_event_callbacks`); and, from Iron on, rclpy passes a subscription callback
+of two arguments the message info (the middleware's source and reception timestamps, which
+time a frame from its publication), where Humble's passes none (:func:`message_info_callback`).
 """
 
 from __future__ import annotations
@@ -62,3 +64,16 @@ def matched_event_callbacks(on_matched: Callable[[Any], None]) -> Any | None:
     if "matched" not in inspect.signature(PublisherEventCallbacks).parameters:
         return None
     return PublisherEventCallbacks(matched=on_matched)
+
+
+def message_info_callback(
+    callback: Callable[[Any, Mapping[str, int] | None], None],
+) -> Callable[..., None]:
+    """A subscription callback that calls ``callback(msg, info)``: ``info`` is rclpy's
+    message info (``source_timestamp``, ``received_timestamp``, ns on the system clock)
+    where rclpy passes one, else None."""
+    from rclpy.subscription import Subscription
+
+    if hasattr(Subscription, "CallbackType"):  # rclpy tells the two kinds of callback apart
+        return lambda msg, info: callback(msg, info)
+    return lambda msg: callback(msg, None)

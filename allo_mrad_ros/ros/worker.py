@@ -15,6 +15,14 @@ as it can be and is ready when the detect thread is. One detect thread takes fra
 order they were rendered, so results are published in the order of the images taken.
 Serial (``pipelined: false``): one thread renders, then detects and publishes.
 
+Each processed frame's path is timed on the monotonic clock from the publication of its
+image (the middleware's source timestamp, where rclpy passes it) through the callback, the
+take from the newest-frame slot, the render, the hand-over and the detection to the end of
+its publication (:data:`STAGES`); :class:`~.diagnostics.Diagnostics` reports each stage and
+the frame's age when taken and when published. A frame older than ``max_input_age_s`` when
+the render thread takes it is dropped and counted, not processed: its outputs would describe
+a scene that has moved on, and the next frame is at most a frame period away.
+
 A failure once the run is over (:meth:`ProcessingWorker.stop` called, or the ROS context
 gone: a publish into a context a signal shut down) is the end of the run, not a failed
 frame: the threads end without a report.
@@ -29,7 +37,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -60,6 +68,35 @@ _POLL_S = 0.2
 HOLD_PUBLISH = "node-publish"
 HOLD_PUBLISH_STUCK = "node-publish-stuck"
 HOLD_S = 60.0
+# The stages of a processed frame, in order: each the time between two of its instants, so
+# together they make the frame's age when published. ``middleware``: the image's
+# publication to the node's callback (transport and the subscription's queue); ``slot``: the
+# callback to the render thread's take (the newest-frame slot); ``prepare``: the take to
+# the render (camera_info pairing, decoding, pose lookup); ``render``: the render, or the
+# reuse of the last one; ``handover``: the rendered frame waiting for the detect thread;
+# ``detect``: MRAD; ``publish``: building and sending the outputs.
+STAGES = ("middleware", "slot", "prepare", "render", "handover", "detect", "publish")
+
+
+class Arrival(NamedTuple):
+    """An image as the callback stored it, with its instants on the monotonic clock (s).
+
+    A plain ``(msg, received)`` tuple is an Arrival whose publication is unknown.
+    """
+
+    msg: Any
+    # When the callback ran.
+    received: float
+    # When its publisher sent it (the middleware's source timestamp); None: unknown (an
+    # rclpy that does not pass message info), the age then counts from ``received``.
+    published: float | None = None
+    # When the middleware received it (its reception timestamp); None: unknown.
+    arrived: float | None = None
+
+    @property
+    def origin(self) -> float:
+        """The instant the frame's age counts from: its publication where known."""
+        return self.received if self.published is None else self.published
 
 
 @dataclass(frozen=True)
@@ -85,6 +122,12 @@ class RenderedFrame:
     reference: np.ndarray
     pipeline: Pipeline
     render_ms: float
+    # The frame's instants (monotonic s): its arrival, the take from the slot, the render's
+    # start and end.
+    arrival: Arrival | None = None
+    taken: float = 0.0
+    render_start: float = 0.0
+    render_end: float = 0.0
 
 
 class _RunningMean:
@@ -125,6 +168,9 @@ class ProcessingWorker:
     context_ok : callable
         Whether the ROS context lives (``Context.ok``); asked only when something fails,
         to tell a failed frame from the end of the run.
+    max_input_age_s : callable
+        The oldest a frame may be when taken, in seconds (``max_input_age_s`` in force;
+        0: no limit); an older one is dropped and counted as ``frames_dropped_too_old``.
     """
 
     def __init__(
@@ -138,6 +184,7 @@ class ProcessingWorker:
         pipelined: bool = True,
         score_wanted: Callable[[], bool] = lambda: True,
         context_ok: Callable[[], bool] = lambda: True,
+        max_input_age_s: Callable[[], float] = lambda: 0.0,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -148,6 +195,7 @@ class ProcessingWorker:
         self.pipelined = pipelined
         self._score_wanted = score_wanted
         self._context_ok = context_ok
+        self._max_input_age_s = max_input_age_s
         hold = os.environ.get(HOLD_AT)
         self._hold = hold if hold in (HOLD_PUBLISH, HOLD_PUBLISH_STUCK) else None
         self._running = True
@@ -192,12 +240,18 @@ class ProcessingWorker:
                         continue
                     self._wait_for_detect_to_near_its_end()
                 item = self._slot.take(timeout=_POLL_S)
+                taken = time.monotonic()
                 if not self._running:
                     break
                 try:
-                    state = self._snapshot(None if item is None else item[0])
+                    arrival = None if item is None else Arrival(*item)
+                    if arrival is not None and self._too_old(arrival, taken):
+                        continue
+                    state = self._snapshot(None if arrival is None else arrival.msg)
                     pipeline, built_for = self._pipeline_for(state, pipeline, built_for)
-                    rendered = None if item is None else self._render(item, state, pipeline)
+                    rendered = (
+                        None if arrival is None else self._render(arrival, taken, state, pipeline)
+                    )
                     if rendered is not None and self.pipelined:
                         self._handover.put(rendered, timeout=_POLL_S)  # empty: waited above
                     elif rendered is not None:
@@ -253,6 +307,22 @@ class ProcessingWorker:
         )
         if remaining_s > 0:
             self._stopping.wait(min(remaining_s, 1.0))
+
+    def _too_old(self, arrival: Arrival, taken: float) -> bool:
+        """Whether the frame is older than ``max_input_age_s`` at ``taken``; if so it is
+        counted (and logged, throttled), not processed."""
+        bound_s = self._max_input_age_s()
+        age_s = taken - arrival.origin
+        if bound_s <= 0 or age_s <= bound_s:
+            return False
+        self._diagnostics.count("frames_dropped_too_old")
+        self._logger.warning(
+            f"frame {_stamp_of(arrival)} ns taken {1e3 * age_s:.0f} ms after its publication, "
+            f"older than max_input_age_s ({bound_s:g} s): dropped (counted in /diagnostics as "
+            "frames_dropped_too_old)",
+            throttle_duration_sec=10.0,
+        )
+        return True
 
     def _report_failure(self, item: tuple[Any, float] | None, error: Exception) -> None:
         self._diagnostics.report(
@@ -312,11 +382,12 @@ class ProcessingWorker:
         return pipeline, built_for
 
     def _render(
-        self, item: tuple[Any, float], state: Snapshot, pipeline: Pipeline | None
+        self, arrival: Arrival, taken: float, state: Snapshot, pipeline: Pipeline | None
     ) -> RenderedFrame | None:
-        """Decode the image, look its view up and render its reference (None: reported)."""
+        """Decode the image, look its view up and render its reference (None: reported);
+        ``taken``: when it was taken from the slot (monotonic s)."""
         stage_start = time.perf_counter()
-        msg, received = item
+        msg = arrival.msg
         report = self._diagnostics.report
         if state.camera_problem is not None:
             report(state.camera_problem)
@@ -335,10 +406,11 @@ class ProcessingWorker:
             view = self._view_of(msg, state)
             if view is None:
                 return None
-            start = time.perf_counter()
+            start, render_start = time.perf_counter(), time.monotonic()
             provider = pipeline.provider
             reference = provider.render(view, messages.stamp_to_ns(msg.header.stamp) / 1e9)
             render_ms = 1e3 * (time.perf_counter() - start)
+            render_end = time.monotonic()
             reused = provider.reuse is not None and provider.reuse.last_decision.reuse
             self._diagnostics.count("references_reused" if reused else "references_rendered")
         except MessageError as error:
@@ -352,7 +424,18 @@ class ProcessingWorker:
             return None
         # The whole stage (a TF lookup may wait) is what the detect thread waits for.
         self._render_ms.add(1e3 * (time.perf_counter() - stage_start))
-        return RenderedFrame(msg, received, image, reference, pipeline, render_ms)
+        return RenderedFrame(
+            msg,
+            arrival.received,
+            image,
+            reference,
+            pipeline,
+            render_ms,
+            arrival,
+            taken,
+            render_start,
+            render_end,
+        )
 
     def _detect(self, rendered: RenderedFrame) -> None:
         """Detect, publish (unless stopping), count and time one rendered frame."""
@@ -363,11 +446,13 @@ class ProcessingWorker:
             self._detect_ms.add(1e3 * (time.perf_counter() - start))
 
     def _detect_and_publish(self, rendered: RenderedFrame) -> None:
+        detect_start = time.monotonic()
         try:
             score_map = self._score_wanted()
             detected = rendered.pipeline.detect(
                 rendered.image, rendered.reference, score_map=score_map
             )
+            detect_end = time.monotonic()
         except ValueError as error:
             self._diagnostics.report(MessageError("processing", f"frame rejected: {error}"))
             return
@@ -381,12 +466,9 @@ class ProcessingWorker:
             if self._hold is not None:
                 self._hold_at_publish()
             self._publish(rendered.msg, rendered.image, frame, score_map)
+        published = time.monotonic()
         self._diagnostics.stages.record(
-            {
-                "render": rendered.render_ms,
-                "detect": frame.timings_ms[next(iter(frame.results))],
-                "receive_to_publish": 1e3 * (time.monotonic() - rendered.received),
-            }
+            frame_timings_ms(rendered, detect_start, detect_end, published)
         )
         self._diagnostics.count("frames_processed")
         if frame.primary.anomalous:
@@ -446,6 +528,39 @@ def render_delay_s(
         return 0.0
     lead_ms = detect_ms - (1.0 + _EARLY_SHARE) * render_ms - _EARLY_MS
     return max(0.0, taken_at + lead_ms / 1e3 - now)
+
+
+def frame_timings_ms(
+    rendered: RenderedFrame, detect_start: float, detect_end: float, published: float
+) -> dict[str, float]:
+    """A processed frame's :data:`STAGES`, the part of ``middleware`` it spent in the
+    subscription's queue (``middleware_queue``: the middleware's reception to the callback),
+    its ages when taken and when published (``age_taken``, ``age_published``: from its
+    publication, else from the callback) and ``receive_to_publish`` (the callback to the end
+    of publication), in ms, from its instants (monotonic s). ``middleware`` and
+    ``middleware_queue`` only where the middleware's timestamps are known."""
+    arrival = rendered.arrival or Arrival(rendered.msg, rendered.received)
+    instants = [
+        arrival.published,
+        arrival.received,
+        rendered.taken,
+        rendered.render_start,
+        rendered.render_end,
+        detect_start,
+        detect_end,
+        published,
+    ]
+    timings = {
+        stage: 1e3 * (end - start)
+        for stage, start, end in zip(STAGES, instants[:-1], instants[1:], strict=True)
+        if start is not None
+    }
+    if arrival.arrived is not None:
+        timings["middleware_queue"] = 1e3 * (arrival.received - arrival.arrived)
+    timings["age_taken"] = 1e3 * (rendered.taken - arrival.origin)
+    timings["age_published"] = 1e3 * (published - arrival.origin)
+    timings["receive_to_publish"] = 1e3 * (published - arrival.received)
+    return timings
 
 
 def _stamp_of(item: tuple[Any, float] | None) -> str:

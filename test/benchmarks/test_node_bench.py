@@ -52,3 +52,38 @@ def test_the_summary_line_says_n_a_for_unknown_renders():
     assert " n/a " in bench.summary_line("1080p30", report)
     report["renders_per_frame"] = 0.2
     assert " 0.20 " in bench.summary_line("1080p30", report)
+
+
+def test_the_node_s_stage_figures_are_read_from_its_diagnostics_values():
+    values = {
+        "latency_middleware_ms_p50": "4.0",
+        "latency_middleware_ms_p95": "9.5",
+        "latency_detect_ms_p50": "14.0",
+        "latency_detect_ms_p95": "30.0",
+        "input_age_taken_ms_p50": "8.0",
+        "input_age_taken_ms_p95": "20.0",
+        "input_age_published_ms_p50": "30.0",
+        "input_age_published_ms_p95": "61.0",
+        "latency_slot_ms_p50": "n/a",  # unreadable: left out
+        "frames_processed": "10",
+    }
+    assert bench.node_stages(values) == {
+        "middleware": {"p50": 4.0, "p95": 9.5},
+        "detect": {"p50": 14.0, "p95": 30.0},
+        "age_taken": {"p50": 8.0, "p95": 20.0},
+        "age_published": {"p50": 30.0, "p95": 61.0},
+    }
+    assert bench.node_stages({}) == {}
+
+
+def test_the_latency_is_split_into_windows_of_image_stamps():
+    # Stamps every second for 70 s; latency 10 ms in the first 30 s, then 20, then 40.
+    arrivals = {}
+    for second in range(70):
+        latency_s = 0.010 if second < 30 else 0.020 if second < 60 else 0.040
+        arrivals[(1000 + second) * 10**9] = 1000 + second + latency_s
+    windows = bench.latency_windows(arrivals, window_s=30.0)
+    assert [w["start_s"] for w in windows] == [0.0, 30.0, 60.0]
+    assert [w["frames"] for w in windows] == [30, 30, 10]
+    assert [round(w["p50"], 6) for w in windows] == [10.0, 20.0, 40.0]
+    assert bench.latency_windows({}) == []

@@ -43,6 +43,8 @@ def live():
             Parameter("diagnostics_period_s", value=0.2),
             Parameter("input_timeout_s", value=1.0),
             Parameter("reference_scale", value=0.25),
+            # Each frame must reach the stage that fails: none dropped for age when slow.
+            Parameter("max_input_age_s", value=0.0),
         ]
     )
     executor = SingleThreadedExecutor()

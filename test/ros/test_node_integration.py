@@ -54,7 +54,10 @@ def ros_peer():
 @pytest.fixture(scope="module")
 def node_process(tmp_path_factory, ros_peer):
     log = tmp_path_factory.mktemp("node") / "node.log"
-    process = start_node(log, "reference_scale:=0.5", "diagnostics_period_s:=0.5")
+    # Every frame is accounted for below: no age limit (test_input_age.py tests the limit).
+    process = start_node(
+        log, "reference_scale:=0.5", "diagnostics_period_s:=0.5", "max_input_age_s:=0.0"
+    )
     assert ros_peer.wait_for_node(60.0), log.read_text()
     yield process, log
     stop_node(process)
@@ -185,7 +188,11 @@ def test_an_image_sent_once_after_the_node_reports_ready_arrives(tmp_path, ros_p
         feed = CameraFeed(INTRINSICS, namespace=namespace, outputs=("mask",))
         log = tmp_path / f"{namespace}.log"
         process = start_node(
-            log, "reference_scale:=0.5", "diagnostics_period_s:=0.2", namespace=namespace
+            log,
+            "reference_scale:=0.5",
+            "diagnostics_period_s:=0.2",
+            "max_input_age_s:=0.0",  # the one image must be processed, however slow the machine
+            namespace=namespace,
         )
         try:
             assert feed.wait_for_node(60.0), log.read_text()

@@ -61,6 +61,7 @@ def graph(tmp_path_factory):
             "mrad.process_scale:=0.5",
             "publish_reference:=true",
             "diagnostics_period_s:=0.5",
+            "max_input_age_s:=0.0",  # frames counted: none dropped for age on a slow machine
             namespace="cam1",
         ),
         "cam2": start_node(
@@ -69,6 +70,7 @@ def graph(tmp_path_factory):
             "mrad.process_scale:=0.5",
             "image_transport:=compressed",
             "diagnostics_period_s:=0.5",
+            "max_input_age_s:=0.0",
             namespace="cam2",
         ),
     }

@@ -155,3 +155,35 @@ def test_diagnostics_are_built_from_the_node_config_with_their_callbacks():
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_the_image_keeps_one_sample_unless_a_qos_override_says_more():
+    """A node short of CPU takes the newest frame, not the oldest of the middleware's queue;
+    `qos_overrides.<topic>.subscription.depth` still keeps more. camera_info keeps
+    sensor-data's 5, so the one of an image's stamp is still there when the node pairs it."""
+    rclpy.init()
+    try:
+        plain = MradDetectorNode(parameter_overrides=[Parameter("pose_source", value="topic")])
+        deeper = MradDetectorNode(
+            parameter_overrides=[
+                Parameter("pose_source", value="topic"),
+                Parameter("qos_overrides./arm_camera/image_raw.subscription.depth", value=2),
+                Parameter("qos_overrides./arm_camera/camera_info.subscription.depth", value=8),
+            ]
+        )
+        try:
+            depths = {}
+            for name, node in (("plain", plain), ("deeper", deeper)):
+                node._inputs.subscribe()
+                depths[name] = {
+                    s.topic_name: s.qos_profile.depth
+                    for s in node.subscriptions
+                    if s.topic_name in ("/arm_camera/image_raw", "/arm_camera/camera_info")
+                }
+            assert depths["plain"] == {"/arm_camera/image_raw": 1, "/arm_camera/camera_info": 5}
+            assert depths["deeper"] == {"/arm_camera/image_raw": 2, "/arm_camera/camera_info": 8}
+        finally:
+            plain.destroy_node()
+            deeper.destroy_node()
+    finally:
+        rclpy.shutdown()

@@ -1,13 +1,16 @@
 """The processing thread's shutdown and the demo recorder's memory bound (no DDS needed)."""
 
 import array
+import inspect
 import threading
+import time
 import types
 
 import numpy as np
 import pytest
 import rclpy  # noqa: F401 - the worker's diagnostics need rclpy (skipped on the distro route)
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from allo_mrad_ros.camera import CameraIntrinsics
@@ -154,7 +157,7 @@ def test_recorder_forgets_the_oldest_unmatched_outputs_and_inputs():
     mask = node.callbacks["/mrad_detector/mask"]
     image = node.callbacks["/arm_camera/image_raw"]
     for stamp in range(1000):
-        image(image_at(stamp))
+        deliver(image, image_at(stamp))
         score(image_at(stamp, np.zeros((2, 2), np.float32), "32FC1"))
     assert len(recorder._pending) == 50 and len(recorder._input_arrival) == 50
     assert recorder.unmatched == 950
@@ -163,6 +166,45 @@ def test_recorder_forgets_the_oldest_unmatched_outputs_and_inputs():
     node.callbacks["/mrad_detector/result"](result_at(999, "12.5"))
     assert len(frames) == 1 and frames[0].stamp_ns == 999 and frames[0].latency_ms is not None
     assert frames[0].image_score == 12.5  # a recent stamp still pairs, with its latency
+
+
+def deliver(callback, msg, info=None):
+    """Call a subscription callback as rclpy does: with the message info where it takes it."""
+    try:
+        inspect.signature(callback).bind(msg)
+    except TypeError:
+        return callback(msg, info or {"source_timestamp": 0, "received_timestamp": 0})
+    return callback(msg)
+
+
+def test_the_recorder_s_latency_counts_from_the_input_s_publication_where_rclpy_says_it():
+    node, frames = FakeNode(), []
+    OutputRecorder(node, frames.append)
+    callbacks = node.callbacks
+    if not hasattr(Subscription, "CallbackType"):
+        pytest.skip("this rclpy (Humble) passes no message info")
+    # Published 5 s before this process received it: the latency is at least that.
+    sent_ns = time.time_ns() - 5 * 10**9
+    deliver(callbacks["/arm_camera/image_raw"], image_at(7), {"source_timestamp": sent_ns})
+    callbacks["/mrad_detector/score"](image_at(7, np.zeros((2, 2), np.float32), "32FC1"))
+    callbacks["/mrad_detector/mask"](image_at(7))
+    callbacks["/mrad_detector/result"](result_at(7, "1.0"))
+    assert len(frames) == 1 and frames[0].latency_ms >= 5000.0
+
+
+def test_the_recorder_keeps_the_node_s_latest_pipeline_status():
+    node = FakeNode()
+    recorder = OutputRecorder(node, lambda frame: None)
+    assert recorder.node_status == {}
+    other = DiagnosticStatus(name="other_node: pipeline", values=[KeyValue(key="a", value="1")])
+    ours = DiagnosticStatus(
+        name="mrad_detector: pipeline",
+        values=[KeyValue(key="input_age_published_ms_p50", value="41.5")],
+    )
+    node.callbacks["/diagnostics"](DiagnosticArray(status=[other, ours]))
+    assert recorder.node_status == {"input_age_published_ms_p50": "41.5"}
+    node.callbacks["/diagnostics"](DiagnosticArray(status=[other]))  # not ours: kept
+    assert recorder.node_status == {"input_age_published_ms_p50": "41.5"}
 
 
 def test_recorder_takes_the_image_score_from_the_node_result():
