@@ -5,9 +5,11 @@ Not installed: run them from the repository root as ``python -m benchmarks.<name
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
+from collections.abc import Sequence
 from pathlib import Path
 
 
@@ -31,3 +33,37 @@ def machine_facts() -> dict[str, object]:
         "machine": platform.machine(),
         "python": platform.python_version(),
     }
+
+
+def add_names_option(
+    parser: argparse.ArgumentParser,
+    flag: str,
+    choices: Sequence[str],
+    *,
+    what: str,
+    help: str,
+    default: Sequence[str] | None = None,
+    allow_empty: bool = False,
+) -> None:
+    """Add ``flag``: a comma-separated list of names of ``what`` (say ``"mode"``), each one of
+    ``choices``; ``default`` (None: all of them) when not given. Parsed to a list in the order
+    given; a name not among ``choices`` (or none, unless ``allow_empty``) is refused with
+    argparse's usage error."""
+    known = tuple(choices)
+
+    def names(text: str) -> list[str]:
+        given = [name.strip() for name in text.split(",") if name.strip()]
+        unknown = [name for name in given if name not in known]
+        if unknown or not (given or allow_empty):
+            raise argparse.ArgumentTypeError(
+                f"unknown {what} {unknown or text!r}; choose from {', '.join(known)}"
+            )
+        return given
+
+    names.__name__ = what  # argparse names the type in its message
+    parser.add_argument(
+        flag,
+        type=names,
+        default=",".join(known if default is None else default),
+        help=f"comma-separated, of {', '.join(known)}: {help}",
+    )

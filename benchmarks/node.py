@@ -54,7 +54,7 @@ from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
 from allo_mrad_ros.render import ReferenceRenderer
 from allo_mrad_ros.ros.worker import STAGES
-from benchmarks import finish, thread_cpu
+from benchmarks import add_names_option, finish, thread_cpu
 from benchmarks.load import busy_loops, prioritised, renice
 from benchmarks.node_outputs import compare_outputs, outputs_table
 from benchmarks.node_session import SUN, node_session, still_frames
@@ -403,16 +403,16 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=1000, help="processed frames to measure")
-    parser.add_argument(
-        "--modes",
-        default=",".join(MODES),
-        help=f"comma-separated camera modes of {list(MODES)}; the first goes to the top level",
+    add_names_option(
+        parser, "--modes", MODES, what="mode", help="camera modes; the first goes to the top level"
     )
-    parser.add_argument(
+    add_names_option(
+        parser,
         "--trajectory",
-        default=",".join(TRAJECTORIES),
-        help=f"comma-separated camera paths of {list(TRAJECTORIES)} (moving: up to "
-        f"{MAX_LINEAR_M_S} m/s and {MAX_ANGULAR_DEG_S} deg/s); the first goes to the top level",
+        TRAJECTORIES,
+        what="trajectory",
+        help=f"camera paths (moving: up to {MAX_LINEAR_M_S} m/s and {MAX_ANGULAR_DEG_S} "
+        "deg/s); the first goes to the top level",
     )
     parser.add_argument("--timeout", type=float, default=600.0, help="seconds per run")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_node.json"))
@@ -488,14 +488,7 @@ def main(argv: list[str] | None = None) -> int:
             f"node log: {log}"
         )
         return finish(args.out, report)
-    modes = [name.strip() for name in args.modes.split(",") if name.strip()]
-    unknown = sorted(set(modes) - set(MODES))
-    if unknown or not modes:
-        parser.error(f"unknown mode(s) {unknown or modes}; choose from {list(MODES)}")
-    paths = [name.strip() for name in args.trajectory.split(",") if name.strip()]
-    unknown = sorted(set(paths) - set(TRAJECTORIES))
-    if unknown or not paths:
-        parser.error(f"unknown trajectory {unknown or paths}; choose from {list(TRAJECTORIES)}")
+    modes, paths = args.modes, args.trajectory
     bad = [text for text in args.node_param if ":=" not in text]
     if bad:
         parser.error(f"--node-param needs NAME:=VALUE, got {bad}")

@@ -32,7 +32,7 @@ from allo_mrad_ros.ros import messages
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import default_config
 from allo_mrad_ros.view import View
-from benchmarks import finish, machine_facts
+from benchmarks import add_names_option, finish, machine_facts
 from benchmarks.node_session import SUN, still_frames
 
 # The node's default output settings: the overlay published, the reference not.
@@ -50,6 +50,22 @@ class _Listened:
 
     def publish(self, msg: object) -> None:
         self._publisher.publish(msg)
+
+
+# The publishers of :class:`Outputs` that a profile can report as subscribed.
+OUTPUT_NAMES = (
+    "mask",
+    "mask_info",
+    "score",
+    "score_info",
+    "anomaly",
+    "result",
+    "regions",
+    "reference",
+    "reference_info",
+    "overlay",
+    "overlay_info",
+)
 
 
 def _outputs(node: object, subscribed: tuple[str, ...]) -> Outputs:
@@ -128,14 +144,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=20, help="profiled frames")
     parser.add_argument("--top", type=int, default=15, help="functions listed")
-    parser.add_argument(
+    add_names_option(
+        parser,
         "--outputs",
-        default="mask,score,overlay,anomaly",
-        help="comma-separated outputs reported as subscribed",
+        OUTPUT_NAMES,
+        what="output",
+        help="the outputs reported as subscribed",
+        default=("mask", "score", "overlay", "anomaly"),
     )
     parser.add_argument("--out", type=Path, default=Path("reports/profile_node.json"))
     args = parser.parse_args(argv)
-    subscribed = tuple(name for name in args.outputs.split(",") if name)
+    subscribed = tuple(args.outputs)
     stats, medians = profile_frames(args.frames, subscribed)
     rows = top_functions(stats, args.frames, args.top)
     load = os.getloadavg()

@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchmarks import finish, machine_facts
+from benchmarks import add_names_option, finish, machine_facts
 
 if TYPE_CHECKING:  # the ROS side is imported by the processes that need it, not by the tests
     from harness.feed import CameraFeed
@@ -674,13 +674,14 @@ def main(argv: list[str] | None = None) -> int:
         return _role_main(argv)
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=30.0, help="seconds per run")
-    parser.add_argument(
-        "--modes", default=",".join(MODES), help=f"comma-separated, of {', '.join(MODES)}"
-    )
-    parser.add_argument(
+    add_names_option(parser, "--modes", MODES, what="mode", help="camera modes")
+    add_names_option(
+        parser,
         "--settings",
-        default=",".join(SETTINGS),
-        help=f"comma-separated, of {', '.join(SETTINGS)}",
+        SETTINGS,
+        what="setting",
+        help="transport settings (none: only the --profile ones)",
+        allow_empty=True,
     )
     parser.add_argument(
         "--profile",
@@ -699,11 +700,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=Path("reports/bench_transport.json"))
     args = parser.parse_args(argv)
-    modes, names = args.modes.split(","), [n for n in args.settings.split(",") if n]
-    for name, known in (("mode", MODES), ("setting", SETTINGS)):
-        unknown = [v for v in (modes if name == "mode" else names) if v not in known]
-        if unknown:
-            parser.error(f"unknown {name} {unknown[0]!r}; choose from {', '.join(known)}")
+    modes, names = args.modes, args.settings
     try:
         settings = [SETTINGS[n] for n in names] + [profile_setting(p) for p in args.profile]
     except TransportBenchError as error:

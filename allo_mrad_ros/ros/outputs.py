@@ -18,8 +18,8 @@ subscribed. Every publisher accepts QoS overrides (``qos_overrides.<topic>.publi
 labels the mask again. ``~/detections`` (vision_msgs/Detection2DArray: one detection per
 region, its box and an ``anomaly`` hypothesis scored with the region's score in [0, 1])
 exists where vision_msgs is installed (every ROS distro; no pip wheel).
-:func:`detection_array` builds it from any class with vision_msgs' fields, so it is tested
-with a stand-in of the message definitions.
+:func:`detection_array` builds it from any module of classes with vision_msgs' fields; the
+tests create the publisher with types generated from vision_msgs' own ``.msg`` files.
 """
 
 from __future__ import annotations
