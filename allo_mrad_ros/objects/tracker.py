@@ -472,9 +472,11 @@ class ObjectTracker:
         else:
             resolved = rho - k * rho_sigma > 1.0 / params.max_range
         high = rays.high[np.arange(len(rays.anchor)), rays.anchor]
-        behind = (
-            solution.free_range - k * solution.free_range_sigma > high + params.occlusion_margin
-        )
+        # Where the rays leave the range undetermined, they do not say it is behind.
+        sigma = solution.free_range_sigma
+        determined = np.isfinite(sigma)
+        nearest = solution.free_range - k * np.where(determined, sigma, 0.0)
+        behind = determined & (nearest > high + params.occlusion_margin)
         return resolved, ~behind
 
     def _within_capacity(
