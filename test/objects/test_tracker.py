@@ -71,10 +71,7 @@ def test_confirmation_needs_n_hits_in_the_last_m_in_view_frames():
     pattern = [True, False, False, True, False, True]
     for k, hit in enumerate(pattern):
         t = k / FPS
-        if hit:
-            obj = only(seen(tracker, POINT, t))
-        else:
-            obj = only(tracker.update([], sweep(t), SPACE, t))
+        obj = only(seen(tracker, POINT, t)) if hit else only(tracker.update([], sweep(t), SPACE, t))
         assert obj.state == "tentative", k
     # A third hit within the window: hits at frames 3, 5, 6 of the last 4 (3..6).
     assert only(seen(tracker, POINT, 6 / FPS)).state == "confirmed"
