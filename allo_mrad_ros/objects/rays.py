@@ -119,9 +119,17 @@ def camera_rays(camera: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.nd
 class _Footprint:
     """A region's pixels at the depth's resolution and the surface's range behind each."""
 
-    u: np.ndarray  # image pixel coordinates of the sampled depth pixels
-    v: np.ndarray
-    surface_range: np.ndarray  # metres along each pixel's ray; 0 where space
+    u: np.ndarray  # image columns of the box's depth pixels' centres
+    v: np.ndarray  # image rows of them
+    surface_range: np.ndarray  # metres along each sampled pixel's ray; 0 where space
+    inside: np.ndarray | None  # which of the box's pixels are sampled (None: all)
+
+    def pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Image coordinates of the sampled pixels, raster order."""
+        uu, vv = np.meshgrid(self.u, self.v)
+        if self.inside is not None:
+            return uu[self.inside], vv[self.inside]
+        return uu.ravel(), vv.ravel()
 
 
 def _footprint(
@@ -139,23 +147,23 @@ def _footprint(
     r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
     cols = np.arange(c0, c1)
     rows = np.arange(r0, r1)
-    # Each depth pixel's centre in image pixels.
+    # Each depth pixel's centre in image pixels, and its ray's length per unit z.
     u = (cols + 0.5) / sx - 0.5
     v = (rows + 0.5) / sy - 0.5
-    uu, vv = np.meshgrid(u, v)
-    block = depth[r0:r1, c0:c1]
+    xn = (u - camera.cx) / camera.fx
+    yn = (v - camera.cy) / camera.fy
+    stretch = np.sqrt((xn * xn)[None, :] + (yn * yn)[:, None] + 1.0)
+    surface_range = depth[r0:r1, c0:c1] * stretch
+    inside = None
     if mask is not None:
         ui = np.clip(np.floor((cols + 0.5) / sx).astype(np.int64), 0, camera.width - 1)
         vi = np.clip(np.floor((rows + 0.5) / sy).astype(np.int64), 0, camera.height - 1)
         inside = mask[np.ix_(vi, ui)] != 0
-        if inside.any():  # else the region is smaller than a depth pixel: the whole box
-            uu, vv, block = uu[inside], vv[inside], block[inside]
-    uu, vv, block = uu.ravel(), vv.ravel(), block.ravel()
-    # z depth to range along each pixel's own ray.
-    xn = (uu - camera.cx) / camera.fx
-    yn = (vv - camera.cy) / camera.fy
-    surface_range = block * np.sqrt(xn * xn + yn * yn + 1.0)
-    return _Footprint(uu, vv, surface_range)
+        if not inside.any():  # the region is smaller than a depth pixel: the whole box
+            inside = None
+    if inside is not None:
+        surface_range = surface_range[inside]
+    return _Footprint(u, v, surface_range.ravel(), inside)
 
 
 def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
@@ -222,7 +230,7 @@ def region_rays(
     footprint = _footprint(region, camera, depth, reference, mask)
     bound = surface_bound(footprint.surface_range, surface_quantile)
     rotation = pose[:3, :3]
-    directions = camera_rays(camera, footprint.u, footprint.v) @ rotation.T
+    directions = camera_rays(camera, *footprint.pixels()) @ rotation.T
     centre = camera_rays(camera, *np.array(region.centroid)[:, None])[0] @ rotation.T
     # A region before a surface nearer than min_range keeps a range interval of one point.
     upper = max_range if bound is None else max(min(bound, max_range), min_range)

@@ -451,11 +451,11 @@ class ObjectTracker:
         solution = triangulate(rays)
         resolved, consistent = self._range_checks(solution, rays)
         extent = np.array([t.extent for t in tracks]) / self._focal
-        sizes = np.where(valid, extent * solution.ranges, np.nan)
+        sizes = np.nanmedian(np.where(valid, extent * solution.ranges, np.nan), axis=1)
         for i, track in enumerate(tracks):
             track.position = solution.position[i]
             track.covariance = solution.covariance[i]
-            track.size = float(np.nanmedian(sizes[i]))
+            track.size = float(sizes[i])
             track.resolved = bool(resolved[i])
             track.consistent = bool(consistent[i])
 
