@@ -89,12 +89,16 @@ class ProcessedFrame:
         ``render`` (0 when the reference was supplied), one entry per method, ``total``.
     reference_camera : CameraIntrinsics or None
         The intrinsics the reference was rendered with (None when it was supplied).
+    reference_depth : numpy.ndarray or None
+        The reference's z depth in metres (0 where space is in view), when asked for
+        (:meth:`Pipeline.process` with ``depth=True``); else None.
     """
 
     reference: np.ndarray
     results: dict[str, DetectionResult]
     timings_ms: dict[str, float] = field(default_factory=dict)
     reference_camera: CameraIntrinsics | None = None
+    reference_depth: np.ndarray | None = None
 
     @property
     def primary(self) -> DetectionResult:
@@ -250,6 +254,13 @@ class Pipeline:
         :meth:`process` (see :meth:`ReferenceProvider.render`)."""
         return self._provider.render(view, time_s)
 
+    def render_with_depth(
+        self, view: View, *, time_s: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render`'s reference and its z depth in metres, 0 where space is in view
+        (see :meth:`ReferenceProvider.render_with_depth`)."""
+        return self._provider.render_with_depth(view, time_s)
+
     def detect(
         self, image: np.ndarray, reference: np.ndarray, *, score_map: bool = True
     ) -> ProcessedFrame:
@@ -281,6 +292,7 @@ class Pipeline:
         *,
         reference: np.ndarray | None = None,
         time_s: float | None = None,
+        depth: bool = False,
     ) -> ProcessedFrame:
         """Detect anomalies in ``image`` seen from ``view``.
 
@@ -294,6 +306,9 @@ class Pipeline:
             A pre-rendered reference to use instead of rendering one.
         time_s : float, optional
             The frame's time, for reference reuse (see :meth:`ReferenceProvider.render`).
+        depth : bool
+            Also render the reference's depth (:attr:`ProcessedFrame.reference_depth`);
+            off by default, as it costs a depth read back. Ignored with ``reference``.
 
         Returns
         -------
@@ -316,6 +331,13 @@ class Pipeline:
         if reference is not None:
             return self.detect(image, reference)
         start = time.perf_counter()
-        reference = self.render(view, time_s=time_s)
+        reference_depth = None
+        if depth:
+            reference, reference_depth = self.render_with_depth(view, time_s=time_s)
+        else:
+            reference = self.render(view, time_s=time_s)
         render_ms = 1e3 * (time.perf_counter() - start)
-        return self.detect(image, reference).with_render(render_ms, self._provider.reference_camera)
+        frame = self.detect(image, reference).with_render(
+            render_ms, self._provider.reference_camera
+        )
+        return frame if reference_depth is None else replace(frame, reference_depth=reference_depth)

@@ -75,6 +75,27 @@ class ReferenceProvider:
             return self._render(view)[0]
         return self.reuse.reference(view, time_s, self._render)
 
+    def render_with_depth(
+        self, view: View, time_s: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render`'s reference and its depth: H x W float32 z depth in metres along
+        the camera's optical axis (pyrender's linear depth), 0 where space is in view.
+
+        With reuse, the depth is warped with the colour and measured from ``view``'s
+        camera; both arrays are then read-only. Asking for the depth costs a depth read
+        back (and, with reuse, a warp of the depth); :meth:`render` never pays for it.
+        """
+        if self.reuse is None:
+            result = self.renderer.render(
+                view.T_station_camera,
+                view.sun_direction,
+                view.sun_strength,
+                view.sky_bodies,
+                depth=True,
+            )
+            return result.rgb, result.depth
+        return self.reuse.reference_with_depth(view, time_s, self._render)
+
     def _render(self, view: View) -> tuple[np.ndarray, np.ndarray]:
         result = self.renderer.render(
             view.T_station_camera,

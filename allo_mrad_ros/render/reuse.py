@@ -41,6 +41,7 @@ from allo_mrad_ros.render.warp import (
     apply_homography,
     beyond_px,
     content_offset_px,
+    depth_in_view,
     image_corners,
     largest_shift_px,
     relative_motion,
@@ -154,6 +155,8 @@ class Keyframe:
         The reference of :attr:`view` itself: the render without its margin, read-only.
     inverse_depth : tuple of float
         Smallest and largest inverse depth (1/m) over the render; 0 is infinitely far.
+    wide_depth : numpy.ndarray or None
+        The render's z depth with its margin (metres, 0 where nothing was hit), read-only.
     """
 
     view: View
@@ -161,6 +164,7 @@ class Keyframe:
     wide: np.ndarray
     image: np.ndarray
     inverse_depth: tuple[float, float]
+    wide_depth: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -285,12 +289,49 @@ def warp(keyframe: Keyframe, decision: ReuseDecision, camera: CameraIntrinsics) 
     )
 
 
+def warp_depth(
+    keyframe: Keyframe,
+    homography: np.ndarray | None,
+    view: View,
+    camera: CameraIntrinsics,
+    margin: int,
+) -> np.ndarray:
+    """The keyframe's depth as ``view`` sees it (read-only; 0 where nothing was hit).
+
+    Pixels move with ``homography`` (the colour's warp, None: the plain crop) and each
+    depth is measured from ``view``'s camera (:func:`~.warp.depth_in_view`), so a surface
+    the camera moved towards is nearer, not only shifted.
+    """
+    if keyframe.wide_depth is None:
+        raise ReuseError("the keyframe was made without its depth")
+    if homography is None:
+        depth = keyframe.wide_depth[margin : margin + camera.height, margin : margin + camera.width]
+        if keyframe.view is not view:
+            motion = relative_motion(keyframe.view.T_station_camera, view.T_station_camera)
+            depth = depth_in_view(depth, motion, camera)
+        depth = np.ascontiguousarray(depth)
+    else:
+        motion = relative_motion(keyframe.view.T_station_camera, view.T_station_camera)
+        moved = depth_in_view(keyframe.wide_depth, motion, widened(camera, margin))
+        depth = cv2.warpPerspective(
+            moved,
+            homography,
+            (camera.width, camera.height),
+            flags=_INTERPOLATION,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+    depth.flags.writeable = False
+    return depth
+
+
 def keyframe_of(
     view: View, time_s: float | None, wide: np.ndarray, depth: np.ndarray, margin: int
 ) -> Keyframe:
     """A keyframe from a render with its margin and depth (0 where nothing was hit)."""
     wide = np.ascontiguousarray(wide)
     wide.flags.writeable = False
+    wide_depth = np.array(depth, dtype=np.float32)
+    wide_depth.flags.writeable = False
     height, width = wide.shape[0] - 2 * margin, wide.shape[1] - 2 * margin
     image = wide[margin : margin + height, margin : margin + width]
     if margin:
@@ -300,7 +341,7 @@ def keyframe_of(
     # Space (nothing hit) is infinitely far: inverse depth 0.
     far = 0.0 if hit.size < depth.size else float(1.0 / hit.max())
     near = float(1.0 / hit.min()) if hit.size else 0.0
-    return Keyframe(view, time_s, wide, image, (near, far))
+    return Keyframe(view, time_s, wide, image, (near, far), wide_depth)
 
 
 class ReferenceReuse:
@@ -328,6 +369,9 @@ class ReferenceReuse:
         self._keyframe: Keyframe | None = None
         # The last warp: its homography and image (read-only), for the keyframe in use.
         self._warped: tuple[np.ndarray, np.ndarray] | None = None
+        # What the last reference returned was: its view and the homography of its warp
+        # (None: the keyframe's own image), for its depth on request.
+        self._shown: tuple[View, np.ndarray | None] | None = None
 
     def reference(
         self,
@@ -346,10 +390,12 @@ class ReferenceReuse:
             rgb, depth = render(view)
             self._keyframe = keyframe_of(view, time_s, rgb, depth, self.margin)
             self._warped = None
+            self._shown = (self._keyframe.view, None)
             self.rendered += 1
             return self._keyframe.image
         self.reused += 1
         if decision.homography is None:
+            self._shown = (self._keyframe.view, None)
             return self._keyframe.image
         if self._warped is not None:
             homography, image = self._warped
@@ -357,11 +403,32 @@ class ReferenceReuse:
             if offset < _SNAP_PX and decision.error_px + offset / self.scale <= (
                 self.bounds.max_error_px
             ):
+                self._shown = (view, homography)
                 return image
         image = warp(self._keyframe, decision, self.camera)
         image.flags.writeable = False
         self._warped = (decision.homography, image)
+        self._shown = (view, decision.homography)
         return image
+
+    def reference_with_depth(
+        self,
+        view: View,
+        time_s: float | None,
+        render: Callable[[View], tuple[np.ndarray, np.ndarray]],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`reference` and its z depth (metres from ``view``'s camera, 0 where
+        nothing was hit), both read-only.
+
+        The depth follows the image: the keyframe's own (cropped) where the image is the
+        keyframe's, else the keyframe's depth warped with the same homography and measured
+        from the new camera (:func:`warp_depth`). Only this call pays for the depth warp.
+        """
+        image = self.reference(view, time_s, render)
+        if self._keyframe is None or self._shown is None:  # reference() sets both
+            raise ReuseError("no reference has been made yet")
+        shown_view, homography = self._shown
+        return image, warp_depth(self._keyframe, homography, shown_view, self.camera, self.margin)
 
 
 def _same_bodies(old: View, new: View, max_change_deg: float) -> bool:

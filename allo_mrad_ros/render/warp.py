@@ -33,6 +33,24 @@ def relative_motion(T_station_from: np.ndarray, T_station_to: np.ndarray) -> np.
     return motion
 
 
+def depth_in_view(depth: np.ndarray, motion: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
+    """The z depth of each pixel of ``camera``'s ``depth`` image measured in another camera
+    (``motion`` takes points of ``camera``'s frame into that camera's), at the same pixel;
+    0 (nothing hit) stays 0.
+
+    A point at pixel ``p`` and depth ``z`` is ``z K^-1 p``, so its new depth is
+    ``z (R_3 . K^-1 p) + t_3``: the warp moves the pixel, this keeps the value metric.
+    """
+    height, width = depth.shape
+    inverse = np.linalg.inv(camera.matrix)
+    # R_3 . K^-1 [u, v, 1] is affine in u and v: one row times the pixel coordinates.
+    row = motion[2, :3] @ inverse
+    cols = (row[0] * np.arange(width)).astype(np.float32)
+    rows = (row[1] * np.arange(height) + row[2]).astype(np.float32)
+    moved = depth * (rows[:, None] + cols[None, :]) + np.float32(motion[2, 3])
+    return np.where(depth > 0, moved, np.float32(0.0)).astype(np.float32, copy=False)
+
+
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """The angle between two vectors in degrees (0 for two zero vectors)."""
     a = np.asarray(a, dtype=np.float64)

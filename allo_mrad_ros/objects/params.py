@@ -1,0 +1,165 @@
+"""The tracker's parameters: one validated dataclass (:class:`ObjectParams`) and the module's
+one exception type (:class:`ObjectsError`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+from allo_mrad_ros.errors import InvalidInput
+
+
+class ObjectsError(InvalidInput):
+    """An invalid tracker parameter or per-frame input (pose, depth, regions, stamp)."""
+
+
+def parameter(
+    default: float | int,
+    description: str,
+    low: float,
+    high: float,
+    *,
+    low_open: bool = False,
+) -> Any:
+    """A field of :class:`ObjectParams` with its description and valid range."""
+    return field(
+        default=default,
+        metadata={"description": description, "low": low, "high": high, "low_open": low_open},
+    )
+
+
+@dataclass(frozen=True)
+class ObjectParams:
+    """Parameters of :class:`~allo_mrad_ros.objects.tracker.ObjectTracker`.
+
+    Distances are in metres, times in seconds of the frames' stamps, pixels in the camera's
+    full-resolution pixels. Each field carries its description and range (``docs/objects.md``
+    lists them); construction refuses a value of the wrong type or outside its range with
+    an :class:`ObjectsError` naming the field.
+    """
+
+    pixel_sigma: float = parameter(
+        2.0, "standard deviation of a region's centroid, pixels", 0.0, 1000.0, low_open=True
+    )
+    extent_sigma_fraction: float = parameter(
+        0.1,
+        "more centroid noise for large regions: this fraction of the region's extent (the "
+        "largest side of its box), added in quadrature",
+        0.0,
+        1.0,
+    )
+    min_range: float = parameter(
+        0.3, "nearest an object may be to the camera", 0.0, 1e4, low_open=True
+    )
+    max_range: float = parameter(
+        50.0,
+        "farthest an object seen against space may be; an object whose range parallax cannot "
+        "place within it is not confirmed",
+        0.0,
+        1e6,
+        low_open=True,
+    )
+    surface_quantile: float = parameter(
+        0.1,
+        "the quantile of the surface ranges behind a region's pixels that bounds its range (0: "
+        "the nearest; a little above 0 ignores a few pixels spilling onto nearer structure)",
+        0.0,
+        1.0,
+    )
+    occlusion_margin: float = parameter(
+        0.3,
+        "an object is hidden when it lies this far (plus 3 of its depth's standard deviations) "
+        "behind the station surface at its pixel",
+        0.0,
+        1e3,
+    )
+    gate_sigma: float = parameter(
+        4.0,
+        "association gate: largest Mahalanobis distance of a region's centroid from an "
+        "object's projection",
+        0.0,
+        100.0,
+        low_open=True,
+    )
+    size_ratio_max: float = parameter(
+        4.0,
+        "association gate: largest ratio between a region's extent and an object's projected "
+        "extent (either way)",
+        1.0,
+        1e3,
+    )
+    drift_speed: float = parameter(
+        0.05,
+        "how fast an object may drift (process noise): a ray t seconds old counts with "
+        "(drift_speed t)^2 more variance",
+        0.0,
+        10.0,
+    )
+    confirm_hits: int = parameter(
+        3, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
+    )
+    confirm_window: int = parameter(
+        5, "M: the in-view frames the confirmation counts hits over", 1, 1000
+    )
+    end_misses: int = parameter(5, "K: consecutive in-view misses that end an object", 1, 100000)
+    parallax_sigma: float = parameter(
+        3.0,
+        "an object is confirmed only when parallax places it nearer than max_range by this "
+        "many standard deviations (of its inverse range); 0 drops the requirement",
+        0.0,
+        100.0,
+    )
+    max_rays: int = parameter(32, "the newest rays kept per object for its triangulation", 2, 4096)
+    history_s: float = parameter(30.0, "rays older than this are dropped", 0.0, 1e6, low_open=True)
+    tentative_timeout_s: float = parameter(
+        2.0, "a tentative object not hit for this long ends", 0.0, 1e6, low_open=True
+    )
+    min_region_score: float = parameter(
+        0.0, "regions scoring below this are ignored (Region.score, 0..1)", 0.0, 1.0
+    )
+    max_objects: int = parameter(
+        256, "most objects kept; beyond, the stalest tentative objects end", 1, 100000
+    )
+
+    def __post_init__(self) -> None:
+        for spec in fields(self):
+            value = getattr(self, spec.name)
+            meta = spec.metadata
+            integer = spec.type in ("int", int)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ObjectsError(f"{spec.name} must be a number, got {value!r}")
+            if integer and int(value) != value:
+                raise ObjectsError(f"{spec.name} must be an integer, got {value!r}")
+            low, high = meta["low"], meta["high"]
+            inside = (value > low if meta["low_open"] else value >= low) and value <= high
+            if not (math.isfinite(value) and inside):
+                interval = f"{'(' if meta['low_open'] else '['}{low:g}, {high:g}]"
+                raise ObjectsError(f"{spec.name} must be in {interval}, got {value!r}")
+            object.__setattr__(self, spec.name, int(value) if integer else float(value))
+        if self.confirm_hits > self.confirm_window:
+            raise ObjectsError(
+                f"confirm_hits ({self.confirm_hits}) must not exceed confirm_window "
+                f"({self.confirm_window})"
+            )
+        if self.max_range <= self.min_range:
+            raise ObjectsError(
+                f"max_range ({self.max_range}) must exceed min_range ({self.min_range})"
+            )
+
+    def replace(self, **changes: Any) -> ObjectParams:
+        """A validated copy with ``changes``; an unknown name raises :class:`ObjectsError`."""
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            raise ObjectsError(f"unknown object tracker parameter(s): {sorted(unknown)}")
+        return replace(self, **changes)
+
+
+def parameter_table() -> list[tuple[str, object, str, str]]:
+    """``(name, default, range, description)`` of every parameter, in field order."""
+    rows = []
+    for spec in fields(ObjectParams):
+        meta = spec.metadata
+        interval = f"{'(' if meta['low_open'] else '['}{meta['low']:g}, {meta['high']:g}]"
+        rows.append((spec.name, spec.default, interval, meta["description"]))
+    return rows

@@ -1,0 +1,336 @@
+"""Range evidence from one frame: the rays through a detection region and its range interval.
+
+A region seen where the reference shows station surface lies in front of that surface: its
+range along its rays is at least ``min_range`` and below the surface's range behind its
+pixels. Seen against space, all one view says is ``[min_range, max_range]``.
+
+The reference depth is pyrender's z depth (metres along the optical axis; 0, or not finite,
+where space is in view) at the reference's own resolution, which may be lower than the
+image's: the region's box is read at the depth's resolution (the pixels the box overlaps),
+and, when the detection mask is given, only where the mask is set.
+
+Conventions: pixel centres at integer coordinates (OpenCV, ROS); a camera pose is the
+optical frame (x right, y down, z forward) in the station frame (:mod:`~allo_mrad_ros.geometry`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.regions import Region
+from allo_mrad_ros.geometry import PoseError, validate_transform
+from allo_mrad_ros.objects.params import ObjectsError
+
+
+@dataclass(frozen=True)
+class RegionRays:
+    """The rays through one region's pixels and the range interval one view gives it.
+
+    Attributes
+    ----------
+    origin : numpy.ndarray
+        (3,) the camera centre, station frame (every ray starts there).
+    centre : numpy.ndarray
+        (3,) unit ray through the region's centroid, station frame.
+    directions : numpy.ndarray
+        (n, 3) unit rays through the region's pixels, sampled at the depth's resolution
+        (the mask's pixels within its box when the mask is given, else the box's).
+    min_range, max_range : float
+        The range interval along the rays, metres: the object lies at a range in
+        ``[min_range, max_range)``; ``max_range`` is the surface's range behind the region
+        (its ``surface_quantile``) when :attr:`over_surface`, else the stated maximum.
+    over_surface : bool
+        Whether station surface lies behind any of the region's pixels.
+    extent_rad : float
+        The angle the region's box spans (its larger side), radians.
+    """
+
+    origin: np.ndarray
+    centre: np.ndarray
+    directions: np.ndarray
+    min_range: float
+    max_range: float
+    over_surface: bool
+    extent_rad: float
+
+
+def depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> CameraIntrinsics:
+    """The intrinsics of ``camera`` at the depth image's size (the reference's scaling:
+    per axis, the size ratio, with pixel edges kept)."""
+    if len(depth_shape) != 2 or min(depth_shape) < 1:
+        raise ObjectsError(f"depth must be a 2-D image, got shape {tuple(depth_shape)}")
+    height, width = int(depth_shape[0]), int(depth_shape[1])
+    sx, sy = width / camera.width, height / camera.height
+    if abs(sx - sy) > 0.02 * max(sx, sy) + 1.0 / min(width, height):
+        raise ObjectsError(
+            f"depth {width}x{height} does not have the aspect of the camera's "
+            f"{camera.width}x{camera.height} image"
+        )
+    return CameraIntrinsics(
+        width=width,
+        height=height,
+        fx=camera.fx * sx,
+        fy=camera.fy * sy,
+        cx=(camera.cx + 0.5) * sx - 0.5,
+        cy=(camera.cy + 0.5) * sy - 0.5,
+    )
+
+
+def checked_pose(pose: object) -> np.ndarray:
+    """``pose`` as a float64 rigid 4x4 transform, else :class:`ObjectsError`."""
+    try:
+        return validate_transform(pose, "camera pose")
+    except PoseError as error:
+        raise ObjectsError(str(error)) from None
+
+
+def checked_depth(depth: object) -> np.ndarray:
+    """``depth`` as a 2-D float array with space (0, negative or not finite) set to 0."""
+    array = np.asarray(depth)
+    if array.ndim != 2 or array.size == 0 or not np.issubdtype(array.dtype, np.number):
+        raise ObjectsError(
+            f"depth must be a non-empty 2-D array of numbers, got shape {array.shape} "
+            f"and dtype {array.dtype}"
+        )
+    array = array.astype(np.float32, copy=False)
+    surface = np.isfinite(array) & (array > 0)
+    return array if surface.all() else np.where(surface, array, np.float32(0.0))
+
+
+def camera_rays(camera: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(n, 3) unit rays of pixels ``(u, v)`` in ``camera``'s optical frame."""
+    rays = np.stack(
+        [
+            (np.asarray(u, float) - camera.cx) / camera.fx,
+            (np.asarray(v, float) - camera.cy) / camera.fy,
+        ],
+        axis=-1,
+    )
+    rays = np.concatenate([rays, np.ones((*rays.shape[:-1], 1))], axis=-1)
+    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class _Footprint:
+    """A region's pixels at the depth's resolution and the surface's range behind each."""
+
+    u: np.ndarray  # image columns of the box's depth pixels' centres
+    v: np.ndarray  # image rows of them
+    surface_range: np.ndarray  # metres along each sampled pixel's ray; 0 where space
+    inside: np.ndarray | None  # which of the box's pixels are sampled (None: all)
+
+    def pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Image coordinates of the sampled pixels, raster order."""
+        uu, vv = np.meshgrid(self.u, self.v)
+        if self.inside is not None:
+            return uu[self.inside], vv[self.inside]
+        return uu.ravel(), vv.ravel()
+
+
+def _footprint(
+    region: Region,
+    camera: CameraIntrinsics,
+    depth: np.ndarray,
+    reference: CameraIntrinsics,
+    mask: np.ndarray | None,
+) -> _Footprint:
+    sx, sy = reference.width / camera.width, reference.height / camera.height
+    x, y, w, h = region.box
+    c0 = min(max(math.floor(x * sx), 0), reference.width - 1)
+    r0 = min(max(math.floor(y * sy), 0), reference.height - 1)
+    c1 = min(max(math.ceil((x + w) * sx), c0 + 1), reference.width)
+    r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
+    cols = np.arange(c0, c1)
+    rows = np.arange(r0, r1)
+    # Each depth pixel's centre in image pixels, and its ray's length per unit z.
+    u = (cols + 0.5) / sx - 0.5
+    v = (rows + 0.5) / sy - 0.5
+    xn = (u - camera.cx) / camera.fx
+    yn = (v - camera.cy) / camera.fy
+    stretch = np.sqrt((xn * xn)[None, :] + (yn * yn)[:, None] + 1.0)
+    surface_range = depth[r0:r1, c0:c1] * stretch
+    inside = None
+    if mask is not None:
+        ui = np.clip(np.floor((cols + 0.5) / sx).astype(np.int64), 0, camera.width - 1)
+        vi = np.clip(np.floor((rows + 0.5) / sy).astype(np.int64), 0, camera.height - 1)
+        inside = mask[np.ix_(vi, ui)] != 0
+        if not inside.any():  # the region is smaller than a depth pixel: the whole box
+            inside = None
+    if inside is not None:
+        surface_range = surface_range[inside]
+    return _Footprint(u, v, surface_range.ravel(), inside)
+
+
+def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
+    """The ``quantile`` of the positive ``surface_range`` values (the lower of two order
+    statistics, no interpolation), or None where all are space."""
+    surface = surface_range[surface_range > 0]
+    if surface.size == 0:
+        return None
+    k = min(math.floor(quantile * (surface.size - 1)), surface.size - 1)
+    return float(np.partition(surface, k)[k])
+
+
+def region_rays(
+    region: Region,
+    pose: np.ndarray,
+    camera: CameraIntrinsics,
+    depth: np.ndarray,
+    *,
+    mask: np.ndarray | None = None,
+    min_range: float = 0.3,
+    max_range: float = 50.0,
+    surface_quantile: float = 0.1,
+) -> RegionRays:
+    """The rays through ``region``'s pixels in the station frame and its range interval.
+
+    Parameters
+    ----------
+    region : Region
+        A region of a :class:`~allo_mrad_ros.detector.DetectionResult` (its box and
+        centroid are in ``camera``'s pixels).
+    pose : numpy.ndarray
+        4x4 camera-to-station pose of the frame (optical frame).
+    camera : CameraIntrinsics
+        Full-resolution intrinsics of the image the region was found in.
+    depth : numpy.ndarray
+        The reference's z depth for this frame (any resolution with the image's aspect; 0
+        or not finite where space is in view).
+    mask : numpy.ndarray, optional
+        The detection mask at ``camera``'s resolution: only its set pixels in the region's
+        box count.
+    min_range, max_range : float
+        The nearest range an object may have, and the farthest one seen against space may.
+    surface_quantile : float
+        The quantile of the surface ranges behind the region that bounds its range.
+
+    Returns
+    -------
+    RegionRays
+
+    Raises
+    ------
+    ObjectsError
+        For a malformed pose, depth or mask, or a range interval that is empty.
+    """
+    pose = checked_pose(pose)
+    depth = checked_depth(depth)
+    reference = depth_camera(camera, depth.shape)
+    if mask is not None and np.shape(mask) != (camera.height, camera.width):
+        raise ObjectsError(
+            f"mask shape {np.shape(mask)} differs from the camera's {camera.height}x{camera.width}"
+        )
+    if not 0 < min_range < max_range:
+        raise ObjectsError(f"need 0 < min_range < max_range, got {min_range}, {max_range}")
+    footprint = _footprint(region, camera, depth, reference, mask)
+    bound = surface_bound(footprint.surface_range, surface_quantile)
+    rotation = pose[:3, :3]
+    directions = camera_rays(camera, *footprint.pixels()) @ rotation.T
+    centre = camera_rays(camera, *np.array(region.centroid)[:, None])[0] @ rotation.T
+    # A region before a surface nearer than min_range keeps a range interval of one point.
+    upper = max_range if bound is None else max(min(bound, max_range), min_range)
+    return RegionRays(
+        origin=pose[:3, 3].copy(),
+        centre=centre,
+        directions=directions,
+        min_range=float(min_range),
+        max_range=float(upper),
+        over_surface=bound is not None,
+        extent_rad=extent_rad(region, camera),
+    )
+
+
+def extent_rad(region: Region, camera: CameraIntrinsics) -> float:
+    """The angle of the larger side of ``region``'s box, radians (small-angle)."""
+    _, _, w, h = region.box
+    return float(max(w / camera.fx, h / camera.fy))
+
+
+@dataclass(frozen=True)
+class Observations:
+    """One frame's regions as rays: what the tracker associates and adds to objects.
+
+    Attributes
+    ----------
+    origin : numpy.ndarray
+        (3,) camera centre, station frame.
+    directions : numpy.ndarray
+        (n, 3) unit rays through the regions' centroids, station frame.
+    pixels : numpy.ndarray
+        (n, 2) the centroids, image pixels.
+    low, high : numpy.ndarray
+        (n,) each region's range interval.
+    over_surface : numpy.ndarray
+        (n,) bool.
+    extent_px : numpy.ndarray
+        (n,) the larger side of each region's box, pixels.
+    scores : numpy.ndarray
+        (n,) each region's score.
+    indices : numpy.ndarray
+        (n,) int, the position of each in the regions given.
+    """
+
+    origin: np.ndarray
+    directions: np.ndarray
+    pixels: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    over_surface: np.ndarray
+    extent_px: np.ndarray
+    scores: np.ndarray
+    indices: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+
+def observe(
+    regions: Sequence[Region],
+    pose: np.ndarray,
+    camera: CameraIntrinsics,
+    depth: np.ndarray,
+    *,
+    mask: np.ndarray | None,
+    min_range: float,
+    max_range: float,
+    surface_quantile: float,
+    min_score: float = 0.0,
+) -> Observations:
+    """The centroid rays and range intervals of ``regions`` (those scoring at least
+    ``min_score``); ``pose`` and ``depth`` already checked (:func:`checked_pose`,
+    :func:`checked_depth`). The interval of each is :func:`region_rays`'s."""
+    reference = depth_camera(camera, depth.shape)
+    kept, low, high, surface, extent, scores, pixels = [], [], [], [], [], [], []
+    for index, region in enumerate(regions):
+        if not isinstance(region, Region):
+            raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
+        if region.score < min_score:
+            continue
+        footprint = _footprint(region, camera, depth, reference, mask)
+        bound = surface_bound(footprint.surface_range, surface_quantile)
+        kept.append(index)
+        low.append(min_range)
+        high.append(max_range if bound is None else max(min(bound, max_range), min_range))
+        surface.append(bound is not None)
+        _, _, w, h = region.box
+        extent.append(max(w, h))
+        scores.append(region.score)
+        pixels.append(region.centroid)
+    pixel_array = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    directions = camera_rays(camera, pixel_array[:, 0], pixel_array[:, 1]) @ pose[:3, :3].T
+    return Observations(
+        origin=pose[:3, 3].copy(),
+        directions=directions.reshape(-1, 3),
+        pixels=pixel_array,
+        low=np.asarray(low, dtype=np.float64),
+        high=np.asarray(high, dtype=np.float64),
+        over_surface=np.asarray(surface, dtype=bool),
+        extent_px=np.asarray(extent, dtype=np.float64),
+        scores=np.asarray(scores, dtype=np.float64),
+        indices=np.asarray(kept, dtype=np.int64),
+    )

@@ -1,0 +1,513 @@
+"""Anomalies as objects in the station frame, confirmed over frames: :class:`ObjectTracker`.
+
+Per frame the tracker is given the detection's regions, the camera pose, the reference
+depth and the frame's stamp. It
+
+1. turns each region into a ray through its centroid with a range interval
+   (:func:`~allo_mrad_ros.objects.rays.observe`);
+2. projects every object into the image with its covariance (grown by the drift allowed
+   since its last hit) and decides whether it is in view: in front of the camera, inside
+   the image and not hidden behind station surface (its depth beyond the reference depth at
+   its pixel by more than ``occlusion_margin`` plus three of its depth's standard deviations);
+3. associates regions with objects by optimal assignment
+   (:func:`scipy.optimize.linear_sum_assignment`) of the squared Mahalanobis distance between
+   a region's centroid and an object's projection, gated by ``gate_sigma`` and by the ratio
+   of the region's extent to the object's projected extent;
+4. adds each matched region's ray to its object and starts a tentative object from each
+   unmatched region (one view: the range interval);
+5. re-triangulates the objects that got a ray (:mod:`.triangulation`);
+6. confirms a tentative object after ``confirm_hits`` hits in its last ``confirm_window``
+   in-view frames, once parallax places it nearer than ``max_range`` and not behind the
+   surface; ends an object after ``end_misses`` consecutive in-view misses (a hidden or
+   out-of-view object is not missed), and a tentative one not hit for
+   ``tentative_timeout_s``.
+
+Something that keeps one direction in the station frame while the camera moves (the Moon, a
+star, glare locked to the Sun) has no parallax: its range stays undetermined and it is never
+confirmed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.regions import Region
+from allo_mrad_ros.objects.params import ObjectParams, ObjectsError
+from allo_mrad_ros.objects.rays import (
+    Observations,
+    checked_depth,
+    checked_pose,
+    depth_camera,
+    observe,
+)
+from allo_mrad_ros.objects.triangulation import RayBatch, Triangulation, triangulate
+
+State = Literal["tentative", "confirmed", "ended"]
+# Cost of a gated-out pair in the assignment (never chosen over a gated-in one).
+_FORBIDDEN = 1e12
+
+
+@dataclass(frozen=True)
+class TrackedObject:
+    """One object as the tracker holds it after a frame.
+
+    Attributes
+    ----------
+    id : int
+        Stable for the object's life, never reused by the tracker.
+    state : {"tentative", "confirmed", "ended"}
+        ``ended`` is reported once, in the frame the object ends.
+    position : numpy.ndarray
+        (3,) station frame, metres.
+    covariance : numpy.ndarray
+        (3, 3) of :attr:`position`, m^2.
+    size : float
+        Metres: the angle of its regions' larger box side times their range (median).
+    score : float
+        In [0, 1]: the sum of its regions' scores over its last ``confirm_window`` in-view
+        frames, divided by ``confirm_window`` (a miss adds 0).
+    range_resolved : bool
+        Parallax places it nearer than ``max_range`` (by ``parallax_sigma``).
+    in_view : bool
+        In this frame's image and not hidden.
+    region : int or None
+        The index, in the regions given this frame, of the region matched with it.
+    hits : int
+        Regions matched with it so far.
+    first_stamp, last_hit_stamp : float
+        When it was first and last seen.
+    """
+
+    id: int
+    state: State
+    position: np.ndarray
+    covariance: np.ndarray
+    size: float
+    score: float
+    range_resolved: bool
+    in_view: bool
+    region: int | None
+    hits: int
+    first_stamp: float
+    last_hit_stamp: float
+
+
+class _Track:
+    """An object's state: a ring of its newest rays and what was derived from them."""
+
+    __slots__ = (
+        "angular_variance",
+        "consistent",
+        "count",
+        "covariance",
+        "directions",
+        "extent",
+        "first_stamp",
+        "head",
+        "high",
+        "hits",
+        "id",
+        "last_hit",
+        "low",
+        "misses",
+        "origins",
+        "position",
+        "resolved",
+        "size",
+        "stamps",
+        "state",
+        "window",
+    )
+
+    def __init__(self, track_id: int, capacity: int, window: int, stamp: float) -> None:
+        self.id = track_id
+        self.state: State = "tentative"
+        self.origins = np.zeros((capacity, 3))
+        self.directions = np.zeros((capacity, 3))
+        self.angular_variance = np.zeros(capacity)
+        self.stamps = np.zeros(capacity)
+        self.low = np.ones(capacity)
+        self.high = np.ones(capacity)
+        self.extent = np.zeros(capacity)
+        self.count = 0
+        self.head = 0  # where the next ray goes
+        self.position = np.zeros(3)
+        self.covariance = np.eye(3)
+        self.size = 0.0
+        self.resolved = False
+        self.consistent = True
+        # Per in-view frame: hit or miss, and the region's score (0 for a miss).
+        self.window: deque[tuple[bool, float]] = deque(maxlen=window)
+        self.misses = 0
+        self.hits = 0
+        self.first_stamp = stamp
+        self.last_hit = stamp
+
+    def add_ray(self, observations: Observations, j: int, variance: float, stamp: float) -> None:
+        i = self.head
+        self.origins[i] = observations.origin
+        self.directions[i] = observations.directions[j]
+        self.angular_variance[i] = variance
+        self.stamps[i] = stamp
+        self.low[i] = observations.low[j]
+        self.high[i] = observations.high[j]
+        self.extent[i] = observations.extent_px[j]
+        self.head = (i + 1) % len(self.stamps)
+        self.count = min(self.count + 1, len(self.stamps))
+
+    @property
+    def newest(self) -> int:
+        return (self.head - 1) % len(self.stamps)
+
+
+class ObjectTracker:
+    """Track anomalies as objects in the station frame (see the module text).
+
+    Parameters
+    ----------
+    params : ObjectParams
+        The tracker's parameters.
+    camera : CameraIntrinsics
+        Full-resolution intrinsics of the images the regions are found in.
+
+    Notes
+    -----
+    Not thread-safe: feed it from one thread, frames in time order (a stamp earlier than
+    the last one ends every object and starts over, as a replayed bag does).
+    """
+
+    def __init__(self, params: ObjectParams, camera: CameraIntrinsics) -> None:
+        if not isinstance(params, ObjectParams):
+            raise ObjectsError(f"params must be ObjectParams, got {type(params)}")
+        if not isinstance(camera, CameraIntrinsics):
+            raise ObjectsError(f"camera must be CameraIntrinsics, got {type(camera)}")
+        self.params = params
+        self.camera = camera
+        self._focal = math.sqrt(camera.fx * camera.fy)
+        self._tracks: list[_Track] = []
+        self._next_id = 1
+        self._last_stamp: float | None = None
+
+    def reset(self) -> None:
+        """Forget every object (ids keep counting up)."""
+        self._tracks = []
+        self._last_stamp = None
+
+    @property
+    def objects(self) -> tuple[TrackedObject, ...]:
+        """The live objects after the last frame (no frame's region, not in view)."""
+        return tuple(self._record(track, False, None) for track in self._tracks)
+
+    def update(
+        self,
+        regions: Sequence[Region],
+        pose: np.ndarray,
+        depth: np.ndarray,
+        stamp: float,
+        *,
+        mask: np.ndarray | None = None,
+    ) -> tuple[TrackedObject, ...]:
+        """Take one frame; return every live object and those ended by this frame.
+
+        Parameters
+        ----------
+        regions : sequence of Region
+            The detection's regions (:attr:`DetectionResult.regions`), in the camera's
+            full-resolution pixels.
+        pose : numpy.ndarray
+            4x4 camera-to-station pose (optical frame) of the frame.
+        depth : numpy.ndarray
+            The frame's reference z depth in metres (0 or not finite where space is in
+            view), at the reference's resolution (the image's aspect).
+        stamp : float
+            The frame's time, seconds.
+        mask : numpy.ndarray, optional
+            The detection mask (the camera's size): a region's range evidence is read only
+            under its set pixels.
+
+        Returns
+        -------
+        tuple of TrackedObject
+            Ordered by id.
+
+        Raises
+        ------
+        ObjectsError
+            For a malformed pose, depth, mask, region or stamp (nothing is changed).
+        """
+        params = self.params
+        if (
+            isinstance(stamp, bool)
+            or not isinstance(stamp, int | float)
+            or not math.isfinite(stamp)
+        ):
+            raise ObjectsError(f"stamp must be a finite number of seconds, got {stamp!r}")
+        stamp = float(stamp)
+        pose = checked_pose(pose)
+        depth = checked_depth(depth)
+        reference = depth_camera(self.camera, depth.shape)
+        if mask is not None and np.shape(mask) != (self.camera.height, self.camera.width):
+            raise ObjectsError(
+                f"mask shape {np.shape(mask)} differs from the camera's "
+                f"{self.camera.height}x{self.camera.width}"
+            )
+        observations = observe(
+            regions,
+            pose,
+            self.camera,
+            depth,
+            mask=mask,
+            min_range=params.min_range,
+            max_range=params.max_range,
+            surface_quantile=params.surface_quantile,
+            min_score=params.min_region_score,
+        )
+        ended: list[TrackedObject] = []
+        if self._last_stamp is not None and stamp < self._last_stamp:
+            ended = [self._record(t, False, None, state="ended") for t in self._tracks]
+            self._tracks = []
+        self._last_stamp = stamp
+
+        tracks = self._tracks
+        in_view, matches = self._associate(tracks, observations, pose, depth, reference, stamp)
+        matched_region: dict[int, int] = {}
+        updated: list[_Track] = []
+        variance = self._ray_variance(observations)
+        for row, j in matches:
+            track = tracks[row]
+            track.add_ray(observations, j, variance[j], stamp)
+            track.window.append((True, float(observations.scores[j])))
+            track.misses = 0
+            track.hits += 1
+            track.last_hit = stamp
+            matched_region[track.id] = int(observations.indices[j])
+            updated.append(track)
+        matched_rows = {row for row, _ in matches}
+        for row, track in enumerate(tracks):
+            if row not in matched_rows and in_view[row]:
+                track.window.append((False, 0.0))
+                track.misses += 1
+        taken = {j for _, j in matches}
+        for j in range(len(observations)):
+            if j in taken:
+                continue
+            track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
+            self._next_id += 1
+            track.add_ray(observations, j, variance[j], stamp)
+            track.window.append((True, float(observations.scores[j])))
+            track.hits = 1
+            matched_region[track.id] = int(observations.indices[j])
+            tracks.append(track)
+            updated.append(track)
+        self._refine(updated, stamp)
+
+        view = dict(zip((t.id for t in tracks), in_view, strict=False))
+        live: list[_Track] = []
+        for track in tracks:
+            seen = track.id in matched_region
+            if track.misses >= params.end_misses or (
+                track.state == "tentative" and stamp - track.last_hit > params.tentative_timeout_s
+            ):
+                track.state = "ended"
+            elif (
+                track.state == "tentative"
+                and sum(hit for hit, _ in track.window) >= params.confirm_hits
+                and track.resolved
+                and track.consistent
+            ):
+                track.state = "confirmed"
+            if track.state == "ended":
+                ended.append(
+                    self._record(
+                        track, bool(view.get(track.id, seen)), matched_region.get(track.id)
+                    )
+                )
+            else:
+                live.append(track)
+        live = self._within_capacity(live, ended, stamp)
+        self._tracks = live
+        records = [
+            self._record(t, bool(view.get(t.id, True)), matched_region.get(t.id)) for t in live
+        ]
+        return tuple(sorted(records + ended, key=lambda o: o.id))
+
+    # ------------------------------------------------------------------ steps
+    def _ray_variance(self, observations: Observations) -> np.ndarray:
+        """Each observation's angular variance: centroid noise over the focal length."""
+        params = self.params
+        pixels = (
+            params.pixel_sigma**2 + (params.extent_sigma_fraction * observations.extent_px) ** 2
+        )
+        return pixels / self._focal**2
+
+    def _associate(
+        self,
+        tracks: list[_Track],
+        observations: Observations,
+        pose: np.ndarray,
+        depth: np.ndarray,
+        reference: CameraIntrinsics,
+        stamp: float,
+    ) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """Which objects are in view, and the (object row, observation) pairs matched."""
+        params = self.params
+        count = len(tracks)
+        if count == 0:
+            return np.zeros(0, dtype=bool), []
+        camera = self.camera
+        position = np.array([t.position for t in tracks])
+        covariance = np.array([t.covariance for t in tracks])
+        age = stamp - np.array([t.last_hit for t in tracks])
+        size = np.array([t.size for t in tracks])
+        drift = (params.drift_speed * np.maximum(age, 0.0)) ** 2
+        covariance = covariance + drift[:, None, None] * np.eye(3)
+        rotation = pose[:3, :3]
+        local = (position - pose[:3, 3]) @ rotation  # camera frame
+        z = local[:, 2]
+        front = z > params.min_range
+        safe_z = np.where(front, z, 1.0)
+        u = camera.fx * local[:, 0] / safe_z + camera.cx
+        v = camera.fy * local[:, 1] / safe_z + camera.cy
+        # d(u, v)/d(station point): the projection's Jacobian in the camera frame, rotated.
+        jacobian = np.zeros((count, 2, 3))
+        jacobian[:, 0, 0] = camera.fx / safe_z
+        jacobian[:, 0, 2] = -camera.fx * local[:, 0] / safe_z**2
+        jacobian[:, 1, 1] = camera.fy / safe_z
+        jacobian[:, 1, 2] = -camera.fy * local[:, 1] / safe_z**2
+        jacobian = jacobian @ rotation.T
+        projected = jacobian @ covariance @ jacobian.transpose(0, 2, 1)
+        inside = (
+            front & (u >= -0.5) & (u < camera.width - 0.5) & (v >= -0.5) & (v < camera.height - 0.5)
+        )
+        # Hidden: beyond the surface at its pixel by the margin and 3 sigma of its depth.
+        sx, sy = reference.width / camera.width, reference.height / camera.height
+        cols = np.clip(np.floor((u + 0.5) * sx).astype(np.int64), 0, reference.width - 1)
+        rows = np.clip(np.floor((v + 0.5) * sy).astype(np.int64), 0, reference.height - 1)
+        surface = np.where(inside, depth[rows, cols], 0.0)
+        axis = rotation[:, 2]
+        depth_sigma = np.sqrt(np.maximum(np.einsum("i,bij,j->b", axis, covariance, axis), 0.0))
+        hidden = (surface > 0) & (z > surface + params.occlusion_margin + 3.0 * depth_sigma)
+        in_view = inside & ~hidden
+        if len(observations) == 0:
+            return in_view, []
+
+        pixel_variance = self._ray_variance(observations) * self._focal**2
+        du = observations.pixels[None, :, 0] - u[:, None]
+        dv = observations.pixels[None, :, 1] - v[:, None]
+        s00 = projected[:, None, 0, 0] + pixel_variance[None, :]
+        s11 = projected[:, None, 1, 1] + pixel_variance[None, :]
+        s01 = projected[:, None, 0, 1]
+        determinant = s00 * s11 - s01 * s01
+        distance2 = (du * du * s11 - 2.0 * du * dv * s01 + dv * dv * s00) / determinant
+        expected = np.maximum(size * self._focal / safe_z, 1.0)
+        extent = np.maximum(observations.extent_px, 1.0)
+        ratio = np.maximum(extent[None, :] / expected[:, None], expected[:, None] / extent[None, :])
+        gate = (
+            front[:, None] & (distance2 <= params.gate_sigma**2) & (ratio <= params.size_ratio_max)
+        )
+        if not gate.any():
+            return in_view, []
+        candidates = np.flatnonzero(gate.any(axis=1))
+        cost = np.where(gate[candidates], distance2[candidates], _FORBIDDEN)
+        rows_, cols_ = linear_sum_assignment(cost)
+        matches = [
+            (int(candidates[r]), int(c))
+            for r, c in zip(rows_, cols_, strict=True)
+            if gate[candidates[r], c]
+        ]
+        return in_view, matches
+
+    def _refine(self, tracks: list[_Track], stamp: float) -> None:
+        """Re-triangulate ``tracks`` (in one batch) and update their derived state."""
+        if not tracks:
+            return
+        params = self.params
+        capacity = params.max_rays
+        batch = len(tracks)
+        stamps = np.array([t.stamps for t in tracks])
+        filled = np.arange(capacity)[None, :] < np.array([t.count for t in tracks])[:, None]
+        anchor = np.array([t.newest for t in tracks])
+        age = stamp - stamps
+        valid = filled & (age <= params.history_s)
+        valid[np.arange(batch), anchor] = True
+        rays = RayBatch(
+            origins=np.array([t.origins for t in tracks]),
+            directions=np.array([t.directions for t in tracks]),
+            angular_variance=np.where(valid, np.array([t.angular_variance for t in tracks]), 1.0),
+            extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2,
+            low=np.array([t.low for t in tracks]),
+            high=np.array([t.high for t in tracks]),
+            valid=valid,
+            anchor=anchor,
+        )
+        solution = triangulate(rays)
+        resolved, consistent = self._range_checks(solution, rays)
+        extent = np.array([t.extent for t in tracks]) / self._focal
+        sizes = np.nanmedian(np.where(valid, extent * solution.ranges, np.nan), axis=1)
+        for i, track in enumerate(tracks):
+            track.position = solution.position[i]
+            track.covariance = solution.covariance[i]
+            track.size = float(sizes[i])
+            track.resolved = bool(resolved[i])
+            track.consistent = bool(consistent[i])
+
+    def _range_checks(
+        self, solution: Triangulation, rays: RayBatch
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Whether parallax alone places each object nearer than ``max_range``, and whether
+        it does not place it behind the surface (beyond the anchor's interval)."""
+        params = self.params
+        k = params.parallax_sigma
+        rho, rho_sigma = solution.free_inverse_range()
+        if k == 0:
+            resolved = np.ones(len(rho), dtype=bool)
+        else:
+            resolved = rho - k * rho_sigma > 1.0 / params.max_range
+        high = rays.high[np.arange(len(rays.anchor)), rays.anchor]
+        # Where the rays leave the range undetermined, they do not say it is behind.
+        sigma = solution.free_range_sigma
+        determined = np.isfinite(sigma)
+        nearest = solution.free_range - k * np.where(determined, sigma, 0.0)
+        behind = determined & (nearest > high + params.occlusion_margin)
+        return resolved, ~behind
+
+    def _within_capacity(
+        self, live: list[_Track], ended: list[TrackedObject], stamp: float
+    ) -> list[_Track]:
+        """``live`` cut to ``max_objects``, ending the stalest tentative objects first."""
+        excess = len(live) - self.params.max_objects
+        if excess <= 0:
+            return live
+        order = sorted(live, key=lambda t: (t.state == "confirmed", t.last_hit, t.id))
+        dropped = {t.id for t in order[:excess]}
+        for track in order[:excess]:
+            track.state = "ended"
+            ended.append(self._record(track, False, None))
+        return [t for t in live if t.id not in dropped]
+
+    def _record(
+        self, track: _Track, in_view: bool, region: int | None, state: State | None = None
+    ) -> TrackedObject:
+        window = self.params.confirm_window
+        return TrackedObject(
+            id=track.id,
+            state=state or track.state,
+            position=track.position,
+            covariance=track.covariance,
+            size=track.size,
+            score=min(1.0, sum(score for _, score in track.window) / window),
+            range_resolved=track.resolved,
+            in_view=in_view,
+            region=region,
+            hits=track.hits,
+            first_stamp=track.first_stamp,
+            last_hit_stamp=track.last_hit,
+        )

@@ -1,0 +1,324 @@
+"""Where rays meet: weighted least squares with range-interval constraints, for many objects
+at once.
+
+An object seen in views ``i`` lies near each ray ``c_i + r d_i``. Its position ``X``
+minimises the weighted squared distances from the rays,
+
+    sum_i w_i |(I - d_i d_i^T)(X - c_i)|^2,   w_i = 1 / (sigma_i^2 r_i^2 + q_i),
+
+where ``sigma_i`` is the ray's angular noise (pixel noise over the focal length), ``r_i``
+the range along it (the weights are re-evaluated at the estimate, a few iterations) and
+``q_i`` a variance added for the ray's age (a drifting object: old rays count less).
+Every ray also bounds the range: ``low_i <= d_i . (X - c_i) <= high_i`` (one view's range
+evidence, :mod:`.rays`); violated bounds are enforced as stiff penalties, added one active
+set at a time.
+
+The newest ray is the *anchor*. Where the rays do not fix the range (one view, or rays that
+keep one direction), the solution along the anchor is the middle of its interval in inverse
+range, and the covariance along it is that interval's (a uniform inverse range), so that an
+object's projection into a later view spans the epipolar segment the interval allows.
+
+:func:`triangulate` works on a batch of objects (rays padded to one count); test/objects
+holds a loop-by-loop float64 oracle of it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from allo_mrad_ros.objects.params import ObjectsError
+
+# Penalty stiffness of an active range bound, relative to the object's largest ray weight.
+_STIFFNESS = 1e8
+# An eigenvalue of the rays' information below this fraction of its trace is a direction the
+# rays do not determine (parallel rays along it): the solution keeps the anchor's prior there.
+_NULL = 1e-12
+# Passes of the active set (each adds or releases at most one bound per object).
+_ACTIVE_PASSES = 12
+# Multiplier updates that take an active bound's residual from force / stiffness to rounding.
+_REFINEMENTS = 2
+_SQRT12 = math.sqrt(12.0)
+
+
+@dataclass(frozen=True)
+class RayBatch:
+    """The rays of ``B`` objects, padded to ``R`` rays each (float64).
+
+    Attributes
+    ----------
+    origins, directions : numpy.ndarray
+        (B, R, 3) ray origins and unit directions, station frame.
+    angular_variance : numpy.ndarray
+        (B, R) variance of each ray's direction, rad^2 (per axis across the ray).
+    extra_variance : numpy.ndarray
+        (B, R) variance added across each ray, m^2 (its age's drift).
+    low, high : numpy.ndarray
+        (B, R) each ray's range interval, metres, ``0 < low <= high`` (finite).
+    valid : numpy.ndarray
+        (B, R) bool: padding is False.
+    anchor : numpy.ndarray
+        (B,) int: the index of each object's anchor (newest) ray, a valid one.
+    """
+
+    origins: np.ndarray
+    directions: np.ndarray
+    angular_variance: np.ndarray
+    extra_variance: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    valid: np.ndarray
+    anchor: np.ndarray
+
+    def __post_init__(self) -> None:
+        batch, count = self.valid.shape
+        for name in ("origins", "directions"):
+            if getattr(self, name).shape != (batch, count, 3):
+                raise ObjectsError(f"{name} must have shape {(batch, count, 3)}")
+        for name in ("angular_variance", "extra_variance", "low", "high"):
+            if getattr(self, name).shape != (batch, count):
+                raise ObjectsError(f"{name} must have shape {(batch, count)}")
+        if self.anchor.shape != (batch,):
+            raise ObjectsError(f"anchor must have shape {(batch,)}")
+        if batch and not np.all(self.valid[np.arange(batch), self.anchor]):
+            raise ObjectsError("each object's anchor must be one of its valid rays")
+
+    @classmethod
+    def single(
+        cls,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        angular_variance: np.ndarray,
+        low: np.ndarray,
+        high: np.ndarray,
+        extra_variance: np.ndarray | None = None,
+    ) -> RayBatch:
+        """The batch of one object from its ``n`` rays; the last is the anchor."""
+        origins = np.asarray(origins, dtype=np.float64).reshape(1, -1, 3)
+        count = origins.shape[1]
+        directions = np.asarray(directions, dtype=np.float64).reshape(1, count, 3)
+        directions = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+
+        def row(values: object) -> np.ndarray:
+            return np.broadcast_to(np.asarray(values, dtype=np.float64), (count,))[None].copy()
+
+        return cls(
+            origins=origins,
+            directions=directions,
+            angular_variance=row(angular_variance),
+            extra_variance=row(0.0 if extra_variance is None else extra_variance),
+            low=row(low),
+            high=row(high),
+            valid=np.ones((1, count), dtype=bool),
+            anchor=np.array([count - 1]),
+        )
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """The solution for each object of a :class:`RayBatch`.
+
+    Attributes
+    ----------
+    position : numpy.ndarray
+        (B, 3) the constrained least-squares position.
+    covariance : numpy.ndarray
+        (B, 3, 3) its covariance: the rays' information plus the anchor interval's.
+    ranges : numpy.ndarray
+        (B, R) the range of ``position`` along each ray (0 for padding).
+    free_range : numpy.ndarray
+        (B,) range along the anchor ray of the rays-only solution (no bounds, no interval
+        information): what parallax alone says; may be negative or huge.
+    free_range_sigma : numpy.ndarray
+        (B,) its standard deviation from the rays alone (inf where they are parallel).
+    """
+
+    position: np.ndarray
+    covariance: np.ndarray
+    ranges: np.ndarray
+    free_range: np.ndarray
+    free_range_sigma: np.ndarray
+
+    def free_inverse_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """(B,) inverse range along the anchor from parallax alone and its standard
+        deviation (linearised): ``1/r`` and ``sigma_r / r^2``."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = 1.0 / self.free_range
+            sigma = self.free_range_sigma / self.free_range**2
+        return rho, np.where(np.isfinite(sigma), sigma, np.inf)
+
+
+def anchor_prior_range(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The middle of ``[low, high]`` in inverse range."""
+    return 2.0 / (1.0 / low + 1.0 / high)
+
+
+def triangulate(rays: RayBatch, *, iterations: int = 3) -> Triangulation:
+    """Each object's position from its rays, with the range bounds (see module text).
+
+    Parameters
+    ----------
+    rays : RayBatch
+        ``B`` objects' rays.
+    iterations : int
+        Re-evaluations of the weights at the estimate (the first uses the anchor's prior).
+
+    Returns
+    -------
+    Triangulation
+    """
+    batch, count = rays.valid.shape
+    if batch == 0:
+        empty = np.zeros((0,))
+        return Triangulation(
+            np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, count)), empty, empty
+        )
+    index = np.arange(batch)
+    c, d, valid = rays.origins, rays.directions, rays.valid
+    low, high = rays.low, rays.high
+    projector = np.eye(3) - d[..., :, None] * d[..., None, :]  # (B, R, 3, 3)
+    projected_origin = np.einsum("brij,brj->bri", projector, c)
+    anchor_d = d[index, rays.anchor]
+    anchor_c = c[index, rays.anchor]
+    anchor_low, anchor_high = low[index, rays.anchor], high[index, rays.anchor]
+    prior_point = anchor_c + anchor_prior_range(anchor_low, anchor_high)[:, None] * anchor_d
+    anchor_outer = anchor_d[:, :, None] * anchor_d[:, None, :]
+    position = prior_point
+    ranges = _clipped_ranges(position, c, d, low, high)
+    for _ in range(max(1, iterations)):
+        weights = np.where(
+            valid, 1.0 / (rays.angular_variance * ranges**2 + rays.extra_variance), 0.0
+        )
+        a_rays = np.einsum("br,brij->bij", weights, projector)
+        b_rays = np.einsum("br,bri->bi", weights, projected_origin)
+        floor = _NULL * np.trace(a_rays, axis1=1, axis2=2)
+        free = prior_point + _solve(a_rays, b_rays - _apply(a_rays, prior_point), floor)
+        position = _bounded(
+            free, prior_point, a_rays, b_rays, floor, weights, c, d, low, high, valid
+        )
+        ranges = _clipped_ranges(position, c, d, low, high)
+    weights = np.where(valid, 1.0 / (rays.angular_variance * ranges**2 + rays.extra_variance), 0.0)
+    a_rays = np.einsum("br,brij->bij", weights, projector)
+    # Rays-only spread along the anchor: inf where the rays leave it undetermined.
+    values, vectors = np.linalg.eigh(a_rays)
+    floor = _NULL * values.sum(axis=1)
+    share = np.einsum("bi,bik->bk", anchor_d, vectors) ** 2
+    determined = values > floor[:, None]
+    along = np.where(determined, share / np.where(determined, values, 1.0), 0.0).sum(axis=1)
+    # A share of the anchor in an undetermined direction beyond rounding: parallel rays.
+    undetermined = np.where(determined, 0.0, share).sum(axis=1) > 1e-12
+    free_sigma = np.where(undetermined, np.inf, np.sqrt(along))
+    free_range = np.einsum("bi,bi->b", anchor_d, free - anchor_c)
+    # The anchor interval's information: a uniform inverse range, linearised at the estimate.
+    anchor_range = np.maximum(ranges[index, rays.anchor], anchor_low)
+    inverse_sigma = np.maximum(1.0 / anchor_low - 1.0 / anchor_high, 1e-9) / _SQRT12
+    interval_information = 1.0 / (anchor_range**2 * inverse_sigma) ** 2
+    covariance = np.linalg.inv(a_rays + interval_information[:, None, None] * anchor_outer)
+    covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
+    return Triangulation(
+        position=position,
+        covariance=covariance,
+        ranges=np.where(valid, ranges, 0.0),
+        free_range=free_range,
+        free_range_sigma=free_sigma,
+    )
+
+
+def _clipped_ranges(
+    position: np.ndarray, c: np.ndarray, d: np.ndarray, low: np.ndarray, high: np.ndarray
+) -> np.ndarray:
+    """The range of ``position`` along each ray, within its interval."""
+    along = np.einsum("brj,brj->br", d, position[:, None, :] - c)
+    return np.clip(along, low, high)
+
+
+def _apply(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    return np.einsum("bij,bj->bi", matrix, vector)
+
+
+def _solve(matrix: np.ndarray, rhs: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """The least-norm solution of symmetric ``matrix x = rhs`` over the eigen-directions
+    whose eigenvalue exceeds ``floor`` (per object): 0 along the undetermined ones."""
+    values, vectors = np.linalg.eigh(matrix)
+    keep = values > floor[:, None]
+    inverse = np.where(keep, 1.0 / np.where(keep, values, 1.0), 0.0)
+    return _apply(vectors, inverse * np.einsum("bki,bk->bi", vectors, rhs))
+
+
+def _bounded(
+    free: np.ndarray,
+    prior_point: np.ndarray,
+    a_rays: np.ndarray,
+    b_rays: np.ndarray,
+    floor: np.ndarray,
+    weights: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    valid: np.ndarray,
+) -> np.ndarray:
+    """``free`` moved so that every range bound holds, by a primal active set: per pass and
+    object, the most violated bound becomes a stiff penalty pulling the range onto it, or,
+    where none is violated, the active bound the solution presses away from most (the
+    optimum lies inside it) is released."""
+    batch = len(free)
+    index = np.arange(batch)
+    position = free
+    target = np.zeros_like(low)
+    active = np.zeros_like(valid)
+    is_low = np.zeros_like(valid)
+    stiffness = _STIFFNESS * weights.max(axis=1)[:, None]
+    tolerance = 1e-9 * (1.0 + high)
+    origin_along = np.einsum("brj,brj->br", d, c)
+    for _ in range(_ACTIVE_PASSES):
+        along = np.einsum("brj,brj->br", d, position[:, None, :]) - origin_along
+        violation = (
+            np.where(valid & ~active, np.maximum(low - along, along - high), 0.0) - tolerance
+        )
+        inside = np.where(active, np.where(is_low, along - target, target - along), 0.0) - tolerance
+        worst = violation.argmax(axis=1)
+        adding = violation[index, worst] > 0
+        loosest = inside.argmax(axis=1)
+        releasing = ~adding & (inside[index, loosest] > 0)
+        if not (adding.any() or releasing.any()):
+            break
+        rows = index[adding]
+        columns = worst[adding]
+        below = along[rows, columns] < low[rows, columns]
+        target[rows, columns] = np.where(below, low[rows, columns], high[rows, columns])
+        is_low[rows, columns] = below
+        active[rows, columns] = True
+        active[index[releasing], loosest[releasing]] = False
+        position = _penalised(
+            prior_point, a_rays, b_rays, floor, active, stiffness, d, origin_along + target
+        )
+    if not active.any():
+        return position
+    # A stiff penalty leaves the range off its bound by force / stiffness: moving the
+    # penalty's aim by what is left (the method of multipliers) closes the gap.
+    aim = origin_along + target
+    for _ in range(_REFINEMENTS):
+        along = np.einsum("brj,brj->br", d, position[:, None, :]) - origin_along
+        aim = aim + np.where(active, target - along, 0.0)
+        position = _penalised(prior_point, a_rays, b_rays, floor, active, stiffness, d, aim)
+    return position
+
+
+def _penalised(
+    prior_point: np.ndarray,
+    a_rays: np.ndarray,
+    b_rays: np.ndarray,
+    floor: np.ndarray,
+    active: np.ndarray,
+    stiffness: np.ndarray,
+    d: np.ndarray,
+    aim: np.ndarray,
+) -> np.ndarray:
+    """The rays' least squares with each active ray's ``d . X`` pulled stiffly to ``aim``."""
+    penalty = np.where(active, stiffness, 0.0)
+    a = a_rays + np.einsum("br,bri,brj->bij", penalty, d, d)
+    b = b_rays + np.einsum("br,bri->bi", penalty * aim, d)
+    return prior_point + _solve(a, b - _apply(a, prior_point), floor)

@@ -1,0 +1,325 @@
+"""Every track rule of ObjectTracker on scenes whose geometry is known: the association gate
+and one-to-one assignment, initialisation from one view, N-of-M confirmation, the end after
+K in-view misses, hidden or out-of-view objects not missed, no confirmation without
+parallax, a slow drift followed, and bad input refused."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from objects_scene import CAMERA, SPACE, project, region_at, sweep, wall_depth
+
+from allo_mrad_ros.objects import ObjectParams, ObjectsError, ObjectTracker
+from allo_mrad_ros.objects.params import parameter_table
+
+POINT = np.array([0.5, 0.0, 0.3])  # 10 m ahead of the sweep's camera
+FPS = 10.0
+
+
+def seen(tracker, point, t, depth=SPACE, extent=8, **kwargs):
+    pose = sweep(t, **kwargs)
+    u, v, _ = project(point, pose)
+    return tracker.update([region_at(u, v, extent)], pose, depth, t)
+
+
+def only(objects):
+    assert len(objects) == 1, objects
+    return objects[0]
+
+
+def test_one_view_starts_a_tentative_object_on_the_ray_within_its_interval():
+    tracker = ObjectTracker(ObjectParams(min_range=0.5, max_range=40.0), CAMERA)
+    obj = only(seen(tracker, POINT, 0.0))
+    assert obj.state == "tentative" and obj.hits == 1 and obj.region == 0
+    origin = sweep(0.0)[:3, 3]
+    direction = (POINT - origin) / np.linalg.norm(POINT - origin)
+    offset = obj.position - origin
+    along = offset @ direction
+    assert np.linalg.norm(offset - along * direction) < 1e-9  # on the ray
+    assert along == pytest.approx(2.0 / (1.0 / 0.5 + 1.0 / 40.0))  # mid-interval, inverse range
+    assert not obj.range_resolved
+
+
+def test_an_object_over_surface_starts_in_front_of_it():
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    obj = only(seen(tracker, POINT, 0.0, depth=wall_depth(4.0)))
+    origin = sweep(0.0)[:3, 3]
+    # In front of a wall 4 m away along the optical axis (the region is near the centre).
+    assert np.linalg.norm(obj.position - origin) < 4.0 * 1.01
+
+
+def test_a_static_object_is_triangulated_confirmed_and_keeps_its_id():
+    tracker = ObjectTracker(ObjectParams(confirm_hits=3, confirm_window=5), CAMERA)
+    states = []
+    for k in range(20):
+        obj = only(seen(tracker, POINT, k / FPS))
+        states.append(obj.state)
+        assert obj.id == 1
+    assert states[0] == "tentative" and states[-1] == "confirmed"
+    assert np.linalg.norm(obj.position - POINT) < 1e-6  # noise-free rays
+    assert obj.range_resolved and obj.score == pytest.approx(0.9)
+    # Size: 8 px at 500 px focal length, about 10 m away.
+    assert obj.size == pytest.approx(8 / 500 * 10.0, rel=0.05)
+
+
+def test_confirmation_needs_n_hits_in_the_last_m_in_view_frames():
+    params = ObjectParams(confirm_hits=3, confirm_window=4, parallax_sigma=0.0, end_misses=50)
+    tracker = ObjectTracker(params, CAMERA)
+    # hit, miss, miss, hit: 2 hits in the last 4; then miss, hit: still 2 of the last 4.
+    pattern = [True, False, False, True, False, True]
+    for k, hit in enumerate(pattern):
+        t = k / FPS
+        obj = only(seen(tracker, POINT, t)) if hit else only(tracker.update([], sweep(t), SPACE, t))
+        assert obj.state == "tentative", k
+    # A third hit within the window: hits at frames 3, 5, 6 of the last 4 (3..6).
+    assert only(seen(tracker, POINT, 6 / FPS)).state == "confirmed"
+
+
+def test_without_enough_parallax_a_tentative_object_is_not_confirmed():
+    params = ObjectParams(confirm_hits=2, confirm_window=2)
+    tracker = ObjectTracker(params, CAMERA)
+    # A camera that does not move: no parallax, however often it is seen.
+    for k in range(10):
+        obj = only(seen(tracker, POINT, k / FPS, speed=0.0))
+    assert obj.state == "tentative" and not obj.range_resolved
+
+
+def test_an_object_ends_after_k_consecutive_in_view_misses_and_is_reported_once():
+    params = ObjectParams(end_misses=3)
+    tracker = ObjectTracker(params, CAMERA)
+    for k in range(15):
+        obj = only(seen(tracker, POINT, k / FPS))
+    assert obj.state == "confirmed"
+    states = []
+    for k in range(15, 20):
+        objects = tracker.update([], sweep(k / FPS), SPACE, k / FPS)
+        states.append(objects[0].state if objects else None)
+        if objects:
+            assert objects[0].in_view
+    assert states == ["confirmed", "confirmed", "ended", None, None]
+    # A hit in between resets the count.
+    tracker = ObjectTracker(params, CAMERA)
+    for k in range(15):
+        seen(tracker, POINT, k / FPS)
+    for k in range(15, 30):
+        t = k / FPS
+        objects = seen(tracker, POINT, t) if k % 3 == 0 else tracker.update([], sweep(t), SPACE, t)
+        assert only(objects).state == "confirmed"
+
+
+def test_an_object_hidden_behind_the_surface_is_not_missed():
+    params = ObjectParams(end_misses=3)
+    tracker = ObjectTracker(params, CAMERA)
+    for k in range(30):
+        seen(tracker, POINT, k / FPS)
+    # A module now stands 4 m in front of the camera, the object 10 m away behind it.
+    for k in range(30, 60):
+        t = k / FPS
+        obj = only(tracker.update([], sweep(t), wall_depth(4.0), t))
+        assert obj.state == "confirmed" and not obj.in_view
+    # Behind a wall farther than the object, the object is in view and missed.
+    for k in range(60, 63):
+        t = k / FPS
+        objects = tracker.update([], sweep(t), wall_depth(20.0), t)
+    assert only(objects).state == "ended"
+
+
+def test_an_object_out_of_the_image_is_not_missed():
+    params = ObjectParams(end_misses=2)
+    tracker = ObjectTracker(params, CAMERA)
+    for k in range(15):
+        seen(tracker, POINT, k / FPS)
+    for k in range(15, 40):
+        t = k / FPS
+        away = sweep(t, look=(0.0, -1.0, 0.0))  # the camera turned round
+        obj = only(tracker.update([], away, SPACE, t))
+        assert obj.state == "confirmed" and not obj.in_view
+
+
+def test_a_region_outside_the_gate_starts_a_new_object_one_inside_is_a_hit():
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    for k in range(15):
+        seen(tracker, POINT, k / FPS)
+    t = 15 / FPS
+    pose = sweep(t)
+    u, v, _ = project(POINT, pose)
+    objects = tracker.update([region_at(u + 2.0, v), region_at(u + 120.0, v)], pose, SPACE, t)
+    assert [(o.id, o.region, o.state) for o in objects] == [
+        (1, 0, "confirmed"),
+        (2, 1, "tentative"),
+    ]
+
+
+def test_a_region_of_a_very_different_size_is_not_the_same_object():
+    params = ObjectParams(size_ratio_max=3.0)
+    tracker = ObjectTracker(params, CAMERA)
+    for k in range(15):
+        seen(tracker, POINT, k / FPS, extent=8)
+    objects = seen(tracker, POINT, 15 / FPS, extent=60)  # same place, 7.5 times the size
+    assert [o.id for o in objects] == [1, 2] and objects[1].region == 0
+
+
+def test_assignment_is_one_to_one_and_optimal():
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    other = POINT + np.array([0.15, 0.0, 0.0])  # 7.5 px apart in the image
+    for k in range(15):
+        t = k / FPS
+        pose = sweep(t)
+        regions = [region_at(*project(p, pose)[:2]) for p in (POINT, other)]
+        objects = tracker.update(regions, pose, SPACE, t)
+    assert [o.id for o in objects] == [1, 2]
+    t = 15 / FPS
+    pose = sweep(t)
+    a, b = project(POINT, pose)[:2], project(other, pose)[:2]
+    # Regions given in the other order, both nearer to the first object's projection than a
+    # greedy choice would leave room for: each object still gets its own.
+    objects = tracker.update([region_at(*b), region_at(*a)], pose, SPACE, t)
+    assert [(o.id, o.region) for o in objects] == [(1, 1), (2, 0)]
+
+
+def test_a_direction_fixed_in_the_station_frame_is_never_confirmed():
+    # The Moon: a region always where one station-frame direction projects, while the
+    # camera translates 1 m/s.
+    direction = np.array([0.05, 1.0, 0.02]) / np.linalg.norm([0.05, 1.0, 0.02])
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    for k in range(60):
+        t = k / FPS
+        pose = sweep(t, speed=1.0)
+        far = pose[:3, 3] + 1e9 * direction
+        obj = only(tracker.update([region_at(*project(far, pose)[:2])], pose, SPACE, t))
+        assert obj.state == "tentative" and not obj.range_resolved
+    assert obj.hits == 60
+
+
+def test_glare_fixed_in_direction_over_the_surface_is_never_confirmed():
+    # A specular highlight on a flat panel: parallel rays, seen over station surface.
+    direction = np.array([-0.1, 1.0, 0.05]) / np.linalg.norm([-0.1, 1.0, 0.05])
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    for k in range(60):
+        t = k / FPS
+        pose = sweep(t, speed=1.0)
+        far = pose[:3, 3] + 1e9 * direction
+        objects = tracker.update([region_at(*project(far, pose)[:2])], pose, wall_depth(8.0), t)
+        assert only(objects).state == "tentative"
+
+
+def test_a_drifting_object_is_followed():
+    # The object drifts away from the camera at 0.05 m/s while the camera sweeps across:
+    # the newest rays place it where it is now, the old ones count less (drift_speed).
+    velocity = np.array([0.0, 0.05, 0.0])
+
+    def final_error(params):
+        tracker = ObjectTracker(params, CAMERA)
+        for k in range(300):  # 30 s: the object moves 1.5 m
+            t = k / FPS
+            obj = only(seen(tracker, POINT + velocity * t, t, speed=0.1))
+        assert obj.state == "confirmed"
+        return np.linalg.norm(obj.position - (POINT + velocity * t))
+
+    followed = final_error(ObjectParams(drift_speed=0.05, max_rays=128))
+    static = final_error(ObjectParams(drift_speed=0.0, max_rays=128))
+    assert followed < 0.25
+    assert static > 1.5 * followed
+
+
+def test_a_stamp_earlier_than_the_last_ends_every_object():
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    for k in range(5):
+        seen(tracker, POINT, 10.0 + k / FPS)
+    objects = seen(tracker, POINT, 0.0)
+    assert [(o.id, o.state) for o in objects] == [(1, "ended"), (2, "tentative")]
+
+
+def test_a_tentative_object_not_seen_for_its_timeout_ends():
+    tracker = ObjectTracker(ObjectParams(tentative_timeout_s=1.0), CAMERA)
+    seen(tracker, POINT, 0.0)
+    away = sweep(1.5, look=(0.0, -1.0, 0.0))
+    assert only(tracker.update([], away, SPACE, 0.5)).state == "tentative"
+    assert only(tracker.update([], away, SPACE, 1.5)).state == "ended"
+    assert tracker.update([], away, SPACE, 1.6) == ()
+
+
+def test_no_more_objects_than_allowed_are_kept():
+    tracker = ObjectTracker(ObjectParams(max_objects=3), CAMERA)
+    pose = sweep(0.0)
+    regions = [region_at(100.0 + 60.0 * i, 200.0) for i in range(5)]
+    objects = tracker.update(regions, pose, SPACE, 0.0)
+    assert sum(o.state != "ended" for o in objects) == 3
+    assert len(tracker.objects) == 3
+
+
+def test_regions_below_the_score_floor_are_ignored():
+    tracker = ObjectTracker(ObjectParams(min_region_score=0.5), CAMERA)
+    pose = sweep(0.0)
+    assert tracker.update([region_at(320.0, 240.0, score=0.4)], pose, SPACE, 0.0) == ()
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("pixel_sigma", 0.0),
+        ("pixel_sigma", float("nan")),
+        ("min_range", -1.0),
+        ("confirm_hits", 2.5),
+        ("confirm_window", 0),
+        ("end_misses", True),
+        ("gate_sigma", "4"),
+        ("surface_quantile", 1.5),
+        ("drift_speed", float("inf")),
+    ],
+)
+def test_a_parameter_out_of_range_is_refused_naming_it(field, value):
+    with pytest.raises(ObjectsError, match=field):
+        ObjectParams(**{field: value})
+
+
+def test_parameters_that_contradict_each_other_are_refused():
+    with pytest.raises(ObjectsError, match="confirm_hits"):
+        ObjectParams(confirm_hits=6, confirm_window=5)
+    with pytest.raises(ObjectsError, match="max_range"):
+        ObjectParams(min_range=10.0, max_range=5.0)
+    with pytest.raises(ObjectsError, match="unknown"):
+        ObjectParams().replace(gate=3.0)
+    assert ObjectParams().replace(confirm_hits=2).confirm_hits == 2
+
+
+def test_every_parameter_has_a_description_and_range():
+    rows = parameter_table()
+    assert len(rows) == len(ObjectParams.__dataclass_fields__)
+    for name, default, interval, description in rows:
+        assert description and interval[0] in "([" and default == getattr(ObjectParams(), name)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(pose=np.eye(3)), "camera pose"),
+        (dict(pose=np.full((4, 4), np.nan)), "camera pose"),
+        (dict(depth=np.zeros((60, 60))), "aspect"),
+        (dict(depth=np.zeros(10)), "depth"),
+        (dict(stamp=float("nan")), "stamp"),
+        (dict(mask=np.zeros((10, 10), np.uint8)), "mask"),
+        (dict(regions=[(1, 2, 3, 4)]), "region 0"),
+    ],
+)
+def test_bad_input_is_refused_with_a_clear_error_and_changes_nothing(change, message):
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    seen(tracker, POINT, 0.0)
+    before = tracker.objects
+    pose = sweep(0.1)
+    args = dict(regions=[region_at(*project(POINT, pose)[:2])], pose=pose, depth=SPACE, stamp=0.1)
+    args.update(change)
+    mask = args.pop("mask", None)
+    with pytest.raises(ObjectsError, match=message):
+        tracker.update(args["regions"], args["pose"], args["depth"], args["stamp"], mask=mask)
+    assert tracker.objects == before
+
+
+def test_the_tracker_refuses_what_is_not_its_parameters_or_camera():
+    with pytest.raises(ObjectsError, match="params"):
+        ObjectTracker({}, CAMERA)
+    with pytest.raises(ObjectsError, match="camera"):
+        ObjectTracker(ObjectParams(), None)
+    assert math.isfinite(ObjectParams().max_range)

@@ -1,0 +1,166 @@
+"""Triangulation against closed-form geometry, its covariance against noisy draws, and the
+vectorised batch against a slow float64 oracle."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from triangulation_oracle import triangulate_one
+
+from allo_mrad_ros.objects.params import ObjectsError
+from allo_mrad_ros.objects.triangulation import RayBatch, triangulate
+
+# P(chi-square with 3 dof <= 14.156) = 0.9973, the coverage of +-3 sigma in one dimension:
+# the "3-sigma ellipsoid" of a 3-D estimate.
+CHI2_3_THREE_SIGMA = 14.156
+
+
+def rays_through(point, origins, variance=1e-6, low=0.3, high=50.0):
+    origins = np.asarray(origins, float)
+    return RayBatch.single(origins, np.asarray(point, float) - origins, variance, low, high)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_noise_free_rays_meet_at_the_point_to_a_micrometre(seed):
+    rng = np.random.default_rng(seed)
+    point = rng.uniform(-20.0, 20.0, 3)
+    count = int(rng.integers(2, 12))
+    origins = point + rng.normal(size=(count, 3)) * rng.uniform(0.5, 10.0)
+    solution = triangulate(rays_through(point, origins, rng.uniform(1e-8, 1e-4)))
+    assert np.linalg.norm(solution.position[0] - point) < 1e-6
+    np.testing.assert_allclose(
+        solution.ranges[0], np.linalg.norm(origins - point, axis=1), atol=1e-6
+    )
+
+
+def test_two_perpendicular_rays_meet_where_the_lines_cross():
+    # x axis from the origin, and the line x = 5 in the y direction: they cross at (5, 0, 0).
+    rays = RayBatch.single(
+        [[0.0, 0.0, 0.0], [5.0, -4.0, 0.0]], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], 1e-6, 0.3, 50.0
+    )
+    solution = triangulate(rays)
+    assert np.abs(solution.position[0] - [5.0, 0.0, 0.0]).max() < 1e-9
+    assert solution.free_range[0] == pytest.approx(4.0, abs=1e-9)
+    # Each ray pins the other's range: sigma along ray 2 = sigma_angle * range along ray 1.
+    assert solution.free_range_sigma[0] == pytest.approx(1e-3 * 5.0, rel=1e-6)
+
+
+def test_one_ray_sits_mid_interval_in_inverse_range_with_the_interval_s_spread():
+    low, high = 0.5, 20.0
+    direction = np.array([1.0, 2.0, 2.0]) / 3.0
+    solution = triangulate(RayBatch.single([[1.0, 1.0, 1.0]], [direction], 1e-6, low, high))
+    middle = 2.0 / (1.0 / low + 1.0 / high)
+    np.testing.assert_allclose(solution.position[0], [1.0, 1.0, 1.0] + middle * direction)
+    along = direction @ solution.covariance[0] @ direction
+    expected = middle**2 * (1.0 / low - 1.0 / high) / math.sqrt(12.0)
+    assert math.sqrt(along) == pytest.approx(expected, rel=1e-6)
+    assert math.isinf(solution.free_range_sigma[0])  # the ray alone fixes no range
+
+
+def test_parallel_rays_leave_the_range_to_the_interval():
+    origins = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.5, 0.0]])
+    rays = RayBatch.single(origins, np.tile([0.0, 0.0, 1.0], (3, 1)), 1e-6, 0.3, 50.0)
+    solution = triangulate(rays)
+    _, sigma = solution.free_inverse_range()
+    assert math.isinf(solution.free_range_sigma[0]) and math.isinf(sigma[0])
+    assert 0.3 <= solution.ranges[0, -1] <= 50.0
+
+
+def test_a_bound_holds_where_the_rays_would_cross_beyond_it():
+    point = np.array([0.0, 0.0, 10.0])
+    origins = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    # The newest ray sees surface at 6 m: the object must be in front of it.
+    high = np.array([50.0, 50.0, 6.0])
+    rays = RayBatch.single(origins, point - origins, 1e-6, 0.3, high)
+    solution = triangulate(rays)
+    assert solution.ranges[0, 2] == pytest.approx(6.0, abs=1e-6)
+    # Parallax alone still says 10 m (what the tracker checks against the surface).
+    assert solution.free_range[0] == pytest.approx(np.linalg.norm(point - origins[2]), abs=1e-6)
+    oracle, *_ = triangulate_one(origins, point - origins, [1e-6] * 3, [0.0] * 3, [0.3] * 3, high)
+    assert np.linalg.norm(solution.position[0] - oracle) < 1e-5
+
+
+def test_the_true_point_lies_in_the_3_sigma_ellipsoid_in_99_percent_of_noisy_draws():
+    rng = np.random.default_rng(2024)
+    focal, pixel_sigma = 800.0, 1.5
+    angle = pixel_sigma / focal
+    point = np.array([0.4, -0.3, 8.0])
+    # A camera sweeping 1.2 m past the point: ten views.
+    origins = np.c_[np.linspace(-0.6, 0.6, 10), np.zeros(10), np.zeros(10)]
+    inside = 0
+    draws = 1000
+    for _ in range(draws):
+        directions = point - origins
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        # Noise of pixel_sigma pixels in the image: angle across the ray, both axes.
+        noise = rng.normal(scale=angle, size=(10, 3))
+        noise -= np.sum(noise * directions, axis=1, keepdims=True) * directions
+        solution = triangulate(RayBatch.single(origins, directions + noise, angle**2, 0.3, 50.0))
+        error = solution.position[0] - point
+        inside += (
+            float(error @ np.linalg.solve(solution.covariance[0], error)) <= CHI2_3_THREE_SIGMA
+        )
+    assert inside >= 0.99 * draws, inside
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_vectorised_batch_matches_the_slow_oracle(seed):
+    rng = np.random.default_rng(100 + seed)
+    batch, capacity = 5, 9
+    counts = rng.integers(1, capacity + 1, batch)
+    origins = rng.normal(scale=3.0, size=(batch, capacity, 3))
+    targets = rng.uniform(-10, 10, (batch, 1, 3)) + rng.normal(scale=0.2, size=(batch, capacity, 3))
+    directions = targets - origins
+    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+    variance = rng.uniform(1e-7, 1e-4, (batch, capacity))
+    extra = rng.uniform(0.0, 0.05, (batch, capacity))
+    low = np.full((batch, capacity), 0.3)
+    high = rng.uniform(5.0, 40.0, (batch, capacity))
+    valid = np.arange(capacity)[None, :] < counts[:, None]
+    rays = RayBatch(origins, directions, variance, extra, low, high, valid, counts - 1)
+    solution = triangulate(rays)
+    for b in range(batch):
+        n = counts[b]
+        position, covariance, free_range, free_sigma = triangulate_one(
+            origins[b, :n],
+            directions[b, :n],
+            variance[b, :n],
+            extra[b, :n],
+            low[b, :n],
+            high[b, :n],
+        )
+        assert np.linalg.norm(solution.position[b] - position) < 1e-5 * (
+            1 + np.linalg.norm(position)
+        )
+        np.testing.assert_allclose(solution.covariance[b], covariance, rtol=1e-4, atol=1e-9)
+        if n > 1:
+            assert solution.free_range[b] == pytest.approx(free_range, rel=1e-6, abs=1e-6)
+            assert solution.free_range_sigma[b] == pytest.approx(free_sigma, rel=1e-4)
+
+
+def test_a_malformed_batch_is_refused_naming_the_array():
+    rays = RayBatch.single([[0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]], 1e-6, 0.3, 50.0)
+    with pytest.raises(ObjectsError, match="anchor"):
+        RayBatch(
+            rays.origins,
+            rays.directions,
+            rays.angular_variance,
+            rays.extra_variance,
+            rays.low,
+            rays.high,
+            np.zeros((1, 1), bool),
+            rays.anchor,
+        )
+    with pytest.raises(ObjectsError, match="low"):
+        RayBatch(
+            rays.origins,
+            rays.directions,
+            rays.angular_variance,
+            rays.extra_variance,
+            rays.low[:, :0],
+            rays.high,
+            rays.valid,
+            rays.anchor,
+        )
