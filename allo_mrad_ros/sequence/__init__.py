@@ -38,7 +38,9 @@ from .objects import (
     OBJECT_COLUMNS,
     OBJECTS_FILE,
     GroundTruthObject,
+    parse_objects,
     read_objects,
+    write_objects_text,
 )
 from .png import read_png_header
 from .reader import Sequence, read_sequence, validate_sequence
@@ -69,8 +71,10 @@ __all__ = [
     "SequenceError",
     "SequenceMeta",
     "SequenceWriter",
+    "parse_objects",
     "read_objects",
     "read_png_header",
     "read_sequence",
     "validate_sequence",
+    "write_objects_text",
 ]

@@ -199,7 +199,12 @@ def read_objects(path: Path) -> tuple[GroundTruthObject, ...]:
         missing columns, malformed numbers, duplicate ids, ids outside 1..65535,
         quaternions far from unit norm, sizes that are not positive.
     """
-    text = read_text(path)
+    return parse_objects(read_text(path), path)
+
+
+def parse_objects(text: str, path: Path | str = OBJECTS_FILE) -> tuple[GroundTruthObject, ...]:
+    """Parse the text of ``objects.csv`` (as :func:`read_objects`; ``path`` names it in
+    errors, e.g. a bag's custom data)."""
     reader = csv.reader(io.StringIO(text, newline=""))
     try:
         header = next(reader)
