@@ -247,3 +247,21 @@ def test_trajectory_settings_are_validated():
         preset("objects").with_overrides(splits={"val": SplitSpec(1, 2, 1)})
     scaled = preset("objects").with_frames(90)
     assert scaled.trajectory.frames == 5 and scaled.frames == 90
+
+
+def test_cli_generates_an_anomaly_free_trajectory_sequence(tmp_path, capsys):
+    from allo_mrad_ros.synth.cli import main
+
+    out = tmp_path / "normal"
+    args = ["generate", "--preset", "objects-normal", "--seed", "2", "--quiet"]
+    args += ["--width", "48", "--height", "32", "--trajectory-frames", "3", "--rate-hz", "20"]
+    assert main([*args, "--out", str(out)]) == 0
+    sequence = validate_sequence(out)
+    assert sequence.meta.format == FORMAT_V2 and sequence.objects == ()
+    assert sequence.meta.rate_hz == 20.0
+    assert len(sequence) == 12 * 3
+    assert not any(frame.is_anomalous for frame in sequence)
+    assert "12 trajectories" not in capsys.readouterr().out  # per split: 6 and 6
+    demo = ["generate", "--preset", "demo", "--trajectory-frames", "3", "--quiet"]
+    assert main([*demo, "--out", str(tmp_path / "demo")]) == 1
+    assert "needs a trajectory preset" in capsys.readouterr().err
