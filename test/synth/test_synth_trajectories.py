@@ -261,7 +261,10 @@ def test_cli_generates_an_anomaly_free_trajectory_sequence(tmp_path, capsys):
     assert sequence.meta.rate_hz == 20.0
     assert len(sequence) == 12 * 3
     assert not any(frame.is_anomalous for frame in sequence)
-    assert "12 trajectories" not in capsys.readouterr().out  # per split: 6 and 6
+    assert capsys.readouterr().out.count("6 trajectories, 18 frames") == 2
+    # A version-2 sequence (objects.csv, instance masks) is one the output rule may replace.
+    assert main([*args, "--out", str(out), "--overwrite"]) == 0
+    capsys.readouterr()
     demo = ["generate", "--preset", "demo", "--trajectory-frames", "3", "--quiet"]
     assert main([*demo, "--out", str(tmp_path / "demo")]) == 1
     assert "needs a trajectory preset" in capsys.readouterr().err
