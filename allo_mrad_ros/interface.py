@@ -38,6 +38,10 @@ BODIES_TOPIC = "/allo/celestial_bodies"
 # Ground truth recorded in bags (not read by the node).
 MASK_TOPIC = "/allo/ground_truth/mask"
 LABEL_TOPIC = "/allo/ground_truth/label"
+# Sequences with ground-truth objects (format version 2): per-pixel object ids, and the
+# objects' boxes at each frame's stamp.
+INSTANCES_TOPIC = "/allo/ground_truth/instances"
+OBJECTS_TOPIC = "/allo/ground_truth/objects"
 TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
 

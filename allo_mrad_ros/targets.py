@@ -4,8 +4,9 @@ A command writes one kind of folder (a report, a bag, a sequence). Its ``--out``
 path or an empty folder; an existing folder is replaced only with ``--overwrite`` and only
 when everything in it is what that command writes, recognised by content, not by name: a
 bag's ``metadata.yaml`` must be rosbag2 metadata and every other file one it lists; every
-file of a sequence must be ``sequence.yaml``, ``frames.csv``, ``generation.json``, the mesh
-``sequence.yaml`` names or an image, mask or reference ``frames.csv`` names. Everything else is
+file of a sequence must be ``sequence.yaml``, ``frames.csv``, ``generation.json``,
+``objects.csv``, the mesh ``sequence.yaml`` names or an image, mask, reference or instance
+mask ``frames.csv`` names. Everything else is
 refused before any work starts, with one line that names the path (and, for a folder, the
 first entry that is not part of the output): a file, a symbolic link, a folder with other
 files (an ALLO split beside a sequence, a user's file), a sequence whose images are another
@@ -180,11 +181,13 @@ def _bag_foreign(folder: Path) -> str | None:
     return _first_foreign(folder, allowed, lambda _: False)
 
 
-_SEQUENCE_TOP_FILES = frozenset({"sequence.yaml", "frames.csv", "generation.json"})
+_SEQUENCE_TOP_FILES = frozenset({"sequence.yaml", "frames.csv", "generation.json", "objects.csv"})
 _SEQUENCE_LAYOUT = re.compile(
-    r"^(meshes|(train|val|test)(/Camera\d+(/(images|masks|references))?)?)$"
+    r"^(meshes|(train|val|test)(/Camera\d+(/(images|masks|references|instances))?)?)$"
 )
 _FILE_COLUMNS = ("image", "mask", "reference")
+# Format version 2's instance masks; version 1 tables have no such column.
+_OPTIONAL_FILE_COLUMNS = ("instances",)
 
 
 def _frames_files(path: Path) -> set[str] | None:
@@ -199,6 +202,7 @@ def _frames_files(path: Path) -> set[str] | None:
             if not all(column in header for column in _FILE_COLUMNS):
                 return None
             where = [header.index(column) for column in _FILE_COLUMNS]
+            where += [header.index(c) for c in _OPTIONAL_FILE_COLUMNS if c in header]
             return {
                 relative
                 for row in rows

@@ -23,6 +23,8 @@ KEY_TOPICS = "allo.topics"
 KEY_MESH = "allo.mesh"
 KEY_MESH_SHA256 = "allo.mesh_sha256"
 KEY_RATE = "allo.rate_hz"
+KEY_OBJECTS = "allo.objects"
+"""Only in bags of sequences of format version 2: the text of their ``objects.csv``."""
 
 
 def encode_splits(splits: Iterable[str]) -> str:

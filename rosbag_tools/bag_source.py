@@ -32,13 +32,20 @@ from allo_mrad_ros.ros.messages import (
     markers_to_bodies,
     pose_to_matrix,
 )
-from allo_mrad_ros.sequence import MASK_ANOMALY, META_FILE
+from allo_mrad_ros.sequence import (
+    MASK_ANOMALY,
+    META_FILE,
+    GroundTruthObject,
+    SequenceError,
+    parse_objects,
+)
 from allo_mrad_ros.sequence.png import bad_mask_values
 from allo_mrad_ros.view import View
 from rosbag_tools.bag_meta import (
     KEY_MESH,
     KEY_MESH_SHA256,
     KEY_NAME,
+    KEY_OBJECTS,
     KEY_SPLITS,
     decode_splits,
     file_sha256,
@@ -56,8 +63,9 @@ class BagSource(FrameSource):
         camera: CameraIntrinsics,
         mesh: Path | None,
         headers: tuple[FrameHeader, ...],
+        objects: tuple[GroundTruthObject, ...] = (),
     ) -> None:
-        super().__init__(path, "bag", name, camera, mesh, headers)
+        super().__init__(path, "bag", name, camera, mesh, headers, objects)
         self.topics = bag_topics(path)
 
     def frames(self, indices: list[int]) -> Iterator[EvalFrame]:
@@ -68,7 +76,10 @@ class BagSource(FrameSource):
             if index > last:
                 return
             if index in wanted:
-                yield _frame_from_group(index, self.headers[index].split, group, self.topics)
+                frame = _frame_from_group(index, self.headers[index].split, group, self.topics)
+                if self.objects and frame.instances is not None:
+                    _check_instances(frame, self.objects, self.topics.instances)
+                yield frame
 
 
 def _frame_groups(path: Path, topics: Any) -> Iterator[dict[str, tuple[int, Any]]]:
@@ -81,6 +92,7 @@ def _frame_groups(path: Path, topics: Any) -> Iterator[dict[str, tuple[int, Any]
         topics.sun_strength,
         topics.bodies,
         topics.label,
+        topics.instances,
     }
     with open_bag(path) as reader:
         connections = [c for c in reader.connections if c.topic in needed]
@@ -145,6 +157,22 @@ def _frame_from_group(
     anomaly = label if is_anomalous and label != "normal" else ""
     if is_anomalous and not anomaly:
         anomaly = "unknown"
+    instances = None
+    if topics.instances in group:
+        instances_stamp, instances_msg = group[topics.instances]
+        instances = _decoded(topics.instances, index, image_to_array, instances_msg)
+        if instances.dtype != np.uint16 or instances.shape != mask.shape:
+            raise FrameSourceError(
+                f"topic {topics.instances}: frame {index} at {instances_stamp} ns: instance "
+                f"mask {instances.dtype} {instances.shape} does not match the image "
+                f"{image.shape[1]}x{image.shape[0]} (mono16 expected)"
+            )
+        differ = int(np.count_nonzero((instances > 0) != (mask == MASK_ANOMALY)))
+        if differ:
+            raise FrameSourceError(
+                f"topic {topics.instances}: frame {index} at {instances_stamp} ns: {differ} "
+                "pixels differ from the mask's anomaly pixels"
+            )
     bodies: tuple = ()
     if topics.bodies in group:
         markers = group[topics.bodies][1].markers
@@ -158,7 +186,29 @@ def _frame_from_group(
         image=image,
         mask=mask,
         view=View(pose, np.array([vector.x, vector.y, vector.z]), sun_strength, bodies),
+        instances=instances,
     )
+
+
+def _check_instances(frame: EvalFrame, objects: tuple[GroundTruthObject, ...], topic: str) -> None:
+    known = {item.id for item in objects}
+    unknown = sorted(int(v) for v in np.unique(frame.instances) if v and int(v) not in known)
+    if unknown:
+        raise FrameSourceError(
+            f"topic {topic}: frame {frame.index} at {frame.stamp_ns} ns: ids {unknown[:10]} "
+            f"are not in the bag's objects table ({KEY_OBJECTS})"
+        )
+
+
+def _bag_objects(path: Path, data: dict[str, str]) -> tuple[GroundTruthObject, ...]:
+    """The objects table recorded in the bag's custom data, empty if none."""
+    text = data.get(KEY_OBJECTS)
+    if not text:
+        return ()
+    try:
+        return parse_objects(text, f"{path} custom_data {KEY_OBJECTS}")
+    except SequenceError as error:
+        raise FrameSourceError(str(error)) from None
 
 
 def _bag_mesh(path: Path, data: dict[str, str], mesh: Path | None) -> Path | None:
@@ -253,5 +303,10 @@ def open_source(
         splits = ["test"] * count
     headers = tuple(FrameHeader(i, s) for i, s in enumerate(splits))
     return BagSource(
-        path, data.get(KEY_NAME, path.name), camera, _bag_mesh(path, data, mesh_path), headers
+        path,
+        data.get(KEY_NAME, path.name),
+        camera,
+        _bag_mesh(path, data, mesh_path),
+        headers,
+        _bag_objects(path, data),
     )

@@ -10,12 +10,14 @@ from rosbags.typesys.store import Typestore
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.render.bodies import DEFAULT_COLOURS
+from allo_mrad_ros.sequence import GroundTruthObject
 from rosbag_tools.topics import (
     CAMERA_INFO,
     FLOAT32,
     IMAGE,
     MARKER_ADD,
     MARKER_ARRAY,
+    MARKER_CUBE,
     MARKER_DELETE,
     MARKER_SPHERE,
     POSE_STAMPED,
@@ -116,8 +118,21 @@ class MessageFactory:
         return self.build("std_msgs/msg/Header", stamp=stamp, frame_id=frame_id)
 
     def image(self, stamp_ns: int, frame_id: str, array: np.ndarray) -> Any:
-        """A ``sensor_msgs/Image``: ``rgb8`` for (H, W, 3) uint8, ``mono8`` for (H, W)."""
+        """A ``sensor_msgs/Image``: ``rgb8`` for (H, W, 3) uint8, ``mono8`` for (H, W),
+        ``mono16`` (little-endian) for (H, W) uint16."""
         array = np.ascontiguousarray(array)
+        if array.dtype == np.uint16 and array.ndim == 2:
+            height, width = array.shape
+            return self.build(
+                IMAGE,
+                header=self.header(stamp_ns, frame_id),
+                height=height,
+                width=width,
+                encoding="mono16",
+                is_bigendian=0,
+                step=width * 2,
+                data=array.astype("<u2").view(np.uint8).reshape(-1),
+            )
         if array.dtype != np.uint8 or array.ndim not in (2, 3):
             raise TopicError(f"image must be uint8 (H, W[, 3]), got {array.dtype} {array.shape}")
         if array.ndim == 3 and array.shape[2] != 3:
@@ -274,4 +289,33 @@ class MessageFactory:
             )
         for name in deleted:
             markers.append(self._sphere_marker(header, name, MARKER_DELETE))
+        return self.build(MARKER_ARRAY, markers=markers)
+
+    def object_markers(
+        self, stamp_ns: int, frame_id: str, objects: Sequence[GroundTruthObject]
+    ) -> Any:
+        """A ``visualization_msgs/MarkerArray``: one ``CUBE`` per ground-truth object, its box
+        at ``stamp_ns`` (``ns`` = type, ``id`` = object id, scale = box extents)."""
+        header = self.header(stamp_ns, frame_id)
+        markers = []
+        for item in objects:
+            pose = self._placement(
+                "geometry_msgs/msg/Pose",
+                ("position", "orientation"),
+                item.position_at(stamp_ns),
+                item.quaternion,
+            )
+            markers.append(
+                self.build(
+                    "visualization_msgs/msg/Marker",
+                    header=header,
+                    ns=item.type,
+                    id=int(item.id),
+                    type=MARKER_CUBE,
+                    action=MARKER_ADD,
+                    pose=pose,
+                    scale=self._point("geometry_msgs/msg/Vector3", item.size),
+                    color=self.build("std_msgs/msg/ColorRGBA", r=1.0, g=0.45, b=0.0, a=0.8),
+                )
+            )
         return self.build(MARKER_ARRAY, markers=markers)

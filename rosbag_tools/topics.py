@@ -15,8 +15,18 @@ key (``TopicNames``)       default topic                       type
 ``bodies``                 ``/allo/celestial_bodies``          visualization_msgs/MarkerArray
 ``mask``                   ``/allo/ground_truth/mask``         sensor_msgs/Image, mono8
 ``label``                  ``/allo/ground_truth/label``        std_msgs/String
+``instances``              ``/allo/ground_truth/instances``    sensor_msgs/Image, mono16
+``objects``                ``/allo/ground_truth/objects``      visualization_msgs/MarkerArray
 ``tf_static``              ``/tf_static``                      tf2_msgs/TFMessage
 =========================  ==================================  ============================
+
+``instances`` and ``objects`` are written for sequences of format version 2 only (those with
+an objects table): the instance mask of every frame that has one (each pixel the id of the
+object it shows, 0 none), and one ``CUBE`` marker per object of the table at the frame's
+stamp (``ns`` = object type, ``id`` = object id, pose = its box centre and orientation at
+that time, scale = the box's extents), whether in view or not. The whole table, with the
+velocities and reference times, is in the bag's custom data (``allo.objects``, the text of
+``objects.csv``).
 
 Frame ids: images, camera info and masks carry the camera optical frame of
 ``sequence.yaml``; the pose, the TF transform (parent station, child camera), the Sun
@@ -60,6 +70,7 @@ STRING = "std_msgs/msg/String"
 MARKER_SPHERE = interface.MARKER_SPHERE
 MARKER_ADD = interface.MARKER_ADD
 MARKER_DELETE = interface.MARKER_DELETE
+MARKER_CUBE = 1
 
 DISTROS: dict[str, tuple[Stores, int]] = {
     # rosbag2 metadata version rosbags writes per distribution (it writes 8 and 9 only).
@@ -102,6 +113,8 @@ class TopicNames:
     bodies: str = interface.BODIES_TOPIC
     mask: str = interface.MASK_TOPIC
     label: str = interface.LABEL_TOPIC
+    instances: str = interface.INSTANCES_TOPIC
+    objects: str = interface.OBJECTS_TOPIC
 
     def __post_init__(self) -> None:
         seen: dict[str, str] = {}

@@ -9,7 +9,9 @@ corrupt pixel data (a truncated PNG) is found when the frame is decoded and abor
 Besides the messages (see :mod:`rosbag_tools.topics`) the bag's ``custom_data`` records what
 a bag cannot otherwise say about the sequence, so that ``allo-bag evaluate`` can work from the
 bag alone: the split of every frame, the topic names, the station mesh (a path relative to
-the bag folder plus its SHA-256) and the sequence name.
+the bag folder plus its SHA-256) and the sequence name; for a sequence of format version 2,
+also its objects table (``allo.objects``, the text of ``objects.csv``), and its instance
+masks and object boxes go on topics of their own.
 """
 
 from __future__ import annotations
@@ -29,7 +31,14 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from tqdm import tqdm
 
 from allo_mrad_ros.errors import BackendError
-from allo_mrad_ros.sequence import SPLITS, Frame, Sequence, SequenceError, read_sequence
+from allo_mrad_ros.sequence import (
+    SPLITS,
+    Frame,
+    Sequence,
+    SequenceError,
+    read_sequence,
+    write_objects_text,
+)
 from allo_mrad_ros.staging import (
     StagingError,
     hold_point,
@@ -45,6 +54,7 @@ from rosbag_tools.bag_meta import (
     KEY_MESH,
     KEY_MESH_SHA256,
     KEY_NAME,
+    KEY_OBJECTS,
     KEY_RATE,
     KEY_SPLITS,
     KEY_TOPICS,
@@ -160,6 +170,7 @@ class _FrameEncoder:
         # written (the whole bag is discarded anyway, but errors come out in row order).
         image = self.sequence.load_image(frame)
         mask = self.sequence.load_mask(frame)
+        instances = self.sequence.load_instances(frame, mask)
         bodies = [
             (name, value[:3], float(value[3]))
             for name, value in (("earth", frame.earth), ("moon", frame.moon))
@@ -191,6 +202,11 @@ class _FrameEncoder:
         ]
         if mask is not None:
             messages.append((t.mask, IMAGE, build.image(stamp, camera, mask)))
+        if self.sequence.has_objects:
+            objects = build.object_markers(stamp, station, self.sequence.objects)
+            messages.append((t.objects, MARKER_ARRAY, objects))
+        if instances is not None:
+            messages.append((t.instances, IMAGE, build.image(stamp, camera, instances)))
         # The image last: a live consumer that acts on the image has the rest of the frame.
         messages.append((t.image, IMAGE, build.image(stamp, camera, image)))
         return [(topic, kind, build.serialize(msg, kind)) for topic, kind, msg in messages]
@@ -211,6 +227,8 @@ def _custom_data(sequence: Sequence, frames: list[Frame], topics: TopicNames, ou
         relative = os.path.relpath(meta.mesh.resolve(), out.resolve())
         data[KEY_MESH] = Path(relative).as_posix()
         data[KEY_MESH_SHA256] = file_sha256(meta.mesh)
+    if sequence.has_objects:
+        data[KEY_OBJECTS] = write_objects_text(sequence.objects)
     return data
 
 
@@ -349,8 +367,10 @@ def _write(
             (topics.bodies, MARKER_ARRAY),
             (topics.label, STRING),
             (topics.mask, IMAGE),
-            (topics.image, IMAGE),
         ]
+        if sequence.has_objects:
+            plan += [(topics.objects, MARKER_ARRAY), (topics.instances, IMAGE)]
+        plan.append((topics.image, IMAGE))
         connections = {
             topic: writer.add_connection(
                 topic, kind, typestore=typestore, offered_qos_profiles=[DATA_QOS]

@@ -21,6 +21,7 @@ from allo_mrad_ros.sequence import (
     MASK_ANOMALY,
     META_FILE,
     SPLITS,
+    GroundTruthObject,
     Sequence,
     SequenceError,
     read_sequence,
@@ -40,7 +41,10 @@ class EvalFrame:
     the sequence's image name (``frame<index>`` for bags), ``stamp_ns`` its time, ``split``
     and ``anomaly`` (empty for normal frames) its labels; ``image`` is RGB uint8 (H, W, 3),
     ``mask`` the ground truth uint8 (H, W) with classes 0, 1, 2, ``view`` the camera pose,
-    lighting and bodies (Earth, Moon), ``reference`` a pre-rendered reference when asked for.
+    lighting and bodies (Earth, Moon), ``reference`` a pre-rendered reference when asked for,
+    ``instances`` the instance mask uint16 (H, W) of inputs with ground-truth objects (the
+    ``id`` of an object of :attr:`FrameSource.objects` per anomaly pixel, 0 elsewhere), else
+    None.
     """
 
     index: int
@@ -52,6 +56,7 @@ class EvalFrame:
     mask: np.ndarray
     view: View
     reference: np.ndarray | None = None
+    instances: np.ndarray | None = None
 
     @property
     def is_anomalous(self) -> bool:
@@ -87,6 +92,9 @@ class FrameSource:
         The station model to render references with (None: the package's model).
     headers : tuple of FrameHeader
         Index and split of every frame, in order.
+    objects : tuple of GroundTruthObject
+        The ground-truth objects table (sequences of format version 2 and their bags);
+        empty otherwise.
     """
 
     path: Path
@@ -95,6 +103,7 @@ class FrameSource:
     camera: CameraIntrinsics
     mesh: Path | None
     headers: tuple[FrameHeader, ...]
+    objects: tuple[GroundTruthObject, ...] = ()
 
     @property
     def splits(self) -> tuple[str, ...]:
@@ -170,6 +179,7 @@ class SequenceSource(FrameSource):
             sequence.meta.camera,
             mesh if mesh is not None else sequence.meta.mesh,
             headers,
+            sequence.objects,
         )
         self.sequence = sequence
         self.use_references = use_references
@@ -182,6 +192,7 @@ class SequenceSource(FrameSource):
             try:
                 image = sequence.load_image(frame)
                 mask = sequence.load_mask(frame)
+                instances = sequence.load_instances(frame, mask)
                 reference = sequence.load_reference(frame) if self.use_references else None
             except SequenceError as error:
                 raise FrameSourceError(str(error)) from None
@@ -197,7 +208,7 @@ class SequenceSource(FrameSource):
                 )
             view = View.of_frame(frame)
             header = (index, frame.name, frame.stamp_ns, frame.split, frame.anomaly)
-            yield EvalFrame(*header, image, mask, view, reference)
+            yield EvalFrame(*header, image, mask, view, reference, instances)
 
 
 def open_sequence(

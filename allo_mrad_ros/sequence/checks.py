@@ -12,7 +12,7 @@ from allo_mrad_ros.geometry import finite_vector
 
 from .model import (
     ANOMALOUS,
-    COLUMNS,
+    COLUMNS_V2,
     LABELS,
     MASK_ANOMALY,
     NORMAL,
@@ -74,7 +74,7 @@ def extra_columns(extra: Mapping[str, object]) -> dict[str, str]:
     """Extra column values as one-line texts (names checked against the reserved columns)."""
     text = {}
     for key, value in extra.items():
-        if not isinstance(key, str) or not _COLUMN.match(key) or key in COLUMNS:
+        if not isinstance(key, str) or not _COLUMN.match(key) or key in COLUMNS_V2:
             raise SequenceError(f"invalid or reserved extra column name {key!r}")
         text[key] = format_float(value) if isinstance(value, float) else str(value)
         if "\n" in text[key] or "\r" in text[key]:

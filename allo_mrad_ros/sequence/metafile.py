@@ -12,7 +12,7 @@ from .. import interface
 from ..camera import CameraIntrinsics
 from ..errors import one_line
 from ..targets import IMAGES_IN_PLACE_KEY
-from .model import FORMAT_V1, SequenceError, SequenceMeta, read_text
+from .model import FORMATS, SequenceError, SequenceMeta, read_text
 from .png import write_atomic
 
 _REQUIRED = ("format", "camera", "rate_hz")
@@ -81,9 +81,10 @@ def _meta_from_dict(data: dict, folder: Path) -> SequenceMeta:
     for key in _REQUIRED:
         if key not in data:
             raise SequenceError("missing key", column=key)
-    if data["format"] != FORMAT_V1:
+    if data["format"] not in FORMATS:
         raise SequenceError(
-            f"unsupported format {data['format']!r}, expected {FORMAT_V1!r}", column="format"
+            f"unsupported format {data['format']!r}, expected one of {', '.join(FORMATS)}",
+            column="format",
         )
     camera = data["camera"]
     if not isinstance(camera, dict):
@@ -122,6 +123,7 @@ def _meta_from_dict(data: dict, folder: Path) -> SequenceMeta:
         station_frame=data.get("station_frame", interface.STATION_FRAME),
         camera_frame=data.get("camera_frame", interface.CAMERA_FRAME),
         mesh=mesh,
+        format=data["format"],
     )
 
 
@@ -145,7 +147,7 @@ def write_meta(
     """
     camera = meta.camera
     document = {
-        "format": FORMAT_V1,
+        "format": meta.format,
         "name": meta.name,
         "station_frame": meta.station_frame,
         "camera_frame": meta.camera_frame,

@@ -1,4 +1,5 @@
-"""Data model of the ALLO sequence format v1: the error type, the metadata and one frame.
+"""Data model of the ALLO sequence format (versions 1 and 2): the error type, the metadata
+and one frame.
 
 The format itself is specified in the project's design notes (``sequence-format.md``); the
 constants here are its vocabulary.
@@ -21,6 +22,9 @@ from ..camera import CameraIntrinsics
 from ..geometry import pose_matrix
 
 FORMAT_V1 = "allo-sequence/1"
+FORMAT_V2 = "allo-sequence/2"
+"""Version 2 adds the objects table (``objects.csv``) and per-frame instance masks."""
+FORMATS = (FORMAT_V1, FORMAT_V2)
 META_FILE = "sequence.yaml"
 FRAMES_FILE = "frames.csv"
 
@@ -70,7 +74,15 @@ COLUMNS = (
     *EARTH_COLUMNS,
     *MOON_COLUMNS,
 )
-"""The columns of ``frames.csv`` in the order the writer emits them."""
+"""The columns of ``frames.csv`` of version 1, in the order the writer emits them."""
+INSTANCES_COLUMN = "instances"
+COLUMNS_V2 = (*COLUMNS, INSTANCES_COLUMN)
+"""The columns of ``frames.csv`` of version 2: version 1's and the instance mask's path."""
+
+
+def columns_of(version: str) -> tuple[str, ...]:
+    """The standard ``frames.csv`` columns of a format version."""
+    return COLUMNS_V2 if version == FORMAT_V2 else COLUMNS
 
 
 class SequenceError(InvalidInput):
@@ -178,7 +190,8 @@ class SequenceMeta:
         ``sequence.yaml``; when handed to :class:`SequenceWriter` it is the file to copy or
         refer to.
     format : str
-        Always :data:`FORMAT_V1`.
+        :data:`FORMAT_V1` or :data:`FORMAT_V2` (a sequence with an objects table and
+        instance masks).
 
     Raises
     ------
@@ -195,9 +208,10 @@ class SequenceMeta:
     format: str = FORMAT_V1
 
     def __post_init__(self) -> None:
-        if self.format != FORMAT_V1:
+        if self.format not in FORMATS:
             raise SequenceError(
-                f"unsupported format {self.format!r}, expected {FORMAT_V1!r}", column="format"
+                f"unsupported format {self.format!r}, expected one of {', '.join(FORMATS)}",
+                column="format",
             )
         if not isinstance(self.name, str):
             raise SequenceError(f"must be text, got {self.name!r}", column="name")
@@ -256,6 +270,9 @@ class Frame:
         Relative sun intensity, 1.0 nominal.
     earth, moon : numpy.ndarray or None
         ``(x, y, z, r)`` of the scaled-down body in the station frame, metres.
+    instances : pathlib.Path or None
+        Instance mask (format version 2): 16-bit, one channel, the id of the object of the
+        objects table each anomaly pixel belongs to, 0 elsewhere. None in version 1.
     extra : Mapping[str, str]
         Values of extra ``frames.csv`` columns, as text.
     """
@@ -276,6 +293,7 @@ class Frame:
     earth: np.ndarray | None = None
     moon: np.ndarray | None = None
     extra: Mapping[str, str] = field(default_factory=dict)
+    instances: Path | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", _frozen_vector(self.position, 3))

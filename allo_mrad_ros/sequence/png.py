@@ -46,6 +46,11 @@ class PngHeader:
         """8-bit single channel."""
         return self.bit_depth == 8 and self.colour_type == GREY
 
+    @property
+    def is_grey16(self) -> bool:
+        """16-bit single channel (instance masks)."""
+        return self.bit_depth == 16 and self.colour_type == GREY
+
     def describe(self) -> str:
         """Human-readable size and pixel layout, for error messages."""
         kind = {
@@ -167,6 +172,17 @@ def load_grey(path: Path) -> np.ndarray:
     return image
 
 
+def load_grey16(path: Path) -> np.ndarray:
+    """Decode a single-channel 16-bit PNG (an instance mask) to uint16 (H, W)."""
+    image = _decode(path, cv2.IMREAD_UNCHANGED)
+    if image.ndim != 2 or image.dtype != np.uint16:
+        raise SequenceError(
+            f"expected a 16-bit single-channel image, got shape {image.shape} {image.dtype}",
+            file=path,
+        )
+    return image
+
+
 def bad_mask_values(mask: np.ndarray) -> list[int]:
     """Return the sorted values of ``mask`` that are not mask classes (0, 1, 2)."""
     present = np.flatnonzero(np.bincount(mask.ravel(), minlength=256))
@@ -174,7 +190,7 @@ def bad_mask_values(mask: np.ndarray) -> list[int]:
 
 
 def encode_png(image: np.ndarray, compression: int) -> bytes:
-    """Encode an RGB (H, W, 3) or grey (H, W) uint8 array as PNG bytes.
+    """Encode an RGB (H, W, 3) or grey (H, W) uint8 array, or a grey uint16 one, as PNG bytes.
 
     The bytes depend only on the pixels and ``compression`` (no timestamps or text chunks),
     so the same input always gives the same file.

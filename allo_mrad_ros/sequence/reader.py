@@ -11,7 +11,9 @@ import numpy as np
 from .metafile import read_meta
 from .model import (
     ANOMALOUS,
+    FORMAT_V2,
     FRAMES_FILE,
+    INSTANCES_COLUMN,
     MASK_ANOMALY,
     META_FILE,
     SPLITS,
@@ -19,7 +21,8 @@ from .model import (
     SequenceError,
     SequenceMeta,
 )
-from .png import PngHeader, bad_mask_values, load_grey, load_rgb, read_png_header
+from .objects import OBJECTS_FILE, GroundTruthObject, read_objects
+from .png import PngHeader, bad_mask_values, load_grey, load_grey16, load_rgb, read_png_header
 from .table import read_frames
 
 
@@ -36,12 +39,39 @@ class Sequence:
         Contents of ``sequence.yaml``.
     frames : tuple of Frame
         All frames in playback order.
+    objects : tuple of GroundTruthObject
+        The objects table (format version 2; empty for version 1 and for sequences without
+        objects).
     """
 
-    def __init__(self, root: Path, meta: SequenceMeta, frames: tuple[Frame, ...]) -> None:
+    def __init__(
+        self,
+        root: Path,
+        meta: SequenceMeta,
+        frames: tuple[Frame, ...],
+        objects: tuple[GroundTruthObject, ...] = (),
+    ) -> None:
         self.root = root
         self.meta = meta
         self.frames = frames
+        self.objects = objects
+        self._object_ids = np.zeros(0, dtype=bool)
+        if objects:
+            self._object_ids = np.zeros(max(o.id for o in objects) + 1, dtype=bool)
+            self._object_ids[[o.id for o in objects]] = True
+
+    @property
+    def has_objects(self) -> bool:
+        """Whether the sequence is of format version 2 (objects table and instance masks),
+        even with an empty table."""
+        return self.meta.format == FORMAT_V2
+
+    def object(self, object_id: int) -> GroundTruthObject:
+        """The object of the table with this id (KeyError if none)."""
+        for item in self.objects:
+            if item.id == object_id:
+                return item
+        raise KeyError(object_id)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -143,6 +173,59 @@ class Sequence:
             )
         return mask
 
+    def load_instances(self, frame: Frame, mask: np.ndarray | None = None) -> np.ndarray | None:
+        """Decode the frame's instance mask (format version 2), or return None if it has none.
+
+        Parameters
+        ----------
+        frame : Frame
+            The frame.
+        mask : numpy.ndarray, optional
+            The frame's class mask (:meth:`load_mask`): when given, the instance mask must
+            mark exactly its class-2 pixels.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            uint16, shape (height, width): the ``id`` of the object of :attr:`objects`
+            each pixel shows, 0 where none.
+
+        Raises
+        ------
+        SequenceError
+            If the file cannot be read, has the wrong size or pixel layout, holds an id that
+            is not in the objects table, or disagrees with ``mask``.
+        """
+        if frame.instances is None:
+            return None
+        path = frame.instances
+        try:
+            instances = load_grey16(path)
+        except SequenceError as error:
+            raise self._located(error, frame, INSTANCES_COLUMN) from None
+        self._check_shape(instances, path, frame, INSTANCES_COLUMN)
+        present = np.flatnonzero(np.bincount(instances.ravel()))
+        known = self._object_ids
+        unknown = [int(v) for v in present if v and (v >= len(known) or not known[v])]
+        if unknown:
+            raise SequenceError(
+                f"ids {unknown[:10]} are not in {OBJECTS_FILE}",
+                file=path,
+                row=frame.index + 1,
+                column=INSTANCES_COLUMN,
+            )
+        if mask is not None:
+            differ = np.count_nonzero((instances > 0) != (mask == MASK_ANOMALY))
+            if differ:
+                raise SequenceError(
+                    f"{differ} pixels differ from the mask's class-2 pixels ({frame.mask}); "
+                    "every anomaly pixel, and only those, belongs to an object",
+                    file=path,
+                    row=frame.index + 1,
+                    column=INSTANCES_COLUMN,
+                )
+        return instances
+
 
 def _check_size(
     width: int, height: int, meta: SequenceMeta, path: Path, frame: Frame, column: str
@@ -161,9 +244,13 @@ def _check_header(
     header: PngHeader, path: Path, frame: Frame, column: str, meta: SequenceMeta
 ) -> None:
     _check_size(header.width, header.height, meta, path, frame, column)
-    good = header.is_grey8 if column == "mask" else header.is_rgb8
+    if column == INSTANCES_COLUMN:
+        good, expected = header.is_grey16, "16-bit single channel"
+    elif column == "mask":
+        good, expected = header.is_grey8, "8-bit single channel"
+    else:
+        good, expected = header.is_rgb8, "8-bit RGB or RGBA"
     if not good:
-        expected = "8-bit single channel" if column == "mask" else "8-bit RGB or RGBA"
         raise SequenceError(
             f"expected {expected}, got {header.describe()}",
             file=path,
@@ -174,7 +261,7 @@ def _check_header(
 
 def _check_files(frames: tuple[Frame, ...], meta: SequenceMeta) -> None:
     for frame in frames:
-        for column in ("image", "mask", "reference"):
+        for column in ("image", "mask", "reference", INSTANCES_COLUMN):
             path = getattr(frame, column)
             if path is None:
                 continue
@@ -195,7 +282,8 @@ def read_sequence(root: str | PathLike[str], check_images: bool = True) -> Seque
     check_images : bool
         Also check that every image, mask and reference exists and that its PNG header
         gives the size of ``sequence.yaml`` and the expected pixel layout (8-bit RGB/RGBA
-        images, 8-bit single-channel masks). Reads a few bytes per file, decodes nothing.
+        images, 8-bit single-channel masks, 16-bit single-channel instance masks). Reads a
+        few bytes per file, decodes nothing.
 
     Returns
     -------
@@ -212,17 +300,21 @@ def read_sequence(root: str | PathLike[str], check_images: bool = True) -> Seque
     if not root.is_dir():
         raise SequenceError("sequence folder not found", file=root)
     meta = read_meta(root / META_FILE)
-    frames = tuple(read_frames(root / FRAMES_FILE, root))
+    frames = tuple(read_frames(root / FRAMES_FILE, root, meta.format))
+    objects: tuple[GroundTruthObject, ...] = ()
+    if meta.format == FORMAT_V2:
+        objects = read_objects(root / OBJECTS_FILE)
     if check_images:
         _check_files(frames, meta)
-    return Sequence(root, meta, frames)
+    return Sequence(root, meta, frames, objects)
 
 
 def validate_sequence(root: str | PathLike[str], decode_images: bool = False) -> Sequence:
     """Fully validate a sequence, decoding every mask (and optionally every image).
 
     On top of :func:`read_sequence`, checks that every mask holds only 0, 1 and 2 and agrees
-    with its frame's label.
+    with its frame's label, and that every instance mask holds ids of the objects table
+    exactly on the mask's class-2 pixels.
 
     Parameters
     ----------
@@ -243,7 +335,8 @@ def validate_sequence(root: str | PathLike[str], decode_images: bool = False) ->
     """
     sequence = read_sequence(root, check_images=True)
     for frame in sequence.frames:
-        sequence.load_mask(frame)
+        mask = sequence.load_mask(frame)
+        sequence.load_instances(frame, mask)
         if decode_images:
             sequence.load_image(frame)
             sequence.load_reference(frame)

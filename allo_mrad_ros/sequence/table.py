@@ -15,8 +15,10 @@ import numpy as np
 
 from .model import (
     ANOMALOUS,
-    COLUMNS,
     EARTH_COLUMNS,
+    FORMAT_V1,
+    FORMAT_V2,
+    INSTANCES_COLUMN,
     LABELS,
     MAX_BODY_M,
     MAX_POSITION_M,
@@ -29,6 +31,7 @@ from .model import (
     UNIT_NORM_TOLERANCE,
     Frame,
     SequenceError,
+    columns_of,
     read_text,
 )
 
@@ -133,9 +136,15 @@ def _body(record: Mapping[str, str], columns: tuple[str, ...]) -> np.ndarray | N
 
 
 def frame_from_record(
-    record: Mapping[str, str], index: int, root: Path, extra_columns: Iterable[str] = ()
+    record: Mapping[str, str],
+    index: int,
+    root: Path,
+    extra_columns: Iterable[str] = (),
+    version: str = FORMAT_V1,
 ) -> Frame:
     """Validate one ``frames.csv`` record (column -> text) and build its :class:`Frame`.
+
+    ``version`` is the sequence's format: version 2 records carry the ``instances`` column.
 
     Raises
     ------
@@ -154,6 +163,9 @@ def frame_from_record(
     _check_camera_folder(camera, record["image"])
     mask = _relative_path(record["mask"], "mask", root, required=False)
     reference = _relative_path(record["reference"], "reference", root, required=False)
+    instances = None
+    if version == FORMAT_V2:
+        instances = _relative_path(record[INSTANCES_COLUMN], INSTANCES_COLUMN, root, required=False)
     label = _choice(record["label"], "label", LABELS)
     anomaly = record["anomaly"]
     if label == NORMAL and anomaly:
@@ -187,10 +199,11 @@ def frame_from_record(
         earth=_body(record, EARTH_COLUMNS),
         moon=_body(record, MOON_COLUMNS),
         extra={c: record[c] for c in extra_columns},
+        instances=instances,
     )
 
 
-def read_frames(path: Path, root: Path) -> list[Frame]:
+def read_frames(path: Path, root: Path, version: str = FORMAT_V1) -> list[Frame]:
     """Read and validate ``frames.csv``.
 
     Parameters
@@ -199,6 +212,9 @@ def read_frames(path: Path, root: Path) -> list[Frame]:
         The file.
     root : pathlib.Path
         Sequence root the paths in the file are relative to.
+    version : str
+        The sequence's format (``sequence.yaml``): version 2 needs the ``instances``
+        column; in version 1 a column of that name is an extra column like any other.
 
     Returns
     -------
@@ -223,12 +239,13 @@ def read_frames(path: Path, root: Path) -> list[Frame]:
         if name in seen:
             raise SequenceError("duplicate column", file=path, line=1, column=name)
         seen.add(name)
-    missing = [c for c in COLUMNS if c not in seen]
+    columns = columns_of(version)
+    missing = [c for c in columns if c not in seen]
     if missing:
         raise SequenceError(
             f"missing column(s): {', '.join(missing)}", file=path, line=1, column=missing[0]
         )
-    extra_columns = [c for c in header if c not in COLUMNS]
+    extra_columns = [c for c in header if c not in columns]
     frames: list[Frame] = []
     previous_stamp = -1
     line = reader.line_num + 1
@@ -252,7 +269,7 @@ def read_frames(path: Path, root: Path) -> list[Frame]:
             )
         record = dict(zip(header, fields, strict=True))
         try:
-            frame = frame_from_record(record, len(frames), root, extra_columns)
+            frame = frame_from_record(record, len(frames), root, extra_columns, version)
         except SequenceError as error:
             raise error.located(file=path, row=row, line=line) from None
         if frame.stamp_ns <= previous_stamp:
@@ -276,11 +293,14 @@ def format_float(value: float) -> str:
     return repr(float(value))
 
 
-def write_frames_text(records: list[Mapping[str, str]], extra_columns: list[str]) -> str:
-    """Return the ``frames.csv`` text of records (column -> text), standard columns first."""
+def write_frames_text(
+    records: list[Mapping[str, str]], extra_columns: list[str], version: str = FORMAT_V1
+) -> str:
+    """Return the ``frames.csv`` text of records (column -> text), standard columns of the
+    format ``version`` first."""
     stream = io.StringIO(newline="")
     writer = csv.writer(stream, lineterminator="\n")
-    header = [*COLUMNS, *extra_columns]
+    header = [*columns_of(version), *extra_columns]
     writer.writerow(header)
     for record in records:
         writer.writerow([record.get(c, "") for c in header])

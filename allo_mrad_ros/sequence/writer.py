@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from os import PathLike
 from pathlib import Path
 from types import TracebackType
@@ -26,15 +27,19 @@ from .checks import (
 )
 from .metafile import relative_posix, write_meta
 from .model import (
-    COLUMNS,
+    FORMAT_V2,
     FRAMES_FILE,
+    INSTANCES_COLUMN,
+    MASK_ANOMALY,
     MAX_STAMP_NS,
     META_FILE,
     SPLITS,
     Frame,
     SequenceError,
     SequenceMeta,
+    columns_of,
 )
+from .objects import OBJECTS_FILE, GroundTruthObject, checked_objects, write_objects_text
 from .png import bad_mask_values, encode_png, read_png_header, write_atomic
 from .table import format_float, frame_from_record, leaves_root, write_frames_text
 
@@ -68,6 +73,11 @@ class SequenceWriter:
     images_in_place : bool
         The images are another dataset's own files in ``root`` (an ALLO download imported
         where it lies): ``sequence.yaml`` says so, so that no command replaces the folder.
+    objects : iterable of GroundTruthObject, optional
+        The objects table. Given (even empty), the sequence is written in format version 2
+        (``objects.csv``, and frames may carry instance masks); None writes version 1, as
+        does a ``meta`` of version 1 without objects. A ``meta`` of version 2 without
+        objects gets an empty table.
 
     Raises
     ------
@@ -92,9 +102,19 @@ class SequenceWriter:
         start_ns: int = 0,
         png_compression: int = 3,
         images_in_place: bool = False,
+        objects: Iterable[GroundTruthObject] | None = None,
     ) -> None:
         if not isinstance(meta, SequenceMeta):
             raise SequenceError(f"meta must be SequenceMeta, got {type(meta).__name__}")
+        if objects is None and meta.format == FORMAT_V2:
+            objects = ()
+        self._objects: tuple[GroundTruthObject, ...] | None = None
+        if objects is not None:
+            self._objects = checked_objects(objects)
+            meta = replace(meta, format=FORMAT_V2)
+        ids = [o.id for o in self._objects or ()]
+        self._object_ids = np.zeros(max(ids, default=0) + 1, dtype=bool)
+        self._object_ids[ids] = True
         if (
             isinstance(start_ns, bool)
             or not isinstance(start_ns, int)
@@ -125,7 +145,7 @@ class SequenceWriter:
                 file=self.root / existing[0],
             )
         self.root.mkdir(parents=True, exist_ok=True)
-        for name in (FRAMES_FILE, META_FILE):
+        for name in (FRAMES_FILE, META_FILE, OBJECTS_FILE):
             (self.root / name).unlink(missing_ok=True)
 
     def __enter__(self) -> SequenceWriter:
@@ -155,15 +175,40 @@ class SequenceWriter:
         if self._state != "open":
             raise SequenceError(f"writer is {self._state}")
 
-    def _check_array(self, array: object, what: str, channels: int) -> np.ndarray:
+    @property
+    def objects(self) -> tuple[GroundTruthObject, ...] | None:
+        """The objects table (None for a version-1 sequence)."""
+        return self._objects
+
+    def _check_array(
+        self, array: object, what: str, channels: int, dtype: type = np.uint8
+    ) -> np.ndarray:
         array = np.asarray(array)
         camera = self.meta.camera
         shape = (camera.height, camera.width) + ((channels,) if channels > 1 else ())
-        if array.dtype != np.uint8 or array.shape != shape:
+        if array.dtype != dtype or array.shape != shape:
+            kind = np.dtype(dtype).name
             raise SequenceError(
-                f"{what} must be uint8 of shape {shape}, got {array.dtype} {array.shape}"
+                f"{what} must be {kind} of shape {shape}, got {array.dtype} {array.shape}"
             )
         return array
+
+    def _check_instances(self, instances: np.ndarray, mask: object) -> None:
+        """Instance ids must be in the objects table and mark exactly the mask's class 2."""
+        present = np.flatnonzero(np.bincount(instances.ravel()))
+        known = self._object_ids
+        unknown = [int(v) for v in present if v and (v >= len(known) or not known[v])]
+        if unknown:
+            raise SequenceError(f"instance ids {unknown[:10]} are not in the objects table")
+        if mask is None or isinstance(mask, (str, PathLike)):
+            if mask is None and present.max(initial=0) > 0:
+                raise SequenceError("an instance mask with objects needs a class mask")
+            return
+        differ = np.count_nonzero((instances > 0) != (np.asarray(mask) == MASK_ANOMALY))
+        if differ:
+            raise SequenceError(
+                f"instance mask: {differ} pixels differ from the mask's class-2 pixels"
+            )
 
     def _prepare(self, data: object, split: str, camera: int, name: str, kind: str) -> tuple:
         """Validate one image input without touching the disk.
@@ -181,7 +226,10 @@ class SequenceWriter:
                     f"{camera_size[0]}x{camera_size[1]}",
                     file=path,
                 )
-            ok = header.is_grey8 if kind == "masks" else header.is_rgb8
+            if kind == "instances":
+                ok = header.is_grey16
+            else:
+                ok = header.is_grey8 if kind == "masks" else header.is_rgb8
             if not ok:
                 raise SequenceError(f"unexpected pixel layout {header.describe()}", file=path)
             relative = relative_posix(path, self.root)
@@ -192,6 +240,12 @@ class SequenceWriter:
             if relative in self._written:
                 raise SequenceError(f"duplicate file {relative}: file names must be unique")
             return relative, path
+        if kind == "instances":
+            array = self._check_array(data, "instance mask", 1, np.uint16)
+            relative = f"{split}/Camera{camera}/{kind}/{name}.png"
+            if relative in self._written:
+                raise SequenceError(f"duplicate file {relative}: frame names must be unique")
+            return relative, array
         channels = 1 if kind == "masks" else 3
         array = self._check_array(data, kind[:-1], channels)
         if kind == "masks":
@@ -215,6 +269,7 @@ class SequenceWriter:
         sun_strength: float = 1.0,
         mask: np.ndarray | PathLike[str] | None = None,
         reference: np.ndarray | PathLike[str] | None = None,
+        instances: np.ndarray | PathLike[str] | None = None,
         label: str | None = None,
         anomaly: str = "",
         earth: object = None,
@@ -250,6 +305,11 @@ class SequenceWriter:
             existing 8-bit single-channel PNG, referenced.
         reference : numpy.ndarray or path-like, optional
             Pre-rendered reference, like ``image``, written to ``references/``.
+        instances : numpy.ndarray or path-like, optional
+            Format version 2 only (the writer was given ``objects``): uint16 (height, width)
+            array of object ids of the objects table, 0 where no object is, nonzero exactly
+            on the mask's class-2 pixels; written to ``instances/`` as a 16-bit PNG. Or an
+            existing 16-bit single-channel PNG, referenced.
         label : str, optional
             ``normal`` or ``anomalous``. By default taken from a mask array (class-2 pixels
             present) or else from ``anomaly`` (non-empty means anomalous). A label that
@@ -308,11 +368,26 @@ class SequenceWriter:
         earth = checked_body(earth, "earth")
         moon = checked_body(moon, "moon")
         label = frame_label(label, anomaly, mask)
+        if instances is not None:
+            if self._objects is None:
+                raise SequenceError(
+                    "instance masks need format version 2: give the writer an objects table"
+                )
+            if not isinstance(instances, (str, PathLike)):
+                instances = self._check_array(instances, "instance mask", 1, np.uint16)
+                self._check_instances(instances, mask)
         extra_text = extra_columns(extra or {})
         # Validate every input before writing any file, so a rejected frame leaves nothing.
         files = {
-            column: self._prepare(data, split, camera, name, f"{column}s")
-            for column, data in (("image", image), ("mask", mask), ("reference", reference))
+            column: self._prepare(
+                data, split, camera, name, column if column == INSTANCES_COLUMN else f"{column}s"
+            )
+            for column, data in (
+                ("image", image),
+                ("mask", mask),
+                ("reference", reference),
+                (INSTANCES_COLUMN, instances),
+            )
             if data is not None
         }
         record = {
@@ -343,9 +418,16 @@ class SequenceWriter:
         for body, value in (("earth", earth), ("moon", moon)):
             for axis, component in zip(("x", "y", "z", "r"), range(4), strict=True):
                 record[f"{body}_{axis}"] = "" if value is None else format_float(value[component])
+        version = self.meta.format
+        if version == FORMAT_V2:
+            record[INSTANCES_COLUMN] = files[INSTANCES_COLUMN][0] if instances is not None else ""
         record.update(extra_text)
         frame = frame_from_record(
-            {c: record.get(c, "") for c in (*COLUMNS, *extra_text)}, index, self.root, extra_text
+            {c: record.get(c, "") for c in (*columns_of(version), *extra_text)},
+            index,
+            self.root,
+            extra_text,
+            version,
         )
         for relative, payload in files.values():
             if isinstance(payload, np.ndarray):
@@ -365,7 +447,8 @@ class SequenceWriter:
         return frame
 
     def close(self) -> None:
-        """Write ``sequence.yaml`` and then ``frames.csv``; copy the mesh if asked.
+        """Write ``objects.csv`` (version 2), ``sequence.yaml`` and then ``frames.csv``; copy
+        the mesh if asked.
 
         Calling it again does nothing.
 
@@ -389,8 +472,11 @@ class SequenceWriter:
                 mesh = f"meshes/{self.meta.mesh.name}"
             else:
                 mesh = relative_posix(self.meta.mesh, self.root)
+        if self._objects is not None:
+            objects_text = write_objects_text(self._objects)
+            write_atomic(self.root / OBJECTS_FILE, objects_text.encode("utf-8"))
         write_meta(self.root / META_FILE, self.meta, mesh, images_in_place=self._images_in_place)
-        text = write_frames_text(self._records, self._extra_columns)
+        text = write_frames_text(self._records, self._extra_columns, self.meta.format)
         write_atomic(self.root / FRAMES_FILE, text.encode("utf-8"))
         self._state = "closed"
 

@@ -8,6 +8,7 @@ Examples
     allo-synth generate --preset bench --seed 0 --out data/bench --jobs 2
     allo-synth generate --preset smoke --frames 20 --width 480 --height 270 --out /tmp/s
     allo-synth generate --preset cycles --seed 0 --out data/bench_cycles
+    allo-synth generate --preset objects --seed 0 --out data/objects --trajectory-frames 100
     allo-synth import-allo ALLO/test --out data/allo_test
 """
 
@@ -46,6 +47,7 @@ _CONFIG_OPTIONS = (
     "query_renderer",
     "cycles_samples",
     "camera_effects",
+    "rate_hz",
 )
 
 
@@ -53,6 +55,13 @@ def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value) or not 0 < value <= 1000:
+        raise argparse.ArgumentTypeError(f"must be a frame rate in (0, 1000] Hz, got {text}")
     return value
 
 
@@ -133,6 +142,15 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         help="apply the camera model (exposure, tone curve, noise, ...) to the query (default on)",
     )
     parser.add_argument(
+        "--rate-hz", type=_rate, help="frame rate of the stamps (10; trajectories move with it)"
+    )
+    parser.add_argument(
+        "--trajectory-frames",
+        type=_positive_int,
+        metavar="N",
+        help="frames per arm trajectory (presets objects and objects-normal only)",
+    )
+    parser.add_argument(
         "--clean", action="store_true", help="no camera effects or material variation (debugging)"
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing sequence")
@@ -153,6 +171,14 @@ def _run_generate(args: argparse.Namespace) -> int:
             **{name: getattr(args, name) for name in _CONFIG_OPTIONS},
             pose_error_rad=pose_error_rad,
         )
+        if args.trajectory_frames is not None:
+            if config.trajectory is None:
+                raise SynthError(
+                    f"--trajectory-frames needs a trajectory preset (objects, objects-normal), "
+                    f"not {args.preset}"
+                )
+            trajectory = replace(config.trajectory, frames=args.trajectory_frames)
+            config = config.with_overrides(trajectory=trajectory)
         if args.clean:
             config = config.with_overrides(realism=replace(config.realism, enabled=False))
         out = args.out if args.out is not None else Path("data") / args.preset
@@ -188,6 +214,13 @@ def _run_generate(args: argparse.Namespace) -> int:
     )
     for split, row in report.composition.items():
         types = ", ".join(f"{k} {v}" for k, v in row["per_type"].items())
+        if "trajectories" in row:
+            print(
+                f"  {split}: {row['trajectories']} trajectories, {row['frames']} frames "
+                f"({row['normal']} without an object shown), {row['objects']} objects"
+                + (f"; {types}" if types else "")
+            )
+            continue
         print(
             f"  {split}: {row['frames']} frames ({row['normal']} normal, {row['anomalous']} "
             f"anomalous, {row['cameras']} cameras)" + (f"; {types}" if types else "")

@@ -16,6 +16,7 @@ from types import MappingProxyType
 
 from allo_mrad_ros.sequence import SPLITS
 from allo_mrad_ros.synth.realism_config import RealismConfig
+from allo_mrad_ros.synth.trajectory_config import TrajectoryConfig
 from allo_mrad_ros.synth.validation import SynthError, finite_number, integer_at_least, number_pair
 
 __all__ = [
@@ -25,6 +26,7 @@ __all__ = [
     "SplitSpec",
     "SynthConfig",
     "SynthError",
+    "TrajectoryConfig",
     "preset",
 ]
 
@@ -154,6 +156,11 @@ class SynthConfig:
         Nominal frame rate for the stamps.
     png_compression : int
         zlib level of the written PNGs.
+    trajectory : TrajectoryConfig or None
+        None: ALLO's frames, each from its own perturbed base pose. Set: arm trajectories
+        (:mod:`~.trajectories`), each split's ``anomalous`` count being its number of
+        trajectories past objects and ``normal`` its anomaly-free ones; written in format
+        version 2 (objects table and instance masks).
     """
 
     name: str
@@ -194,6 +201,7 @@ class SynthConfig:
     jpeg_quality: int = 0
     rate_hz: float = 10.0
     png_compression: int = 3
+    trajectory: TrajectoryConfig | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -284,6 +292,15 @@ class SynthConfig:
         finite_number(self.rate_hz, "rate_hz", 1e-3, 1e4)
         if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
             raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
+        if self.trajectory is not None:
+            if not isinstance(self.trajectory, TrajectoryConfig):
+                raise SynthError(f"trajectory must be a TrajectoryConfig, got {self.trajectory!r}")
+            for split, spec in self.splits.items():
+                if spec.cameras != spec.frames:
+                    raise SynthError(
+                        f"split {split!r}: a trajectory sequence has one camera (start pose) "
+                        f"per trajectory: cameras must be {spec.frames}, got {spec.cameras}"
+                    )
 
     def _check_dark_background(self) -> None:
         from allo_mrad_ros.synth.objects import KNOWN_TYPES
@@ -314,7 +331,8 @@ class SynthConfig:
     @property
     def frames(self) -> int:
         """Total number of frames over all splits."""
-        return sum(spec.frames for spec in self.splits.values())
+        count = sum(spec.frames for spec in self.splits.values())
+        return count * self.trajectory.frames if self.trajectory is not None else count
 
     def with_overrides(self, **changes: object) -> SynthConfig:
         """Return a copy with some fields replaced (validated again); None values are ignored."""
@@ -328,8 +346,14 @@ class SynthConfig:
         """Return a copy whose splits are scaled to about ``frames`` frames in total.
 
         Every split keeps its share and its normal/anomalous ratio, with at least one frame.
+        A trajectory configuration keeps its trajectories and scales their length instead
+        (at least two frames each).
         """
         integer_at_least(frames, "frames", 1)
+        if self.trajectory is not None:
+            count = sum(spec.frames for spec in self.splits.values())
+            length = max(2, round(frames / count))
+            return replace(self, trajectory=replace(self.trajectory, frames=length))
         total = self.frames
         splits = {}
         for split, spec in self.splits.items():
@@ -422,6 +446,30 @@ def _bench_dark() -> SynthConfig:
     )
 
 
+def _objects() -> SynthConfig:
+    # Arm trajectories at 10 Hz past objects, with anomaly-free ones (glare, Earth or Moon,
+    # moving shadows) between: a validation split to choose parameters on and a test split.
+    # Cameras start 8-20 m from the station (an arm's reach around a module, not ALLO's
+    # 12-30 m survey), closer to the hull than ALLO's base poses allow.
+    return SynthConfig(
+        name="objects",
+        splits={"val": SplitSpec(3, 6, 9), "test": SplitSpec(3, 6, 9)},
+        width=960,
+        height=540,
+        camera_distance_m=(8.0, 20.0),
+        min_camera_clearance_m=4.0,
+        trajectory=TrajectoryConfig(frames=80),
+    )
+
+
+def _objects_normal() -> SynthConfig:
+    # Anomaly-free trajectories only: false objects per minute, glare, bodies and shadows.
+    return _objects().with_overrides(
+        name="objects-normal",
+        splits={"val": SplitSpec(6, 0, 6), "test": SplitSpec(6, 0, 6)},
+    )
+
+
 PRESETS = MappingProxyType(
     {
         "smoke": _smoke,
@@ -431,6 +479,8 @@ PRESETS = MappingProxyType(
         "bench-cycles": _bench_cycles,
         "bench-stations": _bench_stations,
         "bench-dark": _bench_dark,
+        "objects": _objects,
+        "objects-normal": _objects_normal,
     }
 )
 """Preset name to a function returning its :class:`SynthConfig`."""
@@ -448,7 +498,9 @@ def preset(name: str) -> SynthConfig:
         or ``bench-cycles`` (test 48 at 640x360, queries path-traced by Blender Cycles
         without our camera model; needs the optional bpy, ``make bench-cycles``) or
         ``bench-dark`` (val 32 and test 32 at 1920x1080: the opt-in dark visor against
-        dark station parts).
+        dark station parts) or ``objects`` (arm trajectories at 960x540 and 10 Hz, 80
+        frames each: per split 6 past objects and 3 anomaly-free) or ``objects-normal``
+        (6 anomaly-free trajectories per split).
 
     Returns
     -------

@@ -245,6 +245,27 @@ class FrameSynthesizer:
             result = self._query.render(
                 T_true, light.sun_direction, light.sun_strength, bodies, labels=True
             )
+        image, reference, T_reported = self._develop(
+            plan, rng, result, T_true, sky, light, extras, extra
+        )
+        return FrameOutput(plan, image, result.labels, reference, T_true, T_reported, sky, extra)
+
+    def _develop(
+        self,
+        plan: FramePlan,
+        rng: np.random.Generator,
+        result: RenderResult,
+        T_true: np.ndarray,
+        sky: Sky,
+        light: QueryLight,
+        extras: list[ExtraObject],
+        extra: dict[str, object],
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """The query as a camera gives it, the reference and the reported pose of a rendered
+        frame (``extra`` gains the frame's draws). ``plan`` needs ``seed``, ``index`` and
+        ``sun_strength``."""
+        bodies = sky.bodies()
+        realism = self.config.realism
         query = result.rgb
         if self._cycles is not None:
             # Path-traced from the same pose, light and objects; the mask stays the
@@ -300,7 +321,7 @@ class FrameSynthesizer:
         extra["sun_in_view"] = 0.0 if sun is None else round(sun.visible, 4)
         if self._cycles is not None:
             extra["query_renderer"] = "cycles"
-        return FrameOutput(plan, image, result.labels, reference, T_true, T_reported, sky, extra)
+        return image, reference, T_reported
 
     def _development(self, plan: FramePlan) -> tuple[str | None, float]:
         # Its own stream, so adding it leaves every other draw of a sequence unchanged.

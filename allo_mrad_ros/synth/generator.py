@@ -87,6 +87,8 @@ def _config_dict(config: SynthConfig) -> dict:
     result = {}
     for item in fields(config):
         value = getattr(config, item.name)
+        if item.name == "trajectory" and value is None:
+            continue  # not a trajectory sequence: generation.json as before trajectories
         if item.name == "splits":
             value = {split: asdict(spec) for split, spec in value.items()}
         elif is_dataclass(value):
@@ -190,6 +192,37 @@ def generate(
     if not mesh.is_file():
         raise SynthError(f"station mesh not found: {mesh}")
     start = time.perf_counter()
+    if config.trajectory is not None:
+        from allo_mrad_ros.synth.trajectory_output import generate_trajectories
+
+        written_frames, composition = generate_trajectories(
+            config,
+            Path(out),
+            seed,
+            mesh=mesh,
+            jobs=jobs,
+            overwrite=overwrite,
+            progress=progress,
+            backend=backend,
+            start_ns=START_NS,
+        )
+        provenance = {
+            "generator": "allo-synth",
+            "seed": seed,
+            "mesh": mesh.name,
+            "config": _config_dict(config),
+            "composition": composition,
+        }
+        text = json.dumps(provenance, indent=2, default=list) + "\n"
+        (Path(out) / GENERATION_FILE).write_text(text)
+        seconds = time.perf_counter() - start
+        return GenerationReport(
+            root=Path(out),
+            composition=composition,
+            frames=written_frames,
+            seconds=seconds,
+            frames_per_minute=60.0 * written_frames / seconds if seconds > 0 else 0.0,
+        )
     plans = plan_frames(config, seed)
     meta = SequenceMeta(
         name=f"allo-synth {config.name} seed {seed}",

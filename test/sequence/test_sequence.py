@@ -572,7 +572,7 @@ def test_corrupt_image_data_found_by_full_validation(sequence_root: Path) -> Non
 
 
 YAML_CASES = [
-    ("format: allo-sequence/1", "format: allo-sequence/2", "format", 1, "unsupported format"),
+    ("format: allo-sequence/1", "format: allo-sequence/3", "format", 1, "unsupported format"),
     ("  fx: 20.0", "  fx: -20.0", "camera.fx", 9, "positive"),
     ("  fy: 20.0", "  fy: fast", "camera.fy", 10, "must be a number"),
     ("  width: 16", "  width: 16.5", "camera.width", 7, "whole number"),
@@ -625,4 +625,4 @@ def test_meta_validation() -> None:
     with pytest.raises(SequenceError, match="CameraIntrinsics"):
         SequenceMeta(name="x", camera=(16, 12))
     with pytest.raises(SequenceError, match="unsupported"):
-        SequenceMeta(name="x", camera=CAMERA, format="allo-sequence/2")
+        SequenceMeta(name="x", camera=CAMERA, format="allo-sequence/3")
