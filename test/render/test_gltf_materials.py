@@ -6,6 +6,7 @@ arithmetic done in NumPy)."""
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -305,3 +306,15 @@ def test_vertex_tangents_follow_u_and_v():
     degenerate = vertex_tangents(positions, normals, np.zeros((4, 2)), faces)
     np.testing.assert_allclose(np.linalg.norm(degenerate[:, :3], axis=1), 1.0)
     np.testing.assert_allclose(degenerate[:, :3] @ [0.0, 0.0, 1.0], 0.0, atol=1e-12)
+
+
+def test_material_shader_edits_apply_to_pyrender_text_only():
+    import pyrender
+
+    from allo_mrad_ros.render.shader_patches import gltf_material_shader
+
+    source = (Path(pyrender.__path__[0]) / "shaders" / "mesh.frag").read_text(encoding="utf-8")
+    patched = gltf_material_shader(source)
+    assert patched is not None and "material.normal_scale" in patched
+    assert "#ifdef ALPHA_MASK" in patched and "emissive * material.emissive_factor" not in patched
+    assert gltf_material_shader(source.replace("color.xyz *= ao;", "color.xyz *= ao * ao;")) is None
