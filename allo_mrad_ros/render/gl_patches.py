@@ -14,7 +14,11 @@ from types import ModuleType
 import numpy as np
 import trimesh
 
-from allo_mrad_ros.render.shader_patches import install_light_limits, install_shadow_filter
+from allo_mrad_ros.render.shader_patches import (
+    install_light_limits,
+    install_material_shader,
+    install_shadow_filter,
+)
 from allo_mrad_ros.render.uniforms import install_lighting_once_per_pass, install_uniform_cache
 
 _SCENE_CLASSES: dict[int, type] = {}
@@ -23,7 +27,8 @@ _CPU_PATCHES = True
 
 @contextlib.contextmanager
 def plain_pyrender() -> Iterator[None]:
-    """Build renderers in this block without :mod:`.uniforms` and :mod:`.shader_patches`.
+    """Build renderers in this block without :mod:`.uniforms` and the speed patches of
+    :mod:`.shader_patches` (the glTF material patch stays: it says what is drawn).
 
     They then draw as pyrender does (with the program and shadow-map caches below, which
     change nothing drawn): the benchmark and the image-equality tests compare the two paths.
@@ -37,8 +42,11 @@ def plain_pyrender() -> Iterator[None]:
 
 
 def install_patches(pr: ModuleType, offscreen: object) -> None:
-    """Install the patches of this module, :mod:`.uniforms` and :mod:`.shader_patches`."""
+    """Install the patches of this module, :mod:`.uniforms` and :mod:`.shader_patches`
+    (glTF's material, :func:`~.shader_patches.install_material_shader`, on every renderer,
+    also inside :func:`plain_pyrender`)."""
     install_program_cache(pr, offscreen)
+    install_material_shader(pr, offscreen)
     if _CPU_PATCHES:
         install_uniform_cache(offscreen)
         install_lighting_once_per_pass(offscreen)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 
@@ -18,6 +18,7 @@ import trimesh
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from allo_mrad_ros.errors import InvalidInput, one_line
+from allo_mrad_ros.render.gltf_materials import DEFAULT_PARAMS, MaterialParams, lookup_for
 
 _LOG = logging.getLogger(__name__)
 # A station spanning more than this is probably in millimetres or centimetres.
@@ -58,6 +59,11 @@ class MeshGroup:
         (n, 4) float32 vertex colours in [0, 1], for models coloured per vertex or face.
     material : trimesh.visual.material.PBRMaterial or None
         The glTF metallic-roughness material; None for a default grey.
+    tangents : numpy.ndarray or None
+        (n, 4) float32 unit tangents (along increasing u) and the bitangent's sign, as
+        glTF's ``TANGENT``; generated for materials with a normal map.
+    params : MaterialParams
+        What trimesh does not keep of the glTF material (normal scale, occlusion strength).
     """
 
     name: str
@@ -67,6 +73,48 @@ class MeshGroup:
     uv: np.ndarray | None
     colours: np.ndarray | None
     material: PBRMaterial | None
+    tangents: np.ndarray | None = None
+    params: MaterialParams = field(default=DEFAULT_PARAMS)
+
+
+def vertex_tangents(
+    positions: np.ndarray, normals: np.ndarray, uv: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
+    """Per-vertex tangents (n, 4) from positions, normals and texture coordinates.
+
+    Each triangle's direction of increasing u and v (Lengyel's method) is summed over the
+    triangles sharing a vertex; the tangent is the u direction made orthogonal to the
+    normal, and its fourth component, +1 or -1, the sign that makes
+    ``cross(normal, tangent) * w`` follow increasing v (v counted up the image, as trimesh
+    stores glTF's coordinates). A vertex whose triangles give no u direction (degenerate
+    texture coordinates) gets any unit vector orthogonal to its normal.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    t = np.asarray(uv, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    e1, e2 = p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]
+    d1, d2 = t[f[:, 1]] - t[f[:, 0]], t[f[:, 2]] - t[f[:, 0]]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    inverse = np.divide(1.0, det, out=np.zeros_like(det), where=np.abs(det) > 1e-20)
+    u_dir = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inverse[:, None]
+    v_dir = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inverse[:, None]
+    u_sum = np.zeros_like(p)
+    v_sum = np.zeros_like(p)
+    for corner in range(3):
+        np.add.at(u_sum, f[:, corner], u_dir)
+        np.add.at(v_sum, f[:, corner], v_dir)
+    tangent = u_sum - n * np.sum(n * u_sum, axis=1, keepdims=True)
+    length = np.linalg.norm(tangent, axis=1)
+    bad = length < 1e-12
+    if bad.any():
+        # Any direction orthogonal to the normal: the normal crossed with its least axis.
+        axis = np.eye(3)[np.argmin(np.abs(n[bad]), axis=1)]
+        tangent[bad] = np.cross(n[bad], axis)
+        length[bad] = np.linalg.norm(tangent[bad], axis=1)
+    tangent /= np.maximum(length, 1e-12)[:, None]
+    sign = np.where(np.sum(np.cross(n, tangent) * v_sum, axis=1) < 0.0, -1.0, 1.0)
+    return np.hstack([tangent, sign[:, None]])
 
 
 def _material_of(mesh: trimesh.Trimesh) -> PBRMaterial | None:
@@ -79,7 +127,8 @@ def _material_of(mesh: trimesh.Trimesh) -> PBRMaterial | None:
 
 
 def _part_arrays(mesh: trimesh.Trimesh, transform: np.ndarray, two_sided: bool) -> dict:
-    """Vertex arrays of one placed part, flat-shaded where the file gave no normals."""
+    """Vertex arrays of one placed part, flat-shaded where the file gave no normals, with
+    tangents where its material has a normal map."""
     material = _material_of(mesh)
     kind = mesh.visual.kind
     uv = mesh.visual.uv if kind == "texture" and material is not None else None
@@ -110,6 +159,11 @@ def _part_arrays(mesh: trimesh.Trimesh, transform: np.ndarray, two_sided: bool) 
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     if np.linalg.det(rotation) < 0:  # a mirroring node flips the winding
         faces = faces[:, ::-1]
+    tangents = None
+    if uv is not None and getattr(material, "normalTexture", None) is not None:
+        # Computed in the station frame, after the node's transform, so that a mirroring
+        # node gives the mirrored handedness. trimesh does not read a file's TANGENT.
+        tangents = vertex_tangents(positions, normals, uv, faces)
     if two_sided or (material is not None and material.doubleSided):
         # Both sides visible: add the reversed faces with flipped normals so that every
         # render pass (including the back-face-culled segmentation pass) sees them.
@@ -119,6 +173,9 @@ def _part_arrays(mesh: trimesh.Trimesh, transform: np.ndarray, two_sided: bool) 
         faces = np.vstack([faces, faces[:, ::-1] + n])
         uv = None if uv is None else np.vstack([uv, uv])
         colours = None if colours is None else np.vstack([colours, colours])
+        if tangents is not None:
+            # glTF's back face reverses the whole tangent frame: tangent, bitangent, normal.
+            tangents = np.vstack([tangents, -tangents])
     return {
         "positions": positions,
         "normals": normals,
@@ -126,6 +183,7 @@ def _part_arrays(mesh: trimesh.Trimesh, transform: np.ndarray, two_sided: bool) 
         "uv": uv,
         "colours": colours,
         "material": material,
+        "tangents": tangents,
     }
 
 
@@ -182,6 +240,9 @@ def _merge(name: str, parts: Sequence[dict]) -> MeshGroup:
     colours = None
     if all(p["colours"] is not None for p in parts):
         colours = np.vstack([p["colours"] for p in parts]).astype(np.float32)
+    tangents = None
+    if all(p["tangents"] is not None for p in parts):
+        tangents = np.vstack([p["tangents"] for p in parts]).astype(np.float32)
     return MeshGroup(
         name=name,
         positions=np.vstack([p["positions"] for p in parts]).astype(np.float32),
@@ -192,6 +253,8 @@ def _merge(name: str, parts: Sequence[dict]) -> MeshGroup:
         uv=uv,
         colours=colours,
         material=parts[0]["material"],
+        tangents=tangents,
+        params=parts[0]["params"],
     )
 
 
@@ -228,6 +291,7 @@ def load_model(
     names: dict[tuple, str] = {}
     for source in sources:
         scene = _as_scene(source)
+        params_of = lookup_for(source if isinstance(source, (str, PathLike)) else None)
         for node in scene.graph.nodes_geometry:
             transform, geometry_name = scene.graph[node]
             mesh = scene.geometry[geometry_name]
@@ -238,10 +302,13 @@ def load_model(
                 raise InvalidInput(f"station model part {geometry_name!r} has non-finite values")
             part = _part_arrays(mesh, transform, two_sided)
             material = part["material"]
+            part["params"] = params_of(material)
             key = (
                 None if material is None else hash(material),
                 part["uv"] is not None,
                 part["colours"] is not None,
+                part["tangents"] is not None,
+                part["params"],
             )
             groups.setdefault(key, []).append(part)
             names.setdefault(key, (material.name if material is not None else None) or "default")

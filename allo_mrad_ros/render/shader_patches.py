@@ -18,13 +18,35 @@ things in pyrender's ``mesh.frag`` make it dearer than the scene needs:
   (36 Sun directions) and 2 in 24 frames at 1920x1080; the light limits change no pixel.
 
 Both are installed per renderer; a shader text other than pyrender 1.0.1's is left as it is.
+
+The material patch (:func:`install_material_shader`) is of another kind: it changes what is
+drawn, to what glTF's metallic-roughness material says, and is installed on every renderer.
+pyrender 1.0.1's ``mesh.frag`` reads every texture, but
+
+* scales neither the normal map (``normalTexture.scale``) nor builds its frame from the
+  vertex tangents it is given (it tests a define no one sets, ``HAS_TANGENTS``);
+* multiplies all light, direct and ambient, by the occlusion map, with no ``strength``
+  (glTF's occlusion darkens only the light that does not come from the scene's lights);
+* adds the emissive texture times the emissive factor squared;
+* ignores ``alphaMode`` MASK (no cut-outs: a texel below ``alphaCutoff`` is drawn).
+
+A material without those textures, and not MASK, computes the same pixels as before (only
+the emissive factor is no longer squared).
 """
 
 from __future__ import annotations
 
+import logging
 import re
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+from typing import Any
 
+from allo_mrad_ros.render.meshes import NORMAL_SCALE, OCCLUSION_STRENGTH
 from allo_mrad_ros.render.uniforms import patch_each_program
+
+_LOG = logging.getLogger(__name__)
 
 _PCF_PYRENDER = re.compile(
     r"float PCF\(sampler2D depths, vec2 size, vec2 uv, float compare\)\{\n"
@@ -67,21 +89,167 @@ def shared_read_pcf(source: str) -> str:
     return _PCF_PYRENDER.sub(lambda _: _PCF_SHARED_READS, source, count=1)
 
 
+def _wrap_loader(program: Any, marker: str, wrap: Callable[[Callable], Callable]) -> None:
+    """Replace ``program._load`` by ``wrap(load)`` once per ``marker`` (patches compose)."""
+    if program.__dict__.get(marker):
+        return
+    program._load = wrap(program._load)
+    setattr(program, marker, True)
+
+
 def install_shadow_filter(offscreen: object) -> None:
     """Load every ``mesh.frag`` this renderer compiles with :func:`shared_read_pcf`."""
 
-    def patch_loader(program: object) -> None:
-        if "_load" in program.__dict__:
-            return
-        load = program._load
-
+    def wrap(load: Callable[[str], str]) -> Callable[[str], str]:
         def load_patched(filename: str) -> str:
             text = load(filename)
             return shared_read_pcf(text) if filename.endswith("mesh.frag") else text
 
-        program._load = load_patched
+        return load_patched
 
-    patch_each_program(offscreen, patch_loader)
+    patch_each_program(offscreen, lambda program: _wrap_loader(program, "_allo_pcf", wrap))
+
+
+# (pyrender 1.0.1's text, the glTF text), applied to mesh.frag before pyrender's own
+# preprocessing (which turns ``#ifdef`` into ``#if 1``/``#if 0`` and defines into values).
+_MATERIAL_EDITS: tuple[tuple[str, str], ...] = (
+    (
+        "struct Material {\n    vec3 emissive_factor;\n",
+        "struct Material {\n    vec3 emissive_factor;\n"
+        "    float normal_scale;\n    float occlusion_strength;\n    float alpha_cutoff;\n",
+    ),
+    # The frame from the vertex tangents when the primitive has them (TANGENT_LOC).
+    ("#ifndef HAS_TANGENTS\n", "#ifndef TANGENT_LOC\n"),
+    (
+        "n = normalize(tbn_n * ((2.0 * n - 1.0) * vec3(1.0, 1.0, 1.0)));",
+        "n = normalize(tbn_n * ((2.0 * n - 1.0) * "
+        "vec3(material.normal_scale, material.normal_scale, 1.0)));",
+    ),
+    (
+        "    float ao = texture(material.occlusion_texture, uv_0).r;\n    color.xyz *= ao;\n",
+        "    float ao = texture(material.occlusion_texture, uv_0).r;\n"
+        "    color.xyz -= base_color.xyz * ambient_light\n"
+        "        * (1.0 - mix(1.0, ao, material.occlusion_strength));\n",
+    ),
+    ("    color.xyz += emissive * material.emissive_factor;\n", "    color.xyz += emissive;\n"),
+    (
+        "    frag_color = clamp(vec4(pow(color.xyz, vec3(1.0/2.2)), color.a * base_color.a), "
+        "0.0, 1.0);\n",
+        "#ifdef ALPHA_MASK\n"
+        "    if (color.a * base_color.a < material.alpha_cutoff) {\n"
+        "        discard;\n"
+        "    }\n"
+        "    frag_color = clamp(vec4(pow(color.xyz, vec3(1.0/2.2)), 1.0), 0.0, 1.0);\n"
+        "#else\n"
+        "    frag_color = clamp(vec4(pow(color.xyz, vec3(1.0/2.2)), color.a * base_color.a), "
+        "0.0, 1.0);\n"
+        "#endif\n",
+    ),
+)
+_WARNED_SHADER: list[str] = []
+
+
+def gltf_material_shader(source: str) -> str | None:
+    """``mesh.frag``'s text with glTF's material (see the module's notes), or None if the
+    text is not pyrender 1.0.1's."""
+    for old, _ in _MATERIAL_EDITS:
+        if source.count(old) != 1:
+            return None
+    for old, new in _MATERIAL_EDITS:
+        source = source.replace(old, new)
+    return source
+
+
+def _preprocess(text: str, defines: dict) -> str:
+    """pyrender 1.0.1's ``ShaderProgram._load`` after reading the file: ``#ifdef``/``#ifndef``
+    of the defines, then each define's name replaced by its value."""
+
+    def ifdef(match: re.Match) -> str:
+        return "#if 1" if match.group(1) in defines else "#if 0"
+
+    def ifndef(match: re.Match) -> str:
+        return "#if 0" if match.group(1) in defines else "#if 1"
+
+    text = re.sub(r"#ifdef\s+([a-zA-Z_][a-zA-Z_0-9]*)\s*$", ifdef, text, flags=re.MULTILINE)
+    text = re.sub(r"#ifndef\s+([a-zA-Z_][a-zA-Z_0-9]*)\s*$", ifndef, text, flags=re.MULTILINE)
+    for name, value in defines.items():
+        text = text.replace(name, str(value))
+    return text
+
+
+def install_material_shader(pr: ModuleType, offscreen: object) -> None:
+    """Draw glTF's metallic-roughness material: the shader edits of :data:`_MATERIAL_EDITS`,
+    the uniforms they read (from :mod:`.meshes`' material attributes), and a program of
+    its own (define ``ALPHA_MASK``) for MASK materials, so that no other pays for the
+    ``discard`` (which turns off a rasteriser's early depth test)."""
+    renderer = getattr(offscreen, "_renderer", None)
+    if renderer is None or not hasattr(renderer, "_bind_and_draw_primitive"):
+        return
+
+    def wrap(program: Any, load: Callable[[str], str]) -> Callable[[str], str]:
+        def load_patched(filename: str) -> str:
+            if not filename.endswith("mesh.frag"):
+                return load(filename)
+            patched = gltf_material_shader(Path(filename).read_text(encoding="utf-8"))
+            if patched is None:
+                if filename not in _WARNED_SHADER:
+                    _WARNED_SHADER.append(filename)
+                    _LOG.warning(
+                        "%s is not pyrender 1.0.1's: glTF normal scale, occlusion strength "
+                        "and alpha cut-outs are not drawn",
+                        filename,
+                    )
+                return load(filename)
+            return _preprocess(patched, program.defines or {})
+
+        return load_patched
+
+    patch_each_program(
+        offscreen,
+        lambda program: _wrap_loader(program, "_allo_material", lambda load: wrap(program, load)),
+    )
+
+    drawing: list[Any] = [None]  # the primitive whose program is being chosen
+    choose_program = renderer._get_primitive_program
+    cache = renderer._program_cache
+    get_program = cache.get_program
+
+    def get_primitive_program(primitive: Any, *args: Any, **kwargs: Any) -> Any:
+        drawing[0] = primitive
+        try:
+            return choose_program(primitive, *args, **kwargs)
+        finally:
+            drawing[0] = None
+
+    def get_program_with_mask(*args: Any, defines: dict | None = None, **kwargs: Any) -> Any:
+        material = getattr(drawing[0], "material", None)
+        if (
+            defines is not None
+            and "USE_METALLIC_MATERIAL" in defines
+            and getattr(material, "alphaMode", None) == "MASK"
+        ):
+            defines = {**defines, "ALPHA_MASK": 1}
+        return get_program(*args, defines=defines, **kwargs)
+
+    renderer._get_primitive_program = get_primitive_program
+    cache.get_program = get_program_with_mask
+
+    bind_and_draw = renderer._bind_and_draw_primitive
+    skip = pr.RenderFlags.DEPTH_ONLY | pr.RenderFlags.SEG
+
+    def bind_and_draw_material(primitive: Any, pose: Any, program: Any, flags: int) -> None:
+        material = primitive.material
+        if not flags & skip and isinstance(material, pr.MetallicRoughnessMaterial):
+            if material.normalTexture is not None:
+                program.set_uniform("material.normal_scale", getattr(material, NORMAL_SCALE, 1.0))
+            if material.occlusionTexture is not None:
+                strength = getattr(material, OCCLUSION_STRENGTH, 1.0)
+                program.set_uniform("material.occlusion_strength", strength)
+            if material.alphaMode == "MASK":
+                program.set_uniform("material.alpha_cutoff", float(material.alphaCutoff))
+        bind_and_draw(primitive, pose, program, flags)
+
+    renderer._bind_and_draw_primitive = bind_and_draw_material
 
 
 def install_light_limits(offscreen: object) -> None:
