@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.synth.trajectories import speeds
 
 # Fastest motion of the arm camera the benchmark drives the node with.
 MAX_LINEAR_M_S = 0.3
@@ -110,19 +111,6 @@ def ping_pong(index: int, count: int) -> int:
     return phase if phase < count else period - phase
 
 
-def speeds(poses: list[np.ndarray], rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Linear (m/s) and angular (deg/s) speed between consecutive poses ``1 / rate_hz`` apart."""
-    if len(poses) < 2:
-        return np.zeros(1), np.zeros(1)
-    stack = np.asarray(poses, dtype=np.float64)
-    linear = np.linalg.norm(np.diff(stack[:, :3, 3], axis=0), axis=1) * rate_hz
-    # The angle of the relative rotation R_k^T R_k+1, from its trace.
-    relative = np.einsum("kji,kjl->kil", stack[:-1, :3, :3], stack[1:, :3, :3])
-    cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    angular = np.degrees(np.arccos(cosine)) * rate_hz
-    return linear, angular
-
-
 def top_speed_path(
     start: np.ndarray,
     frames: int,
@@ -152,10 +140,6 @@ def top_speed_path(
         pose[:3, 3] = pose[:3, 3] + move * max_m_s * dt
         poses.append(pose.copy())
     return poses
-
-
-def _unit_vector(vector: np.ndarray) -> np.ndarray:
-    return vector / np.linalg.norm(vector)
 
 
 def _unit_vector(vector: np.ndarray) -> np.ndarray:

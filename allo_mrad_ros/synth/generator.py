@@ -9,11 +9,8 @@ random stream, so the output is byte-identical for the same seed, whatever ``job
 from __future__ import annotations
 
 import json
-import multiprocessing
-import sys
 import time
 from collections import Counter
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, fields, is_dataclass
 from os import PathLike
 from pathlib import Path
@@ -25,6 +22,7 @@ from allo_mrad_ros.staging import hold_point
 from allo_mrad_ros.synth.config import SynthConfig, SynthError
 from allo_mrad_ros.synth.frames import FrameOutput, FrameSynthesizer, camera_intrinsics
 from allo_mrad_ros.synth.planning import FramePlan, plan_frames
+from allo_mrad_ros.synth.workers import rendered
 
 START_NS = int(EPOCH_2030.timestamp()) * 10**9
 """Stamp of the first frame: 2030-01-01T00:00:00Z, as for imported ALLO splits."""
@@ -97,42 +95,6 @@ def _config_dict(config: SynthConfig) -> dict:
     return result
 
 
-_WORKER: FrameSynthesizer | None = None
-
-
-def _init_worker(config: SynthConfig, seed: int, mesh: str, backend: str | None) -> None:
-    global _WORKER
-    _WORKER = FrameSynthesizer(config, seed, mesh, backend)
-
-
-def _work(plan: FramePlan) -> FrameOutput:
-    return _WORKER.synthesize(plan)
-
-
-def _outputs(
-    config: SynthConfig,
-    seed: int,
-    mesh: Path,
-    plans: list[FramePlan],
-    jobs: int,
-    backend: str | None,
-) -> Iterator[FrameOutput]:
-    if jobs == 1:
-        synthesizer = FrameSynthesizer(config, seed, mesh, backend)
-        try:
-            for plan in plans:
-                yield synthesizer.synthesize(plan)
-        finally:
-            synthesizer.close()
-        return
-    # Spawned workers start clean: no OpenGL state inherited from this process.
-    context = multiprocessing.get_context("spawn")
-    with context.Pool(
-        jobs, initializer=_init_worker, initargs=(config, seed, str(mesh), backend)
-    ) as pool:
-        yield from pool.imap(_work, plans, chunksize=1)
-
-
 def generate(
     config: SynthConfig,
     out: str | PathLike[str],
@@ -192,12 +154,13 @@ def generate(
     if not mesh.is_file():
         raise SynthError(f"station mesh not found: {mesh}")
     start = time.perf_counter()
+    root = Path(out)
     if config.trajectory is not None:
         from allo_mrad_ros.synth.trajectory_output import generate_trajectories
 
         written_frames, composition = generate_trajectories(
             config,
-            Path(out),
+            root,
             seed,
             mesh=mesh,
             jobs=jobs,
@@ -206,55 +169,17 @@ def generate(
             backend=backend,
             start_ns=START_NS,
         )
-        provenance = {
-            "generator": "allo-synth",
-            "seed": seed,
-            "mesh": mesh.name,
-            "config": _config_dict(config),
-            "composition": composition,
-        }
-        text = json.dumps(provenance, indent=2, default=list) + "\n"
-        (Path(out) / GENERATION_FILE).write_text(text)
-        seconds = time.perf_counter() - start
-        return GenerationReport(
-            root=Path(out),
-            composition=composition,
-            frames=written_frames,
-            seconds=seconds,
-            frames_per_minute=60.0 * written_frames / seconds if seconds > 0 else 0.0,
+    else:
+        written_frames, composition = _generate_frames(
+            config,
+            root,
+            seed,
+            mesh=mesh,
+            jobs=jobs,
+            overwrite=overwrite,
+            progress=progress,
+            backend=backend,
         )
-    plans = plan_frames(config, seed)
-    meta = SequenceMeta(
-        name=f"allo-synth {config.name} seed {seed}",
-        camera=camera_intrinsics(config),
-        rate_hz=config.rate_hz,
-        mesh=mesh,
-    )
-    written: list[tuple[FramePlan, dict]] = []
-    outputs = _outputs(config, seed, mesh, plans, jobs, backend)
-    if progress:
-        from tqdm import tqdm
-
-        outputs = tqdm(
-            outputs,
-            total=len(plans),
-            desc=f"allo-synth {config.name}",
-            unit="frame",
-            file=sys.stderr,
-        )
-    root = Path(out)
-    with SequenceWriter(
-        root,
-        meta,
-        overwrite=overwrite,
-        start_ns=START_NS,
-        png_compression=config.png_compression,
-    ) as writer:
-        for output in outputs:
-            _write(writer, output)
-            hold_point("generate-frame")
-            written.append((output.plan, output.extra))
-    composition = _composition(written, config)
     provenance = {
         "generator": "allo-synth",
         "seed": seed,
@@ -267,10 +192,55 @@ def generate(
     return GenerationReport(
         root=root,
         composition=composition,
-        frames=len(written),
+        frames=written_frames,
         seconds=seconds,
-        frames_per_minute=60.0 * len(written) / seconds if seconds > 0 else 0.0,
+        frames_per_minute=60.0 * written_frames / seconds if seconds > 0 else 0.0,
     )
+
+
+def _generate_frames(
+    config: SynthConfig,
+    root: Path,
+    seed: int,
+    *,
+    mesh: Path,
+    jobs: int,
+    overwrite: bool,
+    progress: bool,
+    backend: str | None,
+) -> tuple[int, dict]:
+    """Render and write a sequence of single frames; frames written and the composition."""
+    plans = plan_frames(config, seed)
+    meta = SequenceMeta(
+        name=f"allo-synth {config.name} seed {seed}",
+        camera=camera_intrinsics(config),
+        rate_hz=config.rate_hz,
+        mesh=mesh,
+    )
+    written: list[tuple[FramePlan, dict]] = []
+    outputs = rendered(
+        FrameSynthesizer,
+        FrameSynthesizer.synthesize,
+        config,
+        seed,
+        mesh,
+        plans,
+        jobs=jobs,
+        backend=backend,
+        progress=progress,
+    )
+    with SequenceWriter(
+        root,
+        meta,
+        overwrite=overwrite,
+        start_ns=START_NS,
+        png_compression=config.png_compression,
+    ) as writer:
+        for output in outputs:
+            _write(writer, output)
+            hold_point("generate-frame")
+            written.append((output.plan, output.extra))
+    return len(written), _composition(written, config)
 
 
 def _write(writer: SequenceWriter, output: FrameOutput) -> None:

@@ -88,6 +88,7 @@ def speeds(poses: list[np.ndarray], rate_hz: float) -> tuple[np.ndarray, np.ndar
         return np.zeros(1), np.zeros(1)
     stack = np.asarray(poses, dtype=np.float64)
     linear = np.linalg.norm(np.diff(stack[:, :3, 3], axis=0), axis=1) * rate_hz
+    # The angle of the relative rotation R_k^T R_k+1, from its trace.
     relative = np.einsum("kji,kjl->kil", stack[:-1, :3, :3], stack[1:, :3, :3])
     cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     return linear, np.degrees(np.arccos(cosine)) * rate_hz

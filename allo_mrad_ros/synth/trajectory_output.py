@@ -7,10 +7,7 @@ paths and objects from the same seed, so the output is the same whatever ``jobs`
 
 from __future__ import annotations
 
-import multiprocessing
-import sys
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -26,48 +23,12 @@ from allo_mrad_ros.synth.planning import STREAM_POSES, stream
 from allo_mrad_ros.synth.poses import make_base_poses
 from allo_mrad_ros.synth.trajectory_frames import (
     TrajectoryFrameOutput,
-    TrajectoryFramePlan,
     TrajectorySetup,
     TrajectorySynthesizer,
     plan_trajectories,
     setup_trajectory,
 )
-
-_WORKER: TrajectorySynthesizer | None = None
-
-
-def _init_worker(config: SynthConfig, seed: int, mesh: str, backend: str | None) -> None:
-    global _WORKER
-    _WORKER = TrajectorySynthesizer(config, seed, mesh, backend)
-
-
-def _work(plan: TrajectoryFramePlan) -> TrajectoryFrameOutput:
-    return _WORKER.synthesize_trajectory_frame(plan)
-
-
-def _outputs(
-    config: SynthConfig,
-    seed: int,
-    mesh: Path,
-    plans: list[TrajectoryFramePlan],
-    jobs: int,
-    backend: str | None,
-) -> Iterator[TrajectoryFrameOutput]:
-    if jobs == 1:
-        synthesizer = TrajectorySynthesizer(config, seed, mesh, backend)
-        try:
-            for plan in plans:
-                yield synthesizer.synthesize_trajectory_frame(plan)
-        finally:
-            synthesizer.close()
-        return
-    context = multiprocessing.get_context("spawn")
-    # Runs of frames per task, so a worker mostly settles each trajectory once.
-    chunk = max(1, min(16, config.trajectory.frames // jobs))
-    with context.Pool(
-        jobs, initializer=_init_worker, initargs=(config, seed, str(mesh), backend)
-    ) as pool:
-        yield from pool.imap(_work, plans, chunksize=chunk)
+from allo_mrad_ros.synth.workers import rendered
 
 
 def settle(config: SynthConfig, seed: int, mesh: Path, start_ns: int) -> list[TrajectorySetup]:
@@ -138,17 +99,19 @@ def generate_trajectories(
         mesh=mesh,
         format=FORMAT_V2,
     )
-    outputs = _outputs(config, seed, mesh, plans, jobs, backend)
-    if progress:
-        from tqdm import tqdm
-
-        outputs = tqdm(
-            outputs,
-            total=len(plans),
-            desc=f"allo-synth {config.name}",
-            unit="frame",
-            file=sys.stderr,
-        )
+    outputs = rendered(
+        TrajectorySynthesizer,
+        TrajectorySynthesizer.synthesize_trajectory_frame,
+        config,
+        seed,
+        mesh,
+        plans,
+        jobs=jobs,
+        backend=backend,
+        progress=progress,
+        # Runs of frames per task, so a worker mostly settles each trajectory once.
+        chunksize=max(1, min(16, config.trajectory.frames // jobs)),
+    )
     by_trajectory = {plan.ordinal: [] for plan in trajectories}
     for item in objects:
         by_trajectory[int(item.extra["trajectory"])].append(item)
