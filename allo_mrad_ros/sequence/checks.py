@@ -10,6 +10,7 @@ import numpy as np
 
 from allo_mrad_ros.geometry import finite_vector
 
+from .csv_table import format_float
 from .model import (
     ANOMALOUS,
     COLUMNS_V2,
@@ -19,7 +20,6 @@ from .model import (
     UNIT_NORM_TOLERANCE,
     SequenceError,
 )
-from .table import format_float
 
 _COLUMN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 

@@ -231,7 +231,8 @@ class SequenceMeta:
             object.__setattr__(self, "mesh", Path(self.mesh))
 
 
-def _frozen_vector(values: object, length: int) -> np.ndarray:
+def frozen_vector(values: object, length: int) -> np.ndarray:
+    """``values`` as a read-only float64 array of shape ``(length,)``."""
     array = np.array(values, dtype=np.float64).reshape(length)
     array.setflags(write=False)
     return array
@@ -296,13 +297,13 @@ class Frame:
     instances: Path | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _frozen_vector(self.position, 3))
-        object.__setattr__(self, "quaternion", _frozen_vector(self.quaternion, 4))
-        object.__setattr__(self, "sun_direction", _frozen_vector(self.sun_direction, 3))
+        object.__setattr__(self, "position", frozen_vector(self.position, 3))
+        object.__setattr__(self, "quaternion", frozen_vector(self.quaternion, 4))
+        object.__setattr__(self, "sun_direction", frozen_vector(self.sun_direction, 3))
         for body in ("earth", "moon"):
             value = getattr(self, body)
             if value is not None:
-                object.__setattr__(self, body, _frozen_vector(value, 4))
+                object.__setattr__(self, body, frozen_vector(value, 4))
         object.__setattr__(self, "extra", MappingProxyType(dict(self.extra)))
 
     @property

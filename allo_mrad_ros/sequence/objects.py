@@ -8,8 +8,6 @@ Its ``id`` is the value its pixels hold in the frames' instance masks.
 
 from __future__ import annotations
 
-import csv
-import io
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -19,11 +17,13 @@ from types import MappingProxyType
 import numpy as np
 
 from ..geometry import pose_matrix
+from .csv_table import format_float, parse_bounded, read_table, table_text
 from .model import (
     MAX_POSITION_M,
     MAX_STAMP_NS,
     UNIT_NORM_TOLERANCE,
     SequenceError,
+    frozen_vector,
     read_text,
 )
 
@@ -99,9 +99,7 @@ class GroundTruthObject:
 
     def __post_init__(self) -> None:
         for name, length in (("position", 3), ("velocity", 3), ("quaternion", 4), ("size", 3)):
-            array = np.array(getattr(self, name), dtype=np.float64).reshape(length)
-            array.setflags(write=False)
-            object.__setattr__(self, name, array)
+            object.__setattr__(self, name, frozen_vector(getattr(self, name), length))
         object.__setattr__(self, "extra", MappingProxyType(dict(self.extra)))
 
     def position_at(self, stamp_ns: int) -> np.ndarray:
@@ -119,15 +117,7 @@ class GroundTruthObject:
 
 
 def _number(text: str, column: str, bound: float) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise SequenceError(f"expected a number, got {text!r}", column=column) from None
-    if not np.isfinite(value):
-        raise SequenceError(f"must be finite, got {text!r}", column=column)
-    if abs(value) > bound:
-        raise SequenceError(f"{text.strip()} is not physical: beyond ±{bound:g}", column=column)
-    return value
+    return parse_bounded(text, column, bound, f"±{bound:g}")
 
 
 def _integer(text: str, column: str, low: int, high: int) -> int:
@@ -205,45 +195,12 @@ def read_objects(path: Path) -> tuple[GroundTruthObject, ...]:
 def parse_objects(text: str, path: Path | str = OBJECTS_FILE) -> tuple[GroundTruthObject, ...]:
     """Parse the text of ``objects.csv`` (as :func:`read_objects`; ``path`` names it in
     errors, e.g. a bag's custom data)."""
-    reader = csv.reader(io.StringIO(text, newline=""))
-    try:
-        header = next(reader)
-    except StopIteration:
-        raise SequenceError("empty file, expected a header row", file=path, line=1) from None
-    except csv.Error as error:
-        raise SequenceError(f"malformed CSV: {error}", file=path, line=1) from None
-    if len(set(header)) != len(header):
-        duplicate = next(c for c in header if header.count(c) > 1)
-        raise SequenceError("duplicate column", file=path, line=1, column=duplicate)
-    missing = [c for c in OBJECT_COLUMNS if c not in header]
-    if missing:
-        raise SequenceError(
-            f"missing column(s): {', '.join(missing)}", file=path, line=1, column=missing[0]
-        )
-    extra_columns = [c for c in header if c not in OBJECT_COLUMNS]
+    extra_columns, records = read_table(text, path, OBJECT_COLUMNS)
     objects: list[GroundTruthObject] = []
     rows: dict[int, int] = {}
-    line = reader.line_num + 1
-    while True:
+    for row, line, record in records:
         try:
-            fields = next(reader)
-        except StopIteration:
-            break
-        except csv.Error as error:
-            raise SequenceError(f"malformed CSV: {error}", file=path, line=line) from None
-        if not fields:
-            line = reader.line_num + 1
-            continue
-        row = len(objects) + 1
-        if len(fields) != len(header):
-            raise SequenceError(
-                f"has {len(fields)} fields, the header has {len(header)}",
-                file=path,
-                row=row,
-                line=line,
-            )
-        try:
-            item = object_from_record(dict(zip(header, fields, strict=True)), extra_columns)
+            item = object_from_record(record, extra_columns)
         except SequenceError as error:
             raise error.located(file=path, row=row, line=line) from None
         if item.id in rows:
@@ -256,12 +213,7 @@ def parse_objects(text: str, path: Path | str = OBJECTS_FILE) -> tuple[GroundTru
             )
         rows[item.id] = row
         objects.append(item)
-        line = reader.line_num + 1
     return tuple(objects)
-
-
-def _format(value: float) -> str:
-    return repr(float(value))
 
 
 def checked_objects(objects: Iterable[GroundTruthObject]) -> tuple[GroundTruthObject, ...]:
@@ -292,7 +244,7 @@ def object_record(item: GroundTruthObject) -> dict[str, str]:
     values = (*item.position, *item.velocity, *item.quaternion, *item.size)
     numeric = OBJECT_COLUMNS[3:]
     record = {"id": str(item.id), "type": item.type, "stamp_ns": str(item.stamp_ns)}
-    record.update({c: _format(v) for c, v in zip(numeric, values, strict=True)})
+    record.update({c: format_float(v) for c, v in zip(numeric, values, strict=True)})
     record.update(item.extra)
     return record
 
@@ -303,10 +255,4 @@ def write_objects_text(objects: Iterable[GroundTruthObject]) -> str:
     extra: list[str] = []
     for record in records:
         extra.extend(c for c in record if c not in OBJECT_COLUMNS and c not in extra)
-    stream = io.StringIO(newline="")
-    writer = csv.writer(stream, lineterminator="\n")
-    header = [*OBJECT_COLUMNS, *extra]
-    writer.writerow(header)
-    for record in records:
-        writer.writerow([record.get(c, "") for c in header])
-    return stream.getvalue()
+    return table_text([*OBJECT_COLUMNS, *extra], records)

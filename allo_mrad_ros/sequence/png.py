@@ -161,26 +161,25 @@ def load_rgb(path: Path) -> np.ndarray:
     return cv2.cvtColor(_decode(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
-def load_grey(path: Path) -> np.ndarray:
-    """Decode a single-channel 8-bit PNG to a uint8 array of shape (H, W)."""
+def _load_single_channel(path: Path, dtype: type[np.integer]) -> np.ndarray:
     image = _decode(path, cv2.IMREAD_UNCHANGED)
-    if image.ndim != 2 or image.dtype != np.uint8:
+    if image.ndim != 2 or image.dtype != dtype:
+        bits = 8 * np.dtype(dtype).itemsize
         raise SequenceError(
-            f"expected an 8-bit single-channel image, got shape {image.shape} {image.dtype}",
+            f"expected a {bits}-bit single-channel image, got shape {image.shape} {image.dtype}",
             file=path,
         )
     return image
+
+
+def load_grey(path: Path) -> np.ndarray:
+    """Decode a single-channel 8-bit PNG to a uint8 array of shape (H, W)."""
+    return _load_single_channel(path, np.uint8)
 
 
 def load_grey16(path: Path) -> np.ndarray:
     """Decode a single-channel 16-bit PNG (an instance mask) to uint16 (H, W)."""
-    image = _decode(path, cv2.IMREAD_UNCHANGED)
-    if image.ndim != 2 or image.dtype != np.uint16:
-        raise SequenceError(
-            f"expected a 16-bit single-channel image, got shape {image.shape} {image.dtype}",
-            file=path,
-        )
-    return image
+    return _load_single_channel(path, np.uint16)
 
 
 def bad_mask_values(mask: np.ndarray) -> list[int]:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import ntpath
 import posixpath
@@ -13,6 +11,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
+from .csv_table import parse_bounded, parse_float, parse_int, read_table, table_text
 from .model import (
     ANOMALOUS,
     EARTH_COLUMNS,
@@ -34,37 +33,6 @@ from .model import (
     columns_of,
     read_text,
 )
-
-
-def parse_int(text: str, column: str, minimum: int = 0) -> int:
-    """Parse a whole number not below ``minimum``."""
-    try:
-        value = int(text.strip())
-    except ValueError:
-        raise SequenceError(f"expected an integer, got {text!r}", column=column) from None
-    if value < minimum:
-        raise SequenceError(f"must be at least {minimum}, got {value}", column=column)
-    return value
-
-
-def parse_float(text: str, column: str) -> float:
-    """Parse a finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise SequenceError(f"expected a number, got {text!r}", column=column) from None
-    if not math.isfinite(value):
-        raise SequenceError(f"must be finite, got {text!r}", column=column)
-    return value
-
-
-def parse_bounded(text: str, column: str, bound: float, limit: str) -> float:
-    """Parse a finite number of magnitude at most ``bound``; ``limit`` says what that is."""
-    value = parse_float(text, column)
-    if abs(value) > bound:
-        raise SequenceError(f"{text.strip()} is not physical: beyond {limit}", column=column)
-    return value
-
 
 _POSITION = f"±{MAX_POSITION_M:g} m (1000 km from the station)"
 _BODY = f"±{MAX_BODY_M:g} m (the renderer's farthest body)"
@@ -226,48 +194,10 @@ def read_frames(path: Path, root: Path, version: str = FORMAT_V1) -> list[Frame]
     SequenceError
         Naming the file, the 1-based data row (and its line) and the column at fault.
     """
-    text = read_text(path)
-    reader = csv.reader(io.StringIO(text, newline=""))
-    try:
-        header = next(reader)
-    except StopIteration:
-        raise SequenceError("empty file, expected a header row", file=path, line=1) from None
-    except csv.Error as error:
-        raise SequenceError(f"malformed CSV: {error}", file=path, line=1) from None
-    seen: set[str] = set()
-    for name in header:
-        if name in seen:
-            raise SequenceError("duplicate column", file=path, line=1, column=name)
-        seen.add(name)
-    columns = columns_of(version)
-    missing = [c for c in columns if c not in seen]
-    if missing:
-        raise SequenceError(
-            f"missing column(s): {', '.join(missing)}", file=path, line=1, column=missing[0]
-        )
-    extra_columns = [c for c in header if c not in columns]
+    extra_columns, records = read_table(read_text(path), path, columns_of(version))
     frames: list[Frame] = []
     previous_stamp = -1
-    line = reader.line_num + 1
-    while True:
-        try:
-            fields = next(reader)
-        except StopIteration:
-            break
-        except csv.Error as error:
-            raise SequenceError(f"malformed CSV: {error}", file=path, line=line) from None
-        if not fields:  # blank line
-            line = reader.line_num + 1
-            continue
-        row = len(frames) + 1
-        if len(fields) != len(header):
-            raise SequenceError(
-                f"has {len(fields)} fields, the header has {len(header)}",
-                file=path,
-                row=row,
-                line=line,
-            )
-        record = dict(zip(header, fields, strict=True))
+    for row, line, record in records:
         try:
             frame = frame_from_record(record, len(frames), root, extra_columns, version)
         except SequenceError as error:
@@ -282,15 +212,9 @@ def read_frames(path: Path, root: Path, version: str = FORMAT_V1) -> list[Frame]
             )
         previous_stamp = frame.stamp_ns
         frames.append(frame)
-        line = reader.line_num + 1
     if not frames:
         raise SequenceError("no frames", file=path, line=2)
     return frames
-
-
-def format_float(value: float) -> str:
-    """Shortest text that reads back as exactly ``value``."""
-    return repr(float(value))
 
 
 def write_frames_text(
@@ -298,10 +222,4 @@ def write_frames_text(
 ) -> str:
     """Return the ``frames.csv`` text of records (column -> text), standard columns of the
     format ``version`` first."""
-    stream = io.StringIO(newline="")
-    writer = csv.writer(stream, lineterminator="\n")
-    header = [*columns_of(version), *extra_columns]
-    writer.writerow(header)
-    for record in records:
-        writer.writerow([record.get(c, "") for c in header])
-    return stream.getvalue()
+    return table_text([*columns_of(version), *extra_columns], records)

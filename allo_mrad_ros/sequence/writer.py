@@ -25,6 +25,7 @@ from .checks import (
     extra_columns,
     frame_label,
 )
+from .csv_table import format_float
 from .metafile import relative_posix, write_meta
 from .model import (
     FORMAT_V2,
@@ -41,7 +42,7 @@ from .model import (
 )
 from .objects import OBJECTS_FILE, GroundTruthObject, checked_objects, write_objects_text
 from .png import bad_mask_values, encode_png, read_png_header, write_atomic
-from .table import format_float, frame_from_record, leaves_root, write_frames_text
+from .table import frame_from_record, leaves_root, write_frames_text
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
 
