@@ -17,6 +17,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
+from allo_mrad_ros.ros.node_process import wait_or_kill
+
 # Nice value of the feed and recorder threads under load (-20 highest, 0 the default).
 FEED_NICE = -10
 
@@ -56,11 +58,7 @@ def busy_loops(count: int) -> Iterator[list[subprocess.Popen]]:
         for loop in loops:
             loop.terminate()
         for loop in loops:
-            try:
-                loop.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                loop.kill()
-                loop.wait()
+            wait_or_kill(loop, 10)
 
 
 def _threads(pid: int | str = "self") -> list[int]:

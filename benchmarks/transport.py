@@ -475,7 +475,7 @@ def measure(
     """One run: publisher, node (unless ``node`` is False) and subscriber under ``setting``;
     the rows of each receiver."""
     from allo_mrad_ros import interface
-    from allo_mrad_ros.ros.node_process import start_node, stop_node
+    from allo_mrad_ros.ros.node_process import start_node, stop_node, wait_or_kill
 
     environment = setting_environment(os.environ, setting, domain_id)
     run = work / f"{setting.name}_{mode}"
@@ -525,18 +525,14 @@ def measure(
                 load.append(os.getloadavg()[0])
         publisher.wait(timeout=60)
         stop_file.touch()
-        try:
-            subscriber.wait(timeout=30)
-        except subprocess.TimeoutExpired:
+        if not wait_or_kill(subscriber, 30):
             # Hung on its way out (seen with LARGE_DATA on the Jazzy wheels): its arrivals
             # were written before rclpy shut down, so they count.
-            subscriber.kill()
-            subscriber.wait()
             if not (run / "subscriber.json").is_file():
                 raise TransportBenchError(
                     f"subscriber of {setting.name} {mode} hung before writing its arrivals; "
                     f"see {run / 'subscriber.log'}"
-                ) from None
+                )
             print(f"  ({setting.name} {mode}: the subscriber hung on exit and was killed)")
         if publisher.returncode or "end" not in samples:
             raise TransportBenchError(

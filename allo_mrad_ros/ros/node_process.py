@@ -91,8 +91,21 @@ def start_node(log_path: Path, *parameters: str, namespace: str = "") -> subproc
 def stop_node(process: subprocess.Popen) -> None:
     """Terminate the node process (kill it if it does not stop within 10 s)."""
     process.terminate()
+    wait_or_kill(process, 10)
+
+
+def wait_or_kill(process: subprocess.Popen, timeout_s: float) -> bool:
+    """Wait up to ``timeout_s`` for ``process`` to end, else kill it and reap it.
+
+    Returns
+    -------
+    bool
+        True if it ended within the time, False if it had to be killed.
+    """
     try:
-        process.wait(timeout=10)
+        process.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         process.kill()
         process.wait()
+        return False
+    return True
