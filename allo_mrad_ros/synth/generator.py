@@ -16,13 +16,11 @@ from os import PathLike
 from pathlib import Path
 
 from allo_mrad_ros.ephemeris import EPOCH_2030
-from allo_mrad_ros.geometry import pose_components
-from allo_mrad_ros.sequence import SequenceMeta, SequenceWriter
 from allo_mrad_ros.staging import hold_point
 from allo_mrad_ros.synth.config import SynthConfig, SynthError
-from allo_mrad_ros.synth.frames import FrameOutput, FrameSynthesizer, camera_intrinsics
+from allo_mrad_ros.synth.frames import FrameSynthesizer
 from allo_mrad_ros.synth.planning import FramePlan, plan_frames
-from allo_mrad_ros.synth.workers import rendered
+from allo_mrad_ros.synth.workers import SequenceJob, write_output
 
 START_NS = int(EPOCH_2030.timestamp()) * 10**9
 """Stamp of the first frame: 2030-01-01T00:00:00Z, as for imported ALLO splits."""
@@ -155,31 +153,23 @@ def generate(
         raise SynthError(f"station mesh not found: {mesh}")
     start = time.perf_counter()
     root = Path(out)
-    if config.trajectory is not None:
+    job = SequenceJob(
+        config=config,
+        root=root,
+        seed=seed,
+        mesh=mesh,
+        jobs=jobs,
+        overwrite=overwrite,
+        progress=progress,
+        backend=backend,
+        start_ns=START_NS,
+    )
+    if config.trajectory is None:
+        written_frames, composition = _generate_frames(job)
+    else:
         from allo_mrad_ros.synth.trajectory_output import generate_trajectories
 
-        written_frames, composition = generate_trajectories(
-            config,
-            root,
-            seed,
-            mesh=mesh,
-            jobs=jobs,
-            overwrite=overwrite,
-            progress=progress,
-            backend=backend,
-            start_ns=START_NS,
-        )
-    else:
-        written_frames, composition = _generate_frames(
-            config,
-            root,
-            seed,
-            mesh=mesh,
-            jobs=jobs,
-            overwrite=overwrite,
-            progress=progress,
-            backend=backend,
-        )
+        written_frames, composition = generate_trajectories(job)
     provenance = {
         "generator": "allo-synth",
         "seed": seed,
@@ -198,67 +188,21 @@ def generate(
     )
 
 
-def _generate_frames(
-    config: SynthConfig,
-    root: Path,
-    seed: int,
-    *,
-    mesh: Path,
-    jobs: int,
-    overwrite: bool,
-    progress: bool,
-    backend: str | None,
-) -> tuple[int, dict]:
-    """Render and write a sequence of single frames; frames written and the composition."""
-    plans = plan_frames(config, seed)
-    meta = SequenceMeta(
-        name=f"allo-synth {config.name} seed {seed}",
-        camera=camera_intrinsics(config),
-        rate_hz=config.rate_hz,
-        mesh=mesh,
-    )
+def _generate_frames(job: SequenceJob) -> tuple[int, dict]:
+    """Render and write a sequence of single frames (see :func:`generate`).
+
+    Returns
+    -------
+    tuple
+        Frames written, and the composition per split.
+    """
+    config = job.config
+    plans = plan_frames(config, job.seed)
     written: list[tuple[FramePlan, dict]] = []
-    outputs = rendered(
-        FrameSynthesizer,
-        FrameSynthesizer.synthesize,
-        config,
-        seed,
-        mesh,
-        plans,
-        jobs=jobs,
-        backend=backend,
-        progress=progress,
-    )
-    with SequenceWriter(
-        root,
-        meta,
-        overwrite=overwrite,
-        start_ns=START_NS,
-        png_compression=config.png_compression,
-    ) as writer:
+    outputs = job.rendered(FrameSynthesizer, FrameSynthesizer.synthesize, plans)
+    with job.writer() as writer:
         for output in outputs:
-            _write(writer, output)
+            write_output(writer, output, camera=output.plan.camera, anomaly=output.plan.anomaly)
             hold_point("generate-frame")
             written.append((output.plan, output.extra))
     return len(written), _composition(written, config)
-
-
-def _write(writer: SequenceWriter, output: FrameOutput) -> None:
-    plan = output.plan
-    position, quaternion = pose_components(output.T_reported)
-    writer.add_frame(
-        split=plan.split,
-        camera=plan.camera,
-        image=output.image,
-        mask=output.mask,
-        reference=output.reference,
-        anomaly=plan.anomaly,
-        position=position,
-        quaternion=quaternion,
-        sun_direction=output.sky.sun_direction,
-        sun_strength=plan.sun_strength,
-        earth=output.sky.earth,
-        moon=output.sky.moon,
-        name=plan.name,
-        extra=output.extra,
-    )

@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from allo_mrad_ros.ephemeris import StationEphemeris
-from allo_mrad_ros.geometry import pose_components
-from allo_mrad_ros.sequence import FORMAT_V2, GroundTruthObject, SequenceMeta, SequenceWriter
+from allo_mrad_ros.sequence import GroundTruthObject
 from allo_mrad_ros.staging import hold_point
 from allo_mrad_ros.synth.config import SynthConfig
 from allo_mrad_ros.synth.frames import camera_intrinsics
@@ -28,7 +27,7 @@ from allo_mrad_ros.synth.trajectory_frames import (
     plan_trajectories,
     setup_trajectory,
 )
-from allo_mrad_ros.synth.workers import rendered
+from allo_mrad_ros.synth.workers import SequenceJob, write_output
 
 
 def settle(config: SynthConfig, seed: int, mesh: Path, start_ns: int) -> list[TrajectorySetup]:
@@ -69,18 +68,7 @@ def _in_view(item: GroundTruthObject, output: TrajectoryFrameOutput, config: Syn
     return 0 <= u < camera.width and 0 <= v < camera.height
 
 
-def generate_trajectories(
-    config: SynthConfig,
-    out: Path,
-    seed: int,
-    *,
-    mesh: Path,
-    jobs: int,
-    overwrite: bool,
-    progress: bool,
-    backend: str | None,
-    start_ns: int,
-) -> tuple[int, dict]:
+def generate_trajectories(job: SequenceJob) -> tuple[int, dict]:
     """Render and write a trajectory sequence (see :func:`~.generator.generate`).
 
     Returns
@@ -89,28 +77,16 @@ def generate_trajectories(
         Frames written, and the composition per split (trajectories, scenes, frames, objects
         per type, placement and state, frames in view, shown and hidden).
     """
-    trajectories, plans = plan_trajectories(config, seed, start_ns)
-    setups = settle(config, seed, mesh, start_ns)
+    config, seed, mesh = job.config, job.seed, job.mesh
+    trajectories, plans = plan_trajectories(config, seed, job.start_ns)
+    setups = settle(config, seed, mesh, job.start_ns)
     objects = [item for setup in setups for item in setup.objects]
-    meta = SequenceMeta(
-        name=f"allo-synth {config.name} seed {seed}",
-        camera=camera_intrinsics(config),
-        rate_hz=config.rate_hz,
-        mesh=mesh,
-        format=FORMAT_V2,
-    )
-    outputs = rendered(
+    outputs = job.rendered(
         TrajectorySynthesizer,
         TrajectorySynthesizer.synthesize_trajectory_frame,
-        config,
-        seed,
-        mesh,
         plans,
-        jobs=jobs,
-        backend=backend,
-        progress=progress,
         # Runs of frames per task, so a worker mostly settles each trajectory once.
-        chunksize=max(1, min(16, config.trajectory.frames // jobs)),
+        chunksize=max(1, min(16, config.trajectory.frames // job.jobs)),
     )
     by_trajectory = {plan.ordinal: [] for plan in trajectories}
     for item in objects:
@@ -118,16 +94,16 @@ def generate_trajectories(
     seen: dict[int, list[int]] = {item.id: [] for item in objects}
     in_view: dict[int, list[int]] = {item.id: [] for item in objects}
     frame_rows: list[tuple[str, bool]] = []
-    with SequenceWriter(
-        out,
-        meta,
-        overwrite=overwrite,
-        start_ns=start_ns,
-        png_compression=config.png_compression,
-        objects=objects,
-    ) as writer:
+    with job.writer(objects) as writer:
         for output in outputs:
-            _write(writer, output)
+            write_output(
+                writer,
+                output,
+                camera=output.plan.trajectory.number,
+                anomaly=output.anomaly,
+                instances=output.instances,
+                stamp_ns=output.plan.stamp_ns,
+            )
             frame_rows.append((output.plan.split, bool(output.shown)))
             for item in by_trajectory[output.plan.trajectory.ordinal]:
                 if item.id in output.shown:
@@ -183,26 +159,3 @@ def _composition(
             "peak_turn_deg_s": round(max((s.peak_turn_deg_s for s in split_setups), default=0), 3),
         }
     return result
-
-
-def _write(writer: SequenceWriter, output: TrajectoryFrameOutput) -> None:
-    plan = output.plan
-    position, quaternion = pose_components(output.T_reported)
-    writer.add_frame(
-        split=plan.split,
-        camera=plan.trajectory.number,
-        image=output.image,
-        mask=output.mask,
-        instances=output.instances,
-        reference=output.reference,
-        anomaly=output.anomaly,
-        position=position,
-        quaternion=quaternion,
-        sun_direction=output.sky.sun_direction,
-        sun_strength=plan.sun_strength,
-        earth=output.sky.earth,
-        moon=output.sky.moon,
-        name=plan.name,
-        stamp_ns=plan.stamp_ns,
-        extra=output.extra,
-    )
