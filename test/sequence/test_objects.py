@@ -313,3 +313,21 @@ def test_writer_refuses_bad_instances(tmp_path: Path) -> None:
     with pytest.raises(SequenceError, match="duplicate id 3") as caught:
         SequenceWriter(tmp_path / "dup", meta, objects=duplicate)
     assert caught.value.row == 3
+
+
+@pytest.mark.parametrize("table", ["frames.csv", "objects.csv"])
+def test_both_tables_report_structure_faults_alike(tmp_path: Path, table: str) -> None:
+    _write_v2(tmp_path, frames=2)
+    path = tmp_path / table
+    header, first, second = path.read_text().splitlines()
+    # A blank line is no row but is a line: row 2, one field too many, stands on line 4.
+    path.write_text("\n".join([header, first, "", second + ",9"]) + "\n")
+    with pytest.raises(SequenceError, match="fields, the header has") as caught:
+        read_sequence(tmp_path)
+    assert (caught.value.file, caught.value.row, caught.value.line) == (path, 2, 4)
+    # Two columns repeated, the second one first: the first repeat read is the one named.
+    columns = header.split(",")
+    path.write_text(",".join([*columns, columns[1], columns[0]]) + "\n")
+    with pytest.raises(SequenceError, match="duplicate column") as caught:
+        read_sequence(tmp_path)
+    assert (caught.value.file, caught.value.line, caught.value.column) == (path, 1, columns[1])
