@@ -69,8 +69,14 @@ class CameraIntrinsics:
         """
         if not math.isfinite(scale) or scale <= 0:
             raise ValueError(f"scale must be positive and finite, got {scale!r}")
-        width = max(1, round(self.width * scale))
-        height = max(1, round(self.height * scale))
+        return self.resized(max(1, round(self.width * scale)), max(1, round(self.height * scale)))
+
+    def resized(self, width: int, height: int) -> CameraIntrinsics:
+        """Return the intrinsics of this camera's image resampled to ``width`` x ``height``.
+
+        The focal lengths and principal point follow the size ratio per axis, so the field of
+        view and the pixel-edge convention (pixel centres at integer + 0.5) are kept.
+        """
         sx = width / self.width
         sy = height / self.height
         return CameraIntrinsics(

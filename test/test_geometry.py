@@ -180,3 +180,17 @@ def test_scaled_intrinsics_keep_the_field_of_view():
     # The image edge (pixel edge -0.5 .. width - 0.5) subtends the same angle.
     assert (k.width - 0.5 - k.cx) / k.fx == pytest.approx((small.width - 0.5 - small.cx) / small.fx)
     assert (-0.5 - k.cy) / k.fy == pytest.approx((-0.5 - small.cy) / small.fy)
+
+
+def test_resized_intrinsics_keep_every_pixel_edge_on_its_ray():
+    k = CameraIntrinsics(width=1920, height=1080, fx=1333.3, fy=1250.0, cx=950.0, cy=545.0)
+    depth = k.resized(160, 96)  # a depth image of another size, as rendered next to a query
+    assert (depth.width, depth.height) == (160, 96)
+    # Each image edge and the image centre (in pixel-edge units) stand at the same angle.
+    for u, v in ((0.0, 0.0), (1.0, 1.0), (0.5, 0.5), (0.25, 0.75)):
+        ray = ((u * k.width - 0.5 - k.cx) / k.fx, (v * k.height - 0.5 - k.cy) / k.fy)
+        resized_ray = (
+            (u * depth.width - 0.5 - depth.cx) / depth.fx,
+            (v * depth.height - 0.5 - depth.cy) / depth.fy,
+        )
+        assert resized_ray == pytest.approx(ray)
