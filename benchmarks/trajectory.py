@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.synth.trajectories import speeds
+from allo_mrad_ros.synth.trajectories import ease, speeds
 
 # Fastest motion of the arm camera the benchmark drives the node with.
 MAX_LINEAR_M_S = 0.3
@@ -64,11 +64,6 @@ class ArmSweep:
         return look_at(eye, target)
 
 
-def path_parameter(t: float, segment_s: float) -> float:
-    """``s(t)`` in 0..1 at ``t`` seconds into a segment of ``segment_s``: at rest at both ends."""
-    return 0.5 * (1.0 - math.cos(math.pi * min(max(t / segment_s, 0.0), 1.0)))
-
-
 def segment_poses(
     kind: str, rate_hz: float, segment_s: float = SEGMENT_S, sweep: ArmSweep | None = None
 ) -> list[np.ndarray]:
@@ -91,7 +86,7 @@ def segment_poses(
         return [look_at(START_EYE, START_TARGET)]
     sweep = sweep or ArmSweep()
     steps = max(1, round(segment_s * rate_hz))
-    poses = [sweep.pose(path_parameter(k / rate_hz, steps / rate_hz)) for k in range(steps + 1)]
+    poses = [sweep.pose(ease(k / rate_hz, steps / rate_hz)) for k in range(steps + 1)]
     linear, angular = speeds(poses, rate_hz)
     if linear.max() > MAX_LINEAR_M_S or angular.max() > MAX_ANGULAR_DEG_S:
         raise ValueError(

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.synth.trajectories import ease
 from benchmarks.trajectory import (
     MAX_ANGULAR_DEG_S,
     MAX_LINEAR_M_S,
     ArmSweep,
-    path_parameter,
     ping_pong,
     segment_poses,
     speeds,
@@ -55,9 +55,9 @@ def test_ping_pong_plays_the_segment_back_and_forth_without_a_jump():
 
 
 def test_the_path_parameter_rests_at_both_ends():
-    assert path_parameter(0.0, 3.0) == 0.0 and path_parameter(3.0, 3.0) == 1.0
-    assert path_parameter(1.5, 3.0) == pytest.approx(0.5)
-    assert path_parameter(-1.0, 3.0) == 0.0 and path_parameter(9.0, 3.0) == 1.0
+    assert ease(0.0, 3.0) == 0.0 and ease(3.0, 3.0) == 1.0
+    assert ease(1.5, 3.0) == pytest.approx(0.5)
+    assert ease(-1.0, 3.0) == 0.0 and ease(9.0, 3.0) == 1.0
 
 
 def test_the_still_path_is_one_constant_pose():
