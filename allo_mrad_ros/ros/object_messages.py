@@ -114,7 +114,11 @@ def _marker(header: Header, ns: str, marker_id: int, kind: int) -> Marker:
 
 
 def object_markers(
-    header: Header, objects: Sequence[TrackedObject], *, station_mesh: str = ""
+    header: Header,
+    objects: Sequence[TrackedObject],
+    *,
+    station_mesh: str = "",
+    changed_only: bool = False,
 ) -> MarkerArray:
     """RViz markers of ``objects`` in ``header``'s frame (the station frame).
 
@@ -124,6 +128,8 @@ def object_markers(
     position's covariance; and its id as text above it. An ended object's three markers are
     deleted. ``station_mesh``: a ``file://`` or ``package://`` URI of the station model,
     drawn first (with its own materials) so the objects are seen on it; empty: none.
+    ``changed_only``: only the objects a region hit this frame (the only ones whose position,
+    size or state changed) and the ended ones: RViz keeps the others' markers as they were.
     """
     markers = []
     if station_mesh:
@@ -133,6 +139,8 @@ def object_markers(
         station.scale = Vector3(x=1.0, y=1.0, z=1.0)
         markers.append(station)
     for obj in objects:
+        if changed_only and obj.region is None and obj.state != "ended":
+            continue
         if obj.state == "ended":
             for ns in OBJECT_NAMESPACES:
                 markers.append(Marker(header=header, ns=ns, id=obj.id, action=Marker.DELETE))

@@ -23,11 +23,13 @@ tests create the publisher with types generated from vision_msgs' own ``.msg`` f
 
 ``~/objects`` (vision_msgs/Detection3DArray, where vision_msgs is installed) and
 ``~/objects/markers`` (visualization_msgs/MarkerArray) publish the object tracker's result
-in the station frame (:mod:`.object_messages`), for frames the worker tracked.
+in the station frame (:mod:`.object_messages`), for frames the worker tracked; the markers of
+every object once a second (:data:`MARKERS_REFRESH_S`), in between those that changed.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -54,6 +56,10 @@ from allo_mrad_ros.visualise import outline
 OVERLAY_COLOUR = (255, 40, 40)
 REGION_COLOUR = ColorRGBA(r=1.0, g=0.16, b=0.16, a=1.0)
 REGION_LINE_WIDTH = 2.0
+# ~/objects/markers sends every object's markers at most this often (a viewer that joins
+# sees them all within it), and in the frames between only the objects that changed:
+# building a Marker costs about 0.1 ms, and a hundred tentative objects are not rare.
+MARKERS_REFRESH_S = 1.0
 # class_id of every detection hypothesis.
 ANOMALY_CLASS = "anomaly"
 
@@ -156,6 +162,7 @@ class Outputs:
         the URI of the station model drawn with ``~/objects/markers`` (empty: none)."""
         self._node = node
         self._station_mesh = station_mesh
+        self._markers_refreshed: float | None = None  # monotonic s of the last full set
 
         def publisher(kind: type, topic: str, depth: int):
             return node.create_publisher(
@@ -314,9 +321,20 @@ class Outputs:
         if wanted:
             self.objects.publish(object_array(self._vision, station, objects.objects))
         if markers:
-            self.object_markers.publish(
-                object_markers(station, objects.objects, station_mesh=self._station_mesh)
+            now = time.monotonic()
+            full = self._markers_refreshed is None or now - self._markers_refreshed >= (
+                MARKERS_REFRESH_S
             )
+            if full:
+                self._markers_refreshed = now
+            array = object_markers(
+                station,
+                objects.objects,
+                station_mesh=self._station_mesh if full else "",
+                changed_only=not full,
+            )
+            if array.markers:
+                self.object_markers.publish(array)
 
     @staticmethod
     def _publish_info(
