@@ -71,6 +71,9 @@ REFERENCE_INFO_OUTPUT = "~/reference/camera_info"
 RESULT_OUTPUT = "~/result"
 REGIONS_OUTPUT = "~/regions"
 DETECTIONS_OUTPUT = "~/detections"
+# Objects in the station frame (vision_msgs/Detection3DArray) and their RViz markers.
+OBJECTS_OUTPUT = "~/objects"
+OBJECT_MARKERS_OUTPUT = "~/objects/markers"
 DIAGNOSTICS_TOPIC = "/diagnostics"
 
 # Frame ids.

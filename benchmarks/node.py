@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from visualization_msgs.msg import MarkerArray
 
 from allo_mrad_ros.camera import ALLO_INTRINSICS, CameraIntrinsics
 from allo_mrad_ros.example_scene import paste_object
@@ -163,12 +164,14 @@ def _fresh_values(feed: CameraFeed, seconds: float = 2.5) -> dict[str, str]:
 def node_stages(values: dict[str, str]) -> dict[str, dict[str, float]]:
     """The node's per-stage latency and input ages, ``{name: {"p50": ms, "p95": ms}}``, from
     a ``/diagnostics`` pipeline status's values: each of :data:`STAGES` (``latency_<stage>``),
-    ``middleware_queue`` (the part of ``middleware`` in the subscription's queue), then
+    ``middleware_queue`` (the part of ``middleware`` in the subscription's queue), ``objects``
+    (the object tracker, a part of ``publish``, where it ran), then
     ``age_taken`` and ``age_published`` (``input_age_<when>``); those it does not report are
     left out."""
     keys = {stage: f"latency_{stage}" for stage in STAGES}
     keys.update(
         middleware_queue="latency_middleware_queue",
+        objects="latency_objects",
         age_taken="input_age_taken",
         age_published="input_age_published",
     )
@@ -229,6 +232,7 @@ def run(
     load: int = 0,
     seconds: float | None = None,
     node_nice: int | None = None,
+    objects: bool = False,
 ) -> dict:
     """Drive the node at ``rate_hz`` until ``frames`` masks arrived (or for ``seconds``);
     the report dictionary.
@@ -236,7 +240,9 @@ def run(
     ``node_parameters`` are extra ``name:=value`` parameters of the node; ``trajectory``
     one of :data:`~.trajectory.TRAJECTORIES` (``plan``: its frames, rendered already);
     ``load``: busy loops beside the node (:mod:`.load`), with this process raised above them;
-    ``node_nice``: the node's threads reniced (None: left at the default priority, 0).
+    ``node_nice``: the node's threads reniced (None: left at the default priority, 0);
+    ``objects``: also subscribe to ``~/objects/markers`` (the node then tracks objects, and
+    renders the reference's depth for it, on every frame).
     """
     plan = plan or plan_feed(trajectory, rate_hz, camera)
     node_args = (f"pipelined:={str(pipelined).lower()}", *node_parameters)
@@ -248,6 +254,10 @@ def run(
     ):
         if node_nice is not None:
             priority += "; " + renice(node.pid, node_nice)
+        if objects:
+            feed.node.create_subscription(
+                MarkerArray, f"{feed.output_prefix}/objects/markers", lambda _msg: None, 10
+            )
         warm = time.time_ns()
         while not feed.arrival["mask"] and time.time_ns() - warm < 60e9:
             feed.publish_frame(time.time_ns(), plan.images[0], plan.poses[0], SUN)
@@ -294,6 +304,7 @@ def run(
     frame_ms = 1e3 / rate_hz
     return {
         "load": load,
+        "objects_subscribed": objects,
         "priority": priority,
         "node_nice": node_nice,
         "image": f"{camera.width}x{camera.height}",
@@ -457,6 +468,11 @@ def main(argv: list[str] | None = None) -> int:
         help="renice the node's threads to this value (as a robot's deployment may give it "
         "priority over other jobs); default: the node stays at the default priority",
     )
+    parser.add_argument(
+        "--objects",
+        action="store_true",
+        help="also subscribe to ~/objects/markers: the node tracks objects on every frame",
+    )
     parser.add_argument("--rounds", type=int, default=5, help="blocks per output set (compare)")
     parser.add_argument("--block", type=int, default=16, help="frames per block (compare)")
     parser.add_argument(
@@ -498,7 +514,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[tuple[str, str, bool], dict] = {}
     print(
         f"mrad_detector, {' '.join(args.node_param) or 'default parameters'}; outputs mask, "
-        f"score, overlay; "
+        f"score, overlay{', objects/markers' if args.objects else ''}; "
         f"{f'{args.seconds:g} s' if args.seconds else f'{args.frames} frames'} per run, "
         f"{os.cpu_count()} CPUs, {args.load} busy loops; rend/f: "
         f"references rendered per processed frame (/diagnostics)\n{SUMMARY_HEADER}",
@@ -527,6 +543,7 @@ def main(argv: list[str] | None = None) -> int:
                     load=args.load,
                     seconds=args.seconds,
                     node_nice=args.node_nice,
+                    objects=args.objects,
                 )
                 results[name, trajectory, pipelined] = report
                 print(summary_line(name, report), flush=True)

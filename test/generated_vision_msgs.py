@@ -1,9 +1,10 @@
 """vision_msgs' message types generated from its own ``.msg`` files, for rclpy and for rosbags.
 
-vision_msgs has no pip wheel, so the node's ``~/detections`` publisher exists only on a ROS
-distro. The tests build the Python package a distro's ``ros-<distro>-vision-msgs`` holds from
-the same definitions (``test/data/vision_msgs_4_1_1/msg``) with the ROS wheels' own rosidl
-generators (``rosidl_generator_c``, ``rosidl_typesupport_c``, ``..._fastrtps_c``,
+vision_msgs has no pip wheel, so the node's ``~/detections`` and ``~/objects`` publishers
+exist only on a ROS distro. The tests build the Python package a distro's
+``ros-<distro>-vision-msgs`` holds from the same definitions
+(``test/data/vision_msgs_4_1_1/msg``) with the ROS wheels' own rosidl generators
+(``rosidl_generator_c``, ``rosidl_typesupport_c``, ``..._fastrtps_c``,
 ``..._introspection_c``, ``rosidl_generator_py``) and a C compiler, as colcon's
 ``rosidl_generate_interfaces`` would; and rosbags' typestore from the same files, as an
 independent reader of the bytes on the wire.
@@ -36,6 +37,9 @@ MESSAGES = (
     "ObjectHypothesisWithPose",
     "Detection2D",
     "Detection2DArray",
+    "BoundingBox3D",
+    "Detection3D",
+    "Detection3DArray",
 )
 # The message packages vision_msgs' fields name (Header, PoseWithCovariance, Time).
 DEPENDENCIES = ("std_msgs", "geometry_msgs", "builtin_interfaces")

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from allo_mrad_ros.ros.parameters import detector_parameters, node_parameters, validate
+from allo_mrad_ros.ros.parameters import declared_parameters, detector_parameters, validate
 
 REPO = Path(__file__).resolve().parent.parent
 LAUNCH_FILE = REPO / "launch" / "detect.launch.py"
@@ -73,7 +73,7 @@ def flatten(parameters, prefix=""):
 def test_config_file_sets_only_declared_parameters_with_valid_values():
     document = yaml.safe_load((REPO / "config" / "mrad.yaml").read_text())
     values = dict(flatten(document["/**"]["ros__parameters"]))
-    declared = {**node_parameters(tf_available=True), **detector_parameters()}
+    declared = declared_parameters(tf_available=True)
     assert set(values) == set(declared)
     for name, value in values.items():
         validate(name, declared[name], value)
@@ -362,6 +362,7 @@ def test_rviz_topics_are_relative_so_they_follow_the_launch_namespace():
             interface.MASK_OUTPUT,
             interface.SCORE_OUTPUT,
             interface.REFERENCE_OUTPUT,
+            interface.OBJECT_MARKERS_OUTPUT,
         )
     }
     assert set(topics) == outputs | {interface.BODIES_INPUT}

@@ -101,6 +101,8 @@ class Diagnostics:
         self._early_updates = 0
         self._zero_updates = 0
         self._counters: Counter[str] = Counter()
+        # Values that are a state, not a count (the tracker's objects): the latest of each.
+        self._values: dict[str, str] = {}
         self._recent: deque[tuple[float, str]] = deque(maxlen=10_000)
         self._logged_kinds: set[str] = set()
         self._lock = threading.Lock()
@@ -126,6 +128,11 @@ class Diagnostics:
         with self._lock:
             self._counters[name] += 1
             self._recent.append((time.monotonic(), name))
+
+    def set_values(self, values: dict[str, str]) -> None:
+        """Report ``values`` (name to text) from now on, replacing their earlier values."""
+        with self._lock:
+            self._values.update(values)
 
     def report(self, error: MessageError, detail: str = "") -> None:
         """Count an input error; log each kind once so a bad stream cannot flood the log.
@@ -158,6 +165,7 @@ class Diagnostics:
         now = time.monotonic()
         with self._lock:
             counters = dict(self._counters)
+            states = dict(self._values)
             recent = self._recent_counts(now)
             last_input, frame_id = self._last_input, self._frame_id
         counters["frames_received"] = self._received()
@@ -181,6 +189,7 @@ class Diagnostics:
             values[f"{key}_ms_p50"] = f"{p50:.1f}"
             values[f"{key}_ms_p95"] = f"{p95:.1f}"
         values.update({name: str(count) for name, count in sorted(counters.items())})
+        values.update(sorted(states.items()))
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         problems = sorted(
             k for k in recent if k.startswith("errors_") or k == "pose_lookup_failures"

@@ -18,7 +18,10 @@ Outputs: ``~/score`` (32FC1, 0..255) is the continuous pixel ranking map, the cr
 softly saturated (``mrad.pixel_score: continuous``; ``regions`` gives the paper's sparse map,
 zero outside the grown regions), at the detector's processing resolution with
 ``~/score/camera_info`` (``score_full_resolution``: at the image's); ``~/mask`` (mono8 0/255)
-is the union of the grown regions and ``~/anomaly`` the image decision on its area.
+is the union of the grown regions and ``~/anomaly`` the image decision on its area (with
+``decision: objects``: whether a confirmed object is in view). ``~/objects`` and
+``~/objects/markers`` are the object tracker's objects in the station frame; the reference's
+depth the tracker needs is rendered only for frames it tracks.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from sensor_msgs.msg import CompressedImage, Image
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.pipeline import ProcessedFrame
+from allo_mrad_ros.resources import ResourceError, share_path
 from allo_mrad_ros.ros import process_tuning, rclpy_compat
 from allo_mrad_ros.ros.arguments import (
     check_command_line,
@@ -56,8 +60,10 @@ from allo_mrad_ros.ros.arguments import (
 )
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.inputs import NodeInputs
+from allo_mrad_ros.ros.object_tracking import ObjectsUpdate
 from allo_mrad_ros.ros.outputs import Outputs
 from allo_mrad_ros.ros.parameters import (
+    NodeConfig,
     NodeParameter,
     ParameterError,
     check_mesh,
@@ -82,6 +88,16 @@ QOS_POLICIES = tuple(
 # How often the node looks whether any output has a subscriber (to subscribe to its inputs),
 # where rclpy has no publisher matched event to say so (Humble).
 INPUT_POLL_S = 0.25
+
+
+def station_mesh_uri(mesh: str) -> str:
+    """The ``file://`` URI of the station model ``~/objects/markers`` draws (``mesh``, else
+    the package's); empty where the package's is not installed."""
+    try:
+        path = Path(mesh) if mesh else share_path("meshes", "station.glb")
+    except ResourceError:
+        return ""
+    return path.resolve().as_uri()
 
 
 def qos_overriding() -> QoSOverridingOptions:
@@ -211,6 +227,7 @@ class MradDetectorNode(Node):
             lambda: self._outputs.score.get_subscription_count() > 0,
             self.context.ok,
             max_input_age_s=lambda: self._config.max_input_age_s,
+            objects_wanted=self._objects_wanted,
         )
         self.get_logger().info(self._tuning)
         self.get_logger().info(
@@ -339,8 +356,19 @@ class MradDetectorNode(Node):
         self._inputs.open(image_type, self._image_topic, self._info_topic, state, self._diagnostics)
         callbacks = rclpy_compat.matched_event_callbacks(self._on_output_matched)
         self._matched_events = callbacks is not None
-        self._outputs = Outputs(self, overriding=qos_overriding, event_callbacks=callbacks)
+        self._outputs = Outputs(
+            self,
+            overriding=qos_overriding,
+            event_callbacks=callbacks,
+            station_mesh=station_mesh_uri(self._config.mesh),
+        )
         self._inputs.subscribe()  # once at start: declares the inputs' QoS override parameters
+
+    def _objects_wanted(self, config: NodeConfig) -> bool:
+        """Whether to track objects in a frame taken with ``config``: on every frame
+        (``objects.enabled``, ``decision: objects``) or while ``~/objects`` or
+        ``~/objects/markers`` has a subscriber."""
+        return config.tracks_every_frame or self._outputs.objects_wanted()
 
     def _outputs_wanted(self) -> bool:
         """Whether any output has a subscriber (if not, no input is needed)."""
@@ -374,7 +402,12 @@ class MradDetectorNode(Node):
     # --- outputs ------------------------------------------------------------------------
 
     def _publish(
-        self, msg: Image, image: np.ndarray, frame: ProcessedFrame, score_map: bool = True
+        self,
+        msg: Image,
+        image: np.ndarray,
+        frame: ProcessedFrame,
+        score_map: bool = True,
+        objects: ObjectsUpdate | None = None,
     ) -> None:
         config = self._config
         reference_camera = frame.reference_camera
@@ -391,6 +424,7 @@ class MradDetectorNode(Node):
             # The camera_info the frame was processed with (paired by stamp, as the worker did).
             camera_info=self._inputs.camera_info_of(msg),
             score_map=score_map,
+            objects=objects,
         )
 
     def destroy_node(self) -> None:

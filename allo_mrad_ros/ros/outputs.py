@@ -20,10 +20,16 @@ region, its box and an ``anomaly`` hypothesis scored with the region's score in 
 exists where vision_msgs is installed (every ROS distro; no pip wheel).
 :func:`detection_array` builds it from any module of classes with vision_msgs' fields; the
 tests create the publisher with types generated from vision_msgs' own ``.msg`` files.
+
+``~/objects`` (vision_msgs/Detection3DArray, where vision_msgs is installed) and
+``~/objects/markers`` (visualization_msgs/MarkerArray) publish the object tracker's result
+in the station frame (:mod:`.object_messages`), for frames the worker tracked; the markers of
+every object once a second (:data:`MARKERS_REFRESH_S`), in between those that changed.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -34,20 +40,26 @@ from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Bool, ColorRGBA
-from visualization_msgs.msg import ImageMarker
+from std_msgs.msg import Bool, ColorRGBA, Header
+from visualization_msgs.msg import ImageMarker, MarkerArray
 
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
+from allo_mrad_ros.ros.object_messages import object_array, object_markers
+from allo_mrad_ros.ros.object_tracking import ObjectsUpdate
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.visualise import outline
 
 OVERLAY_COLOUR = (255, 40, 40)
 REGION_COLOUR = ColorRGBA(r=1.0, g=0.16, b=0.16, a=1.0)
 REGION_LINE_WIDTH = 2.0
+# ~/objects/markers sends every object's markers at most this often (a viewer that joins
+# sees them all within it), and in the frames between only the objects that changed:
+# building a Marker costs about 0.1 ms, and a hundred tentative objects are not rare.
+MARKERS_REFRESH_S = 1.0
 # class_id of every detection hypothesis.
 ANOMALY_CLASS = "anomaly"
 
@@ -143,10 +155,14 @@ class Outputs:
         *,
         overriding: Callable[[], QoSOverridingOptions] = QoSOverridingOptions.with_default_policies,
         event_callbacks: Any | None = None,
+        station_mesh: str = "",
     ) -> None:
         """``event_callbacks``: rclpy's ``PublisherEventCallbacks`` given to every publisher
-        (the node's matched event, which subscribes its inputs), or None."""
+        (the node's matched event, which subscribes its inputs), or None. ``station_mesh``:
+        the URI of the station model drawn with ``~/objects/markers`` (empty: none)."""
         self._node = node
+        self._station_mesh = station_mesh
+        self._markers_refreshed: float | None = None  # monotonic s of the last full set
 
         def publisher(kind: type, topic: str, depth: int):
             return node.create_publisher(
@@ -174,6 +190,19 @@ class Outputs:
             if self._vision is None
             else publisher(self._vision.Detection2DArray, interface.DETECTIONS_OUTPUT, 10)
         )
+        self.objects = (
+            None
+            if self._vision is None
+            else publisher(self._vision.Detection3DArray, interface.OBJECTS_OUTPUT, 10)
+        )
+        self.object_markers = publisher(MarkerArray, interface.OBJECT_MARKERS_OUTPUT, 10)
+
+    def objects_wanted(self) -> bool:
+        """Whether ``~/objects`` or ``~/objects/markers`` has a subscriber."""
+        return bool(
+            self.object_markers.get_subscription_count()
+            or (self.objects is not None and self.objects.get_subscription_count())
+        )
 
     def wanted(self, config: NodeConfig) -> bool:
         """Whether any output has a subscriber (if not, a frame need not be processed);
@@ -189,6 +218,8 @@ class Outputs:
         ]
         if self.detections is not None:
             always.append(self.detections)
+        if self.objects_wanted():
+            return True
         if any(p.get_subscription_count() for p in always):
             return True
         if config.publish_reference and (
@@ -212,6 +243,7 @@ class Outputs:
         reference_camera: CameraIntrinsics | None = None,
         camera_info: Any | None = None,
         score_map: bool = True,
+        objects: ObjectsUpdate | None = None,
     ) -> None:
         """Build and publish every subscribed output with the input image's ``header``.
 
@@ -223,7 +255,10 @@ class Outputs:
         rendered for (None: no ``~/reference/camera_info``). ``camera_info``: the image's
         ``sensor_msgs/CameraInfo`` (None: unknown, so no ``~/score/camera_info``).
         ``score_map`` False: the frame's score is not the ranking map (no one subscribed
-        when it was detected), so ``~/score`` is left out for this frame.
+        when it was detected), so ``~/score`` is left out for this frame. ``objects``: the
+        object tracker's result for this frame (None: not tracked), published on
+        ``~/objects`` and ``~/objects/markers`` in ``config.station_frame``; with
+        ``decision: objects`` it is what ``~/anomaly`` says (an untracked frame has no flag).
         """
         result = frame.primary
         fill = messages.fill_image
@@ -232,7 +267,13 @@ class Outputs:
         if self.mask.get_subscription_count():
             self.mask.publish(fill(Image(), header, result.mask, interface.MONO8))
         self._publish_info(self.mask_info, header, camera_info, image.shape, result.mask.shape)
-        self.anomaly.publish(Bool(data=bool(result.anomalous)))
+        if config.decision == "objects":
+            if objects is not None:
+                self.anomaly.publish(Bool(data=objects.anomalous))
+        else:
+            self.anomaly.publish(Bool(data=bool(result.anomalous)))
+        if objects is not None:
+            self._publish_objects(header, objects, config.station_frame)
         # The map as the detector made it: upscaling it is a 1080p float32 resize and 16 times
         # the bytes to send, worth it only to a consumer that asked for it.
         score = result.score if config.score_full_resolution else result.work_score
@@ -268,6 +309,32 @@ class Outputs:
                 self.overlay.publish(fill(Image(), header, overlay, interface.RGB8))
             shape = _overlay_shape(image, result, config.overlay_full_resolution)
             self._publish_info(self.overlay_info, header, camera_info, image.shape, shape)
+
+    def _publish_objects(self, header: Any, objects: ObjectsUpdate, station_frame: str) -> None:
+        """``~/objects`` and ``~/objects/markers``, to subscribers, in the station frame with
+        the image's stamp."""
+        wanted = self.objects is not None and self.objects.get_subscription_count()
+        markers = self.object_markers.get_subscription_count()
+        if not (wanted or markers):
+            return
+        station = Header(stamp=header.stamp, frame_id=station_frame)
+        if wanted:
+            self.objects.publish(object_array(self._vision, station, objects.objects))
+        if markers:
+            now = time.monotonic()
+            full = self._markers_refreshed is None or now - self._markers_refreshed >= (
+                MARKERS_REFRESH_S
+            )
+            if full:
+                self._markers_refreshed = now
+            array = object_markers(
+                station,
+                objects.objects,
+                station_mesh=self._station_mesh if full else "",
+                changed_only=not full,
+            )
+            if array.markers:
+                self.object_markers.publish(array)
 
     @staticmethod
     def _publish_info(

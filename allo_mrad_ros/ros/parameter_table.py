@@ -10,8 +10,9 @@ description is changed in one place and copied nowhere by hand::
     python -m allo_mrad_ros.ros.parameter_table --check             # exit 1 if one differs
 
 ``--write`` and ``--check`` work on a source checkout (``--root``, default the current
-folder): ``docs/node.md`` and ``docs/detector.md`` between their ``parameter table`` comment
-lines, and ``config/mrad.yaml`` whole. ``test/ros/test_parameter_table.py`` runs the check.
+folder): ``docs/node.md`` (tables ``node`` and ``objects``) and ``docs/detector.md`` between
+their ``parameter table`` comment lines, and ``config/mrad.yaml`` whole.
+``test/ros/test_parameter_table.py`` runs the check.
 """
 
 from __future__ import annotations
@@ -27,11 +28,21 @@ from typing import Any
 
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec
 from allo_mrad_ros.errors import InvalidInput
-from allo_mrad_ros.ros.parameters import DETECTOR_PREFIX, NODE_TABLE, NodeParameter
+from allo_mrad_ros.ros.parameters import (
+    DETECTOR_PREFIX,
+    NODE_TABLE,
+    OBJECTS_PREFIX,
+    NodeParameter,
+    object_parameters,
+)
 
 COMMAND = "python -m allo_mrad_ros.ros.parameter_table --write"
 # The tables each document holds, and the file that is all generated.
-DOCUMENTS = {"node": Path("docs", "node.md"), "detector": Path("docs", "detector.md")}
+DOCUMENTS = {
+    "node": Path("docs", "node.md"),
+    "objects": Path("docs", "node.md"),
+    "detector": Path("docs", "detector.md"),
+}
 CONFIG = Path("config", "mrad.yaml")
 END_MARKER = "<!-- end of parameter table -->"
 YAML_WIDTH = 100
@@ -110,11 +121,14 @@ def _detector_parameters() -> list[tuple[str, NodeParameter]]:
 
 
 def markdown_table(table: str) -> str:
-    """The Markdown table ``node`` (every node parameter but ``mrad.*``, ROS types) or
-    ``detector`` (every :class:`MradParams` field, Python types)."""
+    """The Markdown table ``node`` (every node parameter but ``mrad.*`` and ``objects.*``,
+    ROS types), ``objects`` (``objects.*``, ROS types) or ``detector`` (every
+    :class:`MradParams` field, Python types)."""
     if table == "node":
         parameters = [(n, p) for section in NODE_TABLE for n, p in section.parameters.items()]
         return "\n".join(_rows(parameters, ROS_TYPES)) + "\n"
+    if table == "objects":
+        return "\n".join(_rows(object_parameters().items(), ROS_TYPES)) + "\n"
     if table == "detector":
         return "\n".join(_rows(_detector_parameters(), PYTHON_TYPES)) + "\n"
     raise ParameterTableError(f"no parameter table {table!r}; choose one of {list(DOCUMENTS)}")
@@ -159,6 +173,13 @@ def yaml_document() -> str:
             lines += _yaml_entry(name, parameter, indent)
     lines += [
         "",
+        f"{indent}# --- Objects in the station frame (docs/objects.md describes the tracker) ---",
+        f"{indent}{OBJECTS_PREFIX.rstrip('.')}:",
+    ]
+    for name, parameter in object_parameters().items():
+        lines += _yaml_entry(name[len(OBJECTS_PREFIX) :], parameter, indent + "  ")
+    lines += [
+        "",
         f'{indent}# --- Detector (docs/detector.md, "Parameters", gives the reasons for each '
         "value) ---",
         f"{indent}{DETECTOR_PREFIX.rstrip('.')}:",
@@ -195,14 +216,15 @@ def expected_files(root: Path) -> dict[Path, str]:
     ParameterTableError
         For a missing document, or one without its table's comment lines.
     """
-    expected = {}
+    expected: dict[Path, str] = {}
     for table, relative in DOCUMENTS.items():
         path = root / relative
-        try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as error:
-            raise ParameterTableError(f"{path}: {error.strerror}") from None
-        expected[path] = with_table(text, table, path)
+        if path not in expected:  # a document may hold several tables
+            try:
+                expected[path] = path.read_text(encoding="utf-8")
+            except OSError as error:
+                raise ParameterTableError(f"{path}: {error.strerror}") from None
+        expected[path] = with_table(expected[path], table, path)
     expected[root / CONFIG] = yaml_document()
     return expected
 

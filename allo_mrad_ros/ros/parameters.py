@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import array
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ from allo_mrad_ros.detector.backends import ARRAY_BACKENDS, DEFAULT_BACKEND, sel
 from allo_mrad_ros.detector.params import PARAMETER_SPECS, MradParams, ParameterSpec, coerce_value
 from allo_mrad_ros.errors import InvalidInput, one_line
 from allo_mrad_ros.geometry import unit_vector
+from allo_mrad_ros.objects import ObjectParams
 from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.render.reuse import ReuseBounds
@@ -33,6 +34,9 @@ from allo_mrad_ros.render.settings import RENDER_BACKENDS
 _REUSE = ReuseBounds()
 
 DETECTOR_PREFIX = "mrad."
+OBJECTS_PREFIX = "objects."
+# How ~/anomaly decides: the detector's verdict on each frame, or confirmed objects in view.
+DECISIONS = ("frame", "objects")
 
 
 class ParameterError(InvalidInput):
@@ -287,6 +291,15 @@ NODE_TABLE: tuple[Section, ...] = (
     Section(
         "Outputs",
         {
+            "decision": NodeParameter(
+                "frame",
+                _choice(
+                    "what ~/anomaly says: frame, the detector's verdict on each image; objects, "
+                    "whether a confirmed object (objects.*) is in view, which runs the object "
+                    "tracker on every frame",
+                    *DECISIONS,
+                ),
+            ),
             "publish_reference": NodeParameter(
                 False, _flag("publish the rendered reference (~/reference, its camera_info)")
             ),
@@ -391,9 +404,38 @@ def detector_parameters() -> dict[str, NodeParameter]:
     }
 
 
+def _object_spec(item: Any) -> ParameterSpec:
+    """The :class:`ParameterSpec` of one :class:`ObjectParams` field (its metadata)."""
+    meta = item.metadata
+    kind = int if item.type in ("int", int) else float
+    return ParameterSpec(
+        kind, meta["description"], kind(meta["low"]), kind(meta["high"]), low_open=meta["low_open"]
+    )
+
+
+# ``objects.enabled``: the tracker's switch; the other ``objects.*`` are ObjectParams' fields.
+OBJECTS_ENABLED = NodeParameter(
+    False,
+    _flag(
+        "track objects on every frame; false: only while ~/objects or ~/objects/markers has a "
+        "subscriber or decision is objects (tracking needs the reference's depth, a read back "
+        "the node otherwise skips)"
+    ),
+)
+
+
+def object_parameters() -> dict[str, NodeParameter]:
+    """``objects.enabled`` and ``objects.<field>`` of :class:`ObjectParams`, its defaults
+    and ranges (the object tracker's own table)."""
+    parameters = {OBJECTS_PREFIX + "enabled": OBJECTS_ENABLED}
+    for item in fields(ObjectParams):
+        parameters[OBJECTS_PREFIX + item.name] = NodeParameter(item.default, _object_spec(item))
+    return parameters
+
+
 def declared_parameters(tf_available: bool) -> dict[str, NodeParameter]:
-    """Every parameter the node declares: its own, then the detector's."""
-    return {**node_parameters(tf_available), **detector_parameters()}
+    """Every parameter the node declares: its own, the object tracker's, the detector's."""
+    return {**node_parameters(tf_available), **object_parameters(), **detector_parameters()}
 
 
 def validate(name: str, parameter: NodeParameter, value: Any) -> Any:
@@ -467,6 +509,26 @@ def detector_params_from(values: Mapping[str, Any]) -> MradParams:
     return MradParams(**fields_)
 
 
+def object_params_from(values: Mapping[str, Any]) -> ObjectParams:
+    """Validated :class:`ObjectParams` from ``objects.*`` parameter values (raises
+    ``ObjectsError``, a ValueError, for values that do not go together)."""
+    return ObjectParams(
+        **{
+            item.name: values[OBJECTS_PREFIX + item.name]
+            for item in fields(ObjectParams)
+            if OBJECTS_PREFIX + item.name in values
+        }
+    )
+
+
+@dataclass(frozen=True)
+class ObjectsConfig:
+    """The ``objects.*`` parameters: whether to track on every frame, and the tracker's."""
+
+    enabled: bool = False
+    params: ObjectParams = field(default_factory=ObjectParams)
+
+
 @dataclass(frozen=True)
 class NodeConfig:
     """The node's validated settings, one immutable snapshot (replaced on a change).
@@ -474,7 +536,7 @@ class NodeConfig:
     Every field is named as its parameter in :data:`NODE_TABLE` (a test checks they match);
     ``pipeline`` gathers ``reference_scale``, ``shadows``, ``render_backend``,
     ``array_backend``, the ``reuse_*`` parameters and the ``mrad.*`` parameters
-    (:func:`pipeline_config_from`).
+    (:func:`pipeline_config_from`); ``objects`` the ``objects.*`` parameters.
     """
 
     pose_source: str
@@ -491,6 +553,7 @@ class NodeConfig:
     max_input_age_s: float
     opencv_threads: int
     keep_freed_memory_mb: int
+    decision: str
     publish_reference: bool
     publish_overlay: bool
     score_full_resolution: bool
@@ -503,6 +566,13 @@ class NodeConfig:
     max_stamp_delay_s: float
     hardware_id: str
     pipeline: PipelineConfig
+    objects: ObjectsConfig = field(default_factory=ObjectsConfig)
+
+    @property
+    def tracks_every_frame(self) -> bool:
+        """Whether the object tracker runs whoever subscribes (``objects.enabled``, or
+        ``decision: objects``, which needs it for ``~/anomaly``)."""
+        return self.objects.enabled or self.decision == "objects"
 
 
 def pipeline_config_from(values: Mapping[str, Any]) -> PipelineConfig:
@@ -548,9 +618,13 @@ def node_config_from(values: Mapping[str, Any]) -> NodeConfig:
     own = {
         item.name: _field_value(specs[item.name], values[item.name])
         for item in fields(NodeConfig)
-        if item.name != "pipeline"
+        if item.name not in ("pipeline", "objects")
     }
-    return NodeConfig(**own, pipeline=pipeline_config_from(values))
+    objects = ObjectsConfig(
+        enabled=bool(values.get(OBJECTS_PREFIX + "enabled", False)),
+        params=object_params_from(values),
+    )
+    return NodeConfig(**own, pipeline=pipeline_config_from(values), objects=objects)
 
 
 def default_values(tf_available: bool) -> dict[str, Any]:

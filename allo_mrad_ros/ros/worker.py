@@ -44,12 +44,14 @@ import numpy as np
 from allo_mrad_ros import interface
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.backends import select_backend
+from allo_mrad_ros.objects import ObjectsError
 from allo_mrad_ros.pipeline import Pipeline, ProcessedFrame
 from allo_mrad_ros.render import RendererError
 from allo_mrad_ros.ros import messages, process_tuning
 from allo_mrad_ros.ros.buffers import HandOver, LatestSlot
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.messages import MessageError
+from allo_mrad_ros.ros.object_tracking import ObjectsUpdate, ObjectTracking
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.staging import HOLD_AT, HOLD_MARKER
 from allo_mrad_ros.view import View
@@ -128,6 +130,12 @@ class RenderedFrame:
     taken: float = 0.0
     render_start: float = 0.0
     render_end: float = 0.0
+    # For the object tracker: the view and stamp (s) rendered, the reference's depth (None:
+    # not rendered, the frame is not tracked) and the settings in force when it was taken.
+    view: View | None = None
+    stamp_s: float = 0.0
+    depth: np.ndarray | None = None
+    config: NodeConfig | None = None
 
 
 class _RunningMean:
@@ -171,6 +179,11 @@ class ProcessingWorker:
     max_input_age_s : callable
         The oldest a frame may be when taken, in seconds (``max_input_age_s`` in force;
         0: no limit); an older one is dropped and counted as ``frames_dropped_too_old``.
+    objects_wanted : callable
+        ``(NodeConfig) -> bool``: whether to track objects in the frame being taken (asked
+        by the render thread, which then renders the reference's depth too; the detect
+        thread tracks after detecting and passes the result to ``publish`` as
+        ``objects=``). Default: never.
     """
 
     def __init__(
@@ -185,6 +198,7 @@ class ProcessingWorker:
         score_wanted: Callable[[], bool] = lambda: True,
         context_ok: Callable[[], bool] = lambda: True,
         max_input_age_s: Callable[[], float] = lambda: 0.0,
+        objects_wanted: Callable[[NodeConfig], bool] = lambda _config: False,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -196,6 +210,9 @@ class ProcessingWorker:
         self._score_wanted = score_wanted
         self._context_ok = context_ok
         self._max_input_age_s = max_input_age_s
+        self._objects_wanted = objects_wanted
+        # Fed by whichever thread detects (one), in the order frames were rendered.
+        self._tracking = ObjectTracking()
         hold = os.environ.get(HOLD_AT)
         self._hold = hold if hold in (HOLD_PUBLISH, HOLD_PUBLISH_STUCK) else None
         self._running = True
@@ -408,7 +425,12 @@ class ProcessingWorker:
                 return None
             start, render_start = time.perf_counter(), time.monotonic()
             provider = pipeline.provider
-            reference = provider.render(view, messages.stamp_to_ns(msg.header.stamp) / 1e9)
+            stamp_s = messages.stamp_to_ns(msg.header.stamp) / 1e9
+            depth = None
+            if self._objects_wanted(state.config):
+                reference, depth = provider.render_with_depth(view, stamp_s)
+            else:
+                reference = provider.render(view, stamp_s)
             render_ms = 1e3 * (time.perf_counter() - start)
             render_end = time.monotonic()
             reused = provider.reuse is not None and provider.reuse.last_decision.reuse
@@ -435,6 +457,10 @@ class ProcessingWorker:
             taken,
             render_start,
             render_end,
+            view=view,
+            stamp_s=stamp_s,
+            depth=depth,
+            config=state.config,
         )
 
     def _detect(self, rendered: RenderedFrame) -> None:
@@ -459,20 +485,60 @@ class ProcessingWorker:
         frame = detected.with_render(
             rendered.render_ms, rendered.pipeline.provider.reference_camera
         )
+        objects = self._track(rendered, frame)
         with self._publishing:
             # Checked under the lock stop() takes: nothing is published once stop() returns.
             if not self._running:
                 return
             if self._hold is not None:
                 self._hold_at_publish()
-            self._publish(rendered.msg, rendered.image, frame, score_map)
+            if objects is None:
+                self._publish(rendered.msg, rendered.image, frame, score_map)
+            else:
+                self._publish(rendered.msg, rendered.image, frame, score_map, objects=objects)
         published = time.monotonic()
-        self._diagnostics.stages.record(
-            frame_timings_ms(rendered, detect_start, detect_end, published)
-        )
+        timings = frame_timings_ms(rendered, detect_start, detect_end, published)
+        if objects is not None:
+            timings["objects"] = objects.tracker_ms  # a part of ``publish``
+        self._diagnostics.stages.record(timings)
         self._diagnostics.count("frames_processed")
-        if frame.primary.anomalous:
+        # The frames ~/anomaly flagged, by the decision in force.
+        if rendered.config is not None and rendered.config.decision == "objects":
+            anomalous = objects is not None and objects.anomalous
+        else:
+            anomalous = frame.primary.anomalous
+        if anomalous:
             self._diagnostics.count("anomalous_frames")
+
+    def _track(self, rendered: RenderedFrame, frame: ProcessedFrame) -> ObjectsUpdate | None:
+        """The object tracker's result for a frame rendered with its depth (None: not
+        tracked, or its input refused and reported). The tracker gets the image's
+        full-resolution camera: the regions' boxes and centroids are in the image's pixels,
+        whatever the detector's processing scale; the depth is at the reference's size."""
+        if rendered.depth is None or rendered.view is None or rendered.config is None:
+            self._tracking.skip()
+            return None
+        result = frame.primary
+        try:
+            update = self._tracking.update(
+                camera=rendered.pipeline.provider.camera,
+                params=rendered.config.objects.params,
+                regions=result.regions,
+                pose=rendered.view.T_station_camera,
+                depth=rendered.depth,
+                stamp=rendered.stamp_s,
+                mask=result.mask,
+            )
+        except ObjectsError as error:
+            self._diagnostics.report(MessageError("objects", f"frame not tracked: {error}"))
+            return None
+        self._diagnostics.set_values(
+            {
+                "objects_tentative": str(update.count("tentative")),
+                "objects_confirmed": str(update.count("confirmed")),
+            }
+        )
+        return update
 
     def _hold_at_publish(self) -> None:
         """The test hooks at publish time: a signal lands there on any machine. Creates the

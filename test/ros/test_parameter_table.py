@@ -27,6 +27,7 @@ from allo_mrad_ros.ros.parameters import (
     default_config,
     default_values,
     node_parameters,
+    object_parameters,
     pipeline_config_from,
 )
 
@@ -94,6 +95,12 @@ def test_the_docs_and_the_config_file_are_what_the_tables_write():
 
 def test_node_md_lists_every_node_parameter_with_its_default_range_and_description():
     check_rows(table_rows(REPO / "docs" / "node.md", "node"), node_parameters(True))
+
+
+def test_node_md_lists_every_objects_parameter_with_its_default_range_and_description():
+    parameters = object_parameters()
+    assert "objects.enabled" in parameters and "objects.confirm_hits" in parameters
+    check_rows(table_rows(REPO / "docs" / "node.md", "objects"), parameters)
 
 
 def test_detector_md_lists_every_mrad_field_with_its_default_range_and_description():
@@ -193,7 +200,7 @@ def test_node_config_has_a_field_of_its_type_for_each_parameter_the_pipeline_doe
     values = Reads(default_values(tf_available=True))
     pipeline_config_from(values)
     for_pipeline = values.read
-    own = {item.name for item in fields(NodeConfig)} - {"pipeline"}
+    own = {item.name for item in fields(NodeConfig)} - {"pipeline", "objects"}
     assert own.isdisjoint(for_pipeline)
     assert own | for_pipeline == set(node_parameters(True))
     hints = get_type_hints(NodeConfig)

@@ -39,6 +39,13 @@ def test_overrides_reach_the_detector(node):
         ("sun_direction", [0.0, 0.0, 0.0], "sun_direction must not be the zero vector"),
         ("sun_strength", -1.0, "sun_strength"),
         ("reference_scale", 0.5, "read-only"),
+        ("decision", "sometimes", "decision must be one of ['frame', 'objects']"),
+        ("objects.pixel_sigma", 0.0, "objects.pixel_sigma must be in (0, 1000]"),
+        ("objects.confirm_hits", 0, "objects.confirm_hits"),
+        ("objects.confirm_window", 2000, "objects.confirm_window"),
+        # Valid alone, not with the default confirm_window (5): the tracker's own rule.
+        ("objects.confirm_hits", 6, "confirm_hits (6) must not exceed confirm_window (5)"),
+        ("objects.max_range", 0.2, "max_range (0.2) must exceed min_range (0.3)"),
     ],
 )
 def test_invalid_changes_are_rejected_with_the_reason_and_the_old_value_stays(
@@ -55,6 +62,36 @@ def test_valid_change_is_applied(node):
     (result,) = node.set_parameters([Parameter("mrad.tolerance", value=75.0)])
     assert result.successful
     assert node._config.pipeline.params.tolerance == 75.0
+
+
+def test_object_tracker_changes_reach_its_params_and_decision_is_applied(node):
+    assert node._config.decision == "frame" and not node._config.tracks_every_frame
+    results = node.set_parameters(
+        [
+            Parameter("objects.confirm_window", value=8),
+            Parameter("objects.confirm_hits", value=6),
+            Parameter("objects.gate_sigma", value=3.0),
+            Parameter("decision", value="objects"),
+        ]
+    )
+    assert all(result.successful for result in results), results
+    params = node._config.objects.params
+    assert (params.confirm_window, params.confirm_hits, params.gate_sigma) == (8, 6, 3.0)
+    assert node._config.decision == "objects" and node._config.tracks_every_frame
+
+
+def test_an_invalid_object_parameter_refuses_to_start():
+    rclpy.init()
+    try:
+        with pytest.raises(ParameterError, match=r"objects\.min_range must be in"):
+            MradDetectorNode(
+                parameter_overrides=[
+                    Parameter("pose_source", value="topic"),
+                    Parameter("objects.min_range", value=-1.0),
+                ]
+            )
+    finally:
+        rclpy.shutdown()
 
 
 def test_tf_requested_without_tf2_refuses_to_start():
