@@ -166,6 +166,49 @@ def _footprint(
     return _Footprint(u, v, surface_range.ravel(), inside)
 
 
+class _FrameRanges:
+    """One frame's surface ranges at the depth's resolution, for many regions: what
+    :func:`_footprint` computes per region (the same values), computed once per frame."""
+
+    __slots__ = ("_mask", "_range", "_reference", "_sx", "_sy")
+
+    def __init__(
+        self,
+        camera: CameraIntrinsics,
+        depth: np.ndarray,
+        reference: CameraIntrinsics,
+        mask: np.ndarray | None,
+    ) -> None:
+        sx, sy = reference.width / camera.width, reference.height / camera.height
+        cols = np.arange(reference.width)
+        rows = np.arange(reference.height)
+        xn = ((cols + 0.5) / sx - 0.5 - camera.cx) / camera.fx
+        yn = ((rows + 0.5) / sy - 0.5 - camera.cy) / camera.fy
+        stretch = np.sqrt((xn * xn)[None, :] + (yn * yn)[:, None] + 1.0)
+        self._range = depth * stretch
+        self._mask = None
+        if mask is not None:
+            ui = np.clip(np.floor((cols + 0.5) / sx).astype(np.int64), 0, camera.width - 1)
+            vi = np.clip(np.floor((rows + 0.5) / sy).astype(np.int64), 0, camera.height - 1)
+            self._mask = mask[np.ix_(vi, ui)] != 0
+        self._sx, self._sy, self._reference = sx, sy, reference
+
+    def surface_range(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """The surface ranges behind the box's depth pixels (under the mask, if any)."""
+        reference, sx, sy = self._reference, self._sx, self._sy
+        x, y, w, h = box
+        c0 = min(max(math.floor(x * sx), 0), reference.width - 1)
+        r0 = min(max(math.floor(y * sy), 0), reference.height - 1)
+        c1 = min(max(math.ceil((x + w) * sx), c0 + 1), reference.width)
+        r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
+        ranges = self._range[r0:r1, c0:c1]
+        if self._mask is not None:
+            inside = self._mask[r0:r1, c0:c1]
+            if inside.any():  # else the region is smaller than a depth pixel: the whole box
+                return ranges[inside]
+        return ranges.ravel()
+
+
 def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
     """The ``quantile`` of the positive ``surface_range`` values (the lower of two order
     statistics, no interpolation), or None where all are space."""
@@ -305,14 +348,14 @@ def observe(
     ``min_score``); ``pose`` and ``depth`` already checked (:func:`checked_pose`,
     :func:`checked_depth`). The interval of each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
+    frame = _FrameRanges(camera, depth, reference, mask)
     kept, low, high, surface, extent, scores, pixels = [], [], [], [], [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
-        footprint = _footprint(region, camera, depth, reference, mask)
-        bound = surface_bound(footprint.surface_range, surface_quantile)
+        bound = surface_bound(frame.surface_range(region.box), surface_quantile)
         kept.append(index)
         low.append(min_range)
         high.append(max_range if bound is None else max(min(bound, max_range), min_range))
