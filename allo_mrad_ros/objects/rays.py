@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -82,11 +83,29 @@ def depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> Came
 
 
 def checked_pose(pose: object) -> np.ndarray:
-    """``pose`` as a float64 rigid 4x4 transform, else :class:`ObjectsError`."""
+    """``pose`` as a float64 rigid 4x4 transform, else :class:`ObjectsError`.
+
+    The checks of :func:`~allo_mrad_ros.geometry.validate_transform`, with its tolerances,
+    in a few array operations (the tracker checks a pose every frame); a pose they refuse
+    goes through ``validate_transform`` for its message."""
+    matrix = np.asarray(pose, dtype=np.float64)
+    if matrix.shape == (4, 4):
+        rotation = matrix[:3, :3]
+        # numpy.allclose(a, b, atol): |a - b| <= atol + 1e-5 |b|
+        row_ok = np.abs(matrix[3] - _LAST_ROW) <= 1e-9 + 1e-5 * _LAST_ROW
+        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= 1e-6 + 1e-5 * _EYE3
+        if np.isfinite(matrix).all() and row_ok.all() and gram_ok.all():
+            determinant = float(np.dot(rotation[0], np.cross(rotation[1], rotation[2])))
+            if determinant >= 0:
+                return matrix
     try:
         return validate_transform(pose, "camera pose")
     except PoseError as error:
         raise ObjectsError(str(error)) from None
+
+
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_EYE3 = np.eye(3)
 
 
 def checked_depth(depth: object) -> np.ndarray:
@@ -166,11 +185,31 @@ def _footprint(
     return _Footprint(u, v, surface_range.ravel(), inside)
 
 
+@lru_cache(maxsize=8)
+def _depth_grid(
+    camera: CameraIntrinsics, reference: CameraIntrinsics
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per depth pixel, the length of its ray per unit z (as :func:`_footprint` computes
+    it), and the image column and row each depth column and row samples the mask at."""
+    sx, sy = reference.width / camera.width, reference.height / camera.height
+    cols = np.arange(reference.width)
+    rows = np.arange(reference.height)
+    xn = ((cols + 0.5) / sx - 0.5 - camera.cx) / camera.fx
+    yn = ((rows + 0.5) / sy - 0.5 - camera.cy) / camera.fy
+    stretch = np.sqrt((xn * xn)[None, :] + (yn * yn)[:, None] + 1.0)
+    ui = np.clip(np.floor((cols + 0.5) / sx).astype(np.int64), 0, camera.width - 1)
+    vi = np.clip(np.floor((rows + 0.5) / sy).astype(np.int64), 0, camera.height - 1)
+    for array in (stretch, ui, vi):
+        array.setflags(write=False)
+    return stretch, ui, vi
+
+
 class _FrameRanges:
     """One frame's surface ranges at the depth's resolution, for many regions: what
-    :func:`_footprint` computes per region (the same values), computed once per frame."""
+    :func:`_footprint` computes per region (the same values), with the per-pixel geometry
+    computed once per camera."""
 
-    __slots__ = ("_mask", "_range", "_reference", "_sx", "_sy")
+    __slots__ = ("_depth", "_mask", "_reference", "_stretch", "_sx", "_sy", "_ui", "_vi")
 
     def __init__(
         self,
@@ -179,19 +218,12 @@ class _FrameRanges:
         reference: CameraIntrinsics,
         mask: np.ndarray | None,
     ) -> None:
-        sx, sy = reference.width / camera.width, reference.height / camera.height
-        cols = np.arange(reference.width)
-        rows = np.arange(reference.height)
-        xn = ((cols + 0.5) / sx - 0.5 - camera.cx) / camera.fx
-        yn = ((rows + 0.5) / sy - 0.5 - camera.cy) / camera.fy
-        stretch = np.sqrt((xn * xn)[None, :] + (yn * yn)[:, None] + 1.0)
-        self._range = depth * stretch
-        self._mask = None
-        if mask is not None:
-            ui = np.clip(np.floor((cols + 0.5) / sx).astype(np.int64), 0, camera.width - 1)
-            vi = np.clip(np.floor((rows + 0.5) / sy).astype(np.int64), 0, camera.height - 1)
-            self._mask = mask[np.ix_(vi, ui)] != 0
-        self._sx, self._sy, self._reference = sx, sy, reference
+        self._stretch, self._ui, self._vi = _depth_grid(camera, reference)
+        self._depth = depth
+        self._mask = mask
+        self._sx = reference.width / camera.width
+        self._sy = reference.height / camera.height
+        self._reference = reference
 
     def surface_range(self, box: tuple[int, int, int, int]) -> np.ndarray:
         """The surface ranges behind the box's depth pixels (under the mask, if any)."""
@@ -201,9 +233,9 @@ class _FrameRanges:
         r0 = min(max(math.floor(y * sy), 0), reference.height - 1)
         c1 = min(max(math.ceil((x + w) * sx), c0 + 1), reference.width)
         r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
-        ranges = self._range[r0:r1, c0:c1]
+        ranges = self._depth[r0:r1, c0:c1] * self._stretch[r0:r1, c0:c1]
         if self._mask is not None:
-            inside = self._mask[r0:r1, c0:c1]
+            inside = self._mask[np.ix_(self._vi[r0:r1], self._ui[c0:c1])] != 0
             if inside.any():  # else the region is smaller than a depth pixel: the whole box
                 return ranges[inside]
         return ranges.ravel()
