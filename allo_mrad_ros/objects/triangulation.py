@@ -201,13 +201,22 @@ def triangulate(rays: RayBatch, *, iterations: int = 3) -> Triangulation:
     weights = np.where(valid, 1.0 / (rays.angular_variance * ranges**2 + rays.extra_variance), 0.0)
     a_rays, _ = _information(weights, c, d, origin_along)
     # Rays-only spread along the anchor: inf where the rays leave it undetermined.
-    values, vectors = np.linalg.eigh(a_rays)
-    floor = _NULL * values.sum(axis=1)
-    share = np.einsum("bi,bik->bk", anchor_d, vectors) ** 2
-    determined = values > floor[:, None]
-    along = np.where(determined, share / np.where(determined, values, 1.0), 0.0).sum(axis=1)
-    # A share of the anchor in an undetermined direction beyond rounding: parallel rays.
-    undetermined = np.where(determined, 0.0, share).sum(axis=1) > 1e-12
+    floor = _NULL * np.trace(a_rays, axis1=1, axis2=2)
+    along = np.zeros(batch)
+    undetermined = np.zeros(batch, dtype=bool)
+    good = _well_posed(a_rays, floor)
+    if good.any():  # every direction determined: d^T A^-1 d
+        inverse_d = np.linalg.solve(a_rays[good], anchor_d[good][..., None])[..., 0]
+        along[good] = np.einsum("bi,bi->b", anchor_d[good], inverse_d)
+    if not good.all():
+        rest = ~good
+        values, vectors = np.linalg.eigh(a_rays[rest])
+        share = np.einsum("bi,bik->bk", anchor_d[rest], vectors) ** 2
+        determined = values > floor[rest][:, None]
+        spread = share / np.where(determined, values, 1.0)
+        along[rest] = np.where(determined, spread, 0.0).sum(axis=1)
+        # A share of the anchor in an undetermined direction beyond rounding: parallel rays.
+        undetermined[rest] = np.where(determined, 0.0, share).sum(axis=1) > 1e-12
     free_sigma = np.where(undetermined, np.inf, np.sqrt(along))
     free_range = np.einsum("bi,bi->b", anchor_d, free - anchor_c)
     # The anchor interval's information: a uniform inverse range, linearised at the estimate.
@@ -230,9 +239,12 @@ def _information(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The rays' normal equations ``A X = b``: ``A = sum w (I - d d^T)`` and
     ``b = sum w (I - d d^T) c`` (matrix products, no per-ray 3x3 projector)."""
-    weighted = weights[..., None] * d  # (B, R, 3)
-    a = weights.sum(axis=1)[:, None, None] * np.eye(3) - weighted.transpose(0, 2, 1) @ d
-    b = (weights[:, None, :] @ c)[:, 0] - (weighted * origin_along[..., None]).sum(axis=1)
+    # Batched matrix products over the rays (numpy's einsum and 3-D sums are slower here).
+    a = (
+        weights.sum(axis=1)[:, None, None] * np.eye(3)
+        - (d.transpose(0, 2, 1) * weights[:, None, :]) @ d
+    )
+    b = (weights[:, None, :] @ c)[:, 0] - ((weights * origin_along)[:, None, :] @ d)[:, 0]
     return a, b
 
 
@@ -256,13 +268,31 @@ def _apply(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     return np.einsum("bij,bj->bi", matrix, vector)
 
 
+def _well_posed(matrix: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """(B,) whether every eigenvalue of each symmetric positive semi-definite 3x3 ``matrix``
+    surely exceeds ``floor``: the least is at least ``4 det / trace^2`` (the other two
+    multiply to at most a quarter of the trace squared); twice the floor leaves room for
+    the determinant's rounding."""
+    trace = np.trace(matrix, axis1=1, axis2=2)
+    return 4.0 * np.linalg.det(matrix) > 2.0 * floor * trace**2
+
+
 def _solve(matrix: np.ndarray, rhs: np.ndarray, floor: np.ndarray) -> np.ndarray:
     """The least-norm solution of symmetric ``matrix x = rhs`` over the eigen-directions
-    whose eigenvalue exceeds ``floor`` (per object): 0 along the undetermined ones."""
-    values, vectors = np.linalg.eigh(matrix)
-    keep = values > floor[:, None]
+    whose eigenvalue exceeds ``floor`` (per object): 0 along the undetermined ones. Where
+    every direction is determined that is the plain solution (LU, cheaper than eigh)."""
+    good = _well_posed(matrix, floor)
+    if good.all():
+        return np.linalg.solve(matrix, rhs[..., None])[..., 0]
+    out = np.empty_like(rhs)
+    if good.any():
+        out[good] = np.linalg.solve(matrix[good], rhs[good][..., None])[..., 0]
+    rest = ~good
+    values, vectors = np.linalg.eigh(matrix[rest])
+    keep = values > floor[rest][:, None]
     inverse = np.where(keep, 1.0 / np.where(keep, values, 1.0), 0.0)
-    return _apply(vectors, inverse * np.einsum("bki,bk->bi", vectors, rhs))
+    out[rest] = _apply(vectors, inverse * np.einsum("bki,bk->bi", vectors, rhs[rest]))
+    return out
 
 
 def _bounded(
