@@ -95,8 +95,8 @@ def checked_pose(pose: object) -> np.ndarray:
         row_ok = np.abs(matrix[3] - _LAST_ROW) <= 1e-9 + 1e-5 * _LAST_ROW
         gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= 1e-6 + 1e-5 * _EYE3
         if np.isfinite(matrix).all() and row_ok.all() and gram_ok.all():
-            determinant = float(np.dot(rotation[0], np.cross(rotation[1], rotation[2])))
-            if determinant >= 0:
+            (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
+            if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0:
                 return matrix
     try:
         return validate_transform(pose, "camera pose")
@@ -108,15 +108,21 @@ _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EYE3 = np.eye(3)
 
 
-def checked_depth(depth: object) -> np.ndarray:
-    """``depth`` as a 2-D float array with space (0, negative or not finite) set to 0."""
+def depth_array(depth: object) -> np.ndarray:
+    """``depth`` as a non-empty 2-D float32 array, its values as given (what reads it
+    treats 0, negative or not finite values as space), else :class:`ObjectsError`."""
     array = np.asarray(depth)
     if array.ndim != 2 or array.size == 0 or not np.issubdtype(array.dtype, np.number):
         raise ObjectsError(
             f"depth must be a non-empty 2-D array of numbers, got shape {array.shape} "
             f"and dtype {array.dtype}"
         )
-    array = array.astype(np.float32, copy=False)
+    return array.astype(np.float32, copy=False)
+
+
+def checked_depth(depth: object) -> np.ndarray:
+    """``depth`` as a 2-D float array with space (0, negative or not finite) set to 0."""
+    array = depth_array(depth)
     surface = np.isfinite(array) & (array > 0)
     return array if surface.all() else np.where(surface, array, np.float32(0.0))
 
@@ -244,7 +250,8 @@ class _FrameRanges:
 def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
     """The ``quantile`` of the positive ``surface_range`` values (the lower of two order
     statistics, no interpolation), or None where all are space."""
-    surface = surface_range[surface_range > 0]
+    # Positive and finite: a depth given unchecked (depth_array) may hold NaN or inf.
+    surface = surface_range[(surface_range > 0) & (surface_range < np.inf)]
     if surface.size == 0:
         return None
     k = min(math.floor(quantile * (surface.size - 1)), surface.size - 1)
@@ -378,7 +385,8 @@ def observe(
 ) -> Observations:
     """The centroid rays and range intervals of ``regions`` (those scoring at least
     ``min_score``); ``pose`` and ``depth`` already checked (:func:`checked_pose`,
-    :func:`checked_depth`). The interval of each is :func:`region_rays`'s."""
+    :func:`depth_array`: values not positive or not finite are space). The interval of
+    each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
     kept, low, high, surface, extent, scores, pixels = [], [], [], [], [], [], []

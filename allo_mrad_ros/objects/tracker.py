@@ -43,8 +43,8 @@ from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.objects.params import ObjectParams, ObjectsError
 from allo_mrad_ros.objects.rays import (
     Observations,
-    checked_depth,
     checked_pose,
+    depth_array,
     depth_camera,
     observe,
 )
@@ -261,7 +261,8 @@ class ObjectTracker:
             raise ObjectsError(f"stamp must be a finite number of seconds, got {stamp!r}")
         stamp = float(stamp)
         pose = checked_pose(pose)
-        depth = checked_depth(depth)
+        # Not cleaned: what reads the depth takes 0, negative and non-finite as space.
+        depth = depth_array(depth)
         reference = depth_camera(self.camera, depth.shape)
         if mask is not None and np.shape(mask) != (self.camera.height, self.camera.width):
             raise ObjectsError(

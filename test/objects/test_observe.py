@@ -41,3 +41,36 @@ def test_observe_gives_each_region_the_interval_region_rays_gives_it(seed, with_
         assert seen.high[j] == one.max_range and seen.low[j] == one.min_range
         assert bool(seen.over_surface[j]) == one.over_surface
         np.testing.assert_allclose(seen.directions[j], one.centre, atol=1e-12)
+
+
+def test_the_tracker_takes_nan_inf_and_negative_depth_as_space_as_a_cleaned_depth():
+    from objects_scene import sweep
+
+    from allo_mrad_ros.objects import ObjectParams, ObjectTracker
+    from allo_mrad_ros.objects.rays import checked_depth
+
+    rng = np.random.default_rng(3)
+    dirty = rng.uniform(2.0, 12.0, DEPTH_SHAPE).astype(np.float32)
+    marks = rng.random(DEPTH_SHAPE)
+    dirty[marks < 0.2] = np.nan
+    dirty[(marks >= 0.2) & (marks < 0.4)] = np.inf
+    dirty[(marks >= 0.4) & (marks < 0.5)] = -3.0
+    dirty[(marks >= 0.5) & (marks < 0.6)] = 0.0
+    clean = checked_depth(dirty)
+    assert np.isfinite(clean).all() and (clean >= 0).all()
+    points = rng.uniform([-3, -2, -2], [3, 2, 2], (6, 3))
+    trackers = [ObjectTracker(ObjectParams(), CAMERA) for _ in range(2)]
+    for k in range(30):
+        t = k / 10.0
+        pose = sweep(t, speed=1.0)
+        local = (points - pose[:3, 3]) @ pose[:3, :3]
+        uv = local[:, :2] / local[:, 2:] * 500.0 + [319.5, 239.5]
+        regions = [region_at(float(u), float(v), extent=20) for u, v in uv]
+        got = [
+            tracker.update(regions, pose, depth, t)
+            for tracker, depth in zip(trackers, (dirty, clean), strict=True)
+        ]
+        assert len(got[0]) == len(got[1])
+        for a, b in zip(*got, strict=True):
+            assert (a.id, a.state, a.in_view, a.region) == (b.id, b.state, b.in_view, b.region)
+            np.testing.assert_array_equal(a.position, b.position)
