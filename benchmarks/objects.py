@@ -39,7 +39,19 @@ GRID: dict[str, tuple[Any, ...]] = {
     "gate_sigma": (3.0, 5.0),
     "min_region_score": (0.0, 0.3, 0.5),
     "parallax_sigma": (2.0, 4.0),
+    "min_range": (0.3, 1.5),
+    "pixel_sigma": (2.0, 4.0),
 }
+# The grid's fields (``confirm`` sets confirm_hits and confirm_window).
+GRID_FIELDS = (
+    "confirm_hits",
+    "confirm_window",
+    "gate_sigma",
+    "min_region_score",
+    "parallax_sigma",
+    "min_range",
+    "pixel_sigma",
+)
 # The issue's targets: name -> (key, bound, kind).
 TARGETS = {
     "recall >= 0.95": ("recall", 0.95, "min"),
@@ -77,16 +89,9 @@ def rank_key(report: dict[str, Any]) -> tuple[float, ...]:
 def grid_params(base: ObjectParams) -> list[ObjectParams]:
     """Every combination of :data:`GRID` on ``base``."""
     combos = []
-    for (hits, window), gate, score, parallax in itertools.product(*GRID.values()):
-        combos.append(
-            base.replace(
-                confirm_hits=hits,
-                confirm_window=window,
-                gate_sigma=gate,
-                min_region_score=score,
-                parallax_sigma=parallax,
-            )
-        )
+    for (hits, window), *rest in itertools.product(*GRID.values()):
+        changes = dict(zip(list(GRID)[1:], rest, strict=True))
+        combos.append(base.replace(confirm_hits=hits, confirm_window=window, **changes))
     return combos
 
 
@@ -230,11 +235,7 @@ def main(argv: list[str] | None = None) -> None:
     for report in (best_val, test_chosen, val_defaults, test_defaults):
         report["tracker_ms_per_frame"] = tracker_ms
 
-    chosen = {
-        k: getattr(best_params, k)
-        for k in ("confirm_hits", "confirm_window", "gate_sigma", "min_region_score")
-    }
-    chosen["parallax_sigma"] = best_params.parallax_sigma
+    chosen = {k: getattr(best_params, k) for k in GRID_FIELDS}
     print(f"chosen on val ({len(candidates)} parameter sets): {chosen}")
     reports = {
         "val (chosen)": best_val,
@@ -264,16 +265,7 @@ def main(argv: list[str] | None = None) -> None:
         "targets_met_test": met(test_chosen),
         "grid_results": [
             {
-                "params": {
-                    k: getattr(p, k)
-                    for k in (
-                        "confirm_hits",
-                        "confirm_window",
-                        "gate_sigma",
-                        "min_region_score",
-                        "parallax_sigma",
-                    )
-                },
+                "params": {k: getattr(p, k) for k in GRID_FIELDS},
                 **{k: r[k] for k in ("recall", "precision", "error_m_median")},
                 "false_objects_per_min": r["false_objects_per_min"],
                 "normal_frames_flagged_ratio": r["normal_frames_flagged_ratio"],
