@@ -2,7 +2,8 @@
 (``make bench-objects``).
 
 1. Generates the ``objects`` preset (val and test: 9 arm trajectories each, 6 past objects and
-   3 without) into ``--data`` unless it is there (at ``--width`` x ``--height``).
+   3 without, 960x540) into ``--data`` unless it is there (``--width``, ``--height``: another
+   size).
 2. Runs MRAD with the reference's depth on every frame of both splits once
    (:func:`allo_mrad_ros.evaluation.objects.detect_frames`), cached under ``--cache`` (keyed
    by the sequence and the settings), so a second run only tracks.
@@ -103,7 +104,7 @@ def report_of(run: ObjectRun, params: ObjectParams) -> dict[str, Any]:
     return report
 
 
-def ensure_data(path: Path, width: int, height: int, seed: int) -> None:
+def ensure_data(path: Path, width: int | None, height: int | None, seed: int) -> None:
     """Generate the objects preset into ``path`` unless a sequence is there."""
     if (path / "sequence.yaml").is_file():
         return
@@ -118,12 +119,12 @@ def ensure_data(path: Path, width: int, height: int, seed: int) -> None:
         str(seed),
         "--out",
         str(path),
-        "--width",
-        str(width),
-        "--height",
-        str(height),
         "--quiet",
     ]
+    if width is not None:
+        command += ["--width", str(width)]
+    if height is not None:
+        command += ["--height", str(height)]
     print("generating:", " ".join(command[2:]), flush=True)
     subprocess.run(command, check=True)
 
@@ -209,8 +210,8 @@ def group_table(report: dict[str, Any], key: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Objects in the station frame, val and test.")
     parser.add_argument("--data", type=Path, default=Path("data/objects"))
-    parser.add_argument("--width", type=int, default=480, help="when generating (480)")
-    parser.add_argument("--height", type=int, default=270, help="when generating (270)")
+    parser.add_argument("--width", type=int, help="when generating (default the preset's 960)")
+    parser.add_argument("--height", type=int, help="when generating (default the preset's 540)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cache", type=Path, default=Path("data/bench_objects_cache"))
     parser.add_argument("--jobs", type=int, default=1, help="detection worker processes")
