@@ -110,3 +110,29 @@ def test_an_input_without_ground_truth_objects_is_refused(tmp_path):
     root = write_tiny_sequence(tmp_path / "plain")
     with pytest.raises(ObjectEvaluationError, match="no ground-truth objects"):
         detect_frames(open_sequence(root), progress=False)
+
+
+def test_a_bag_of_the_sequence_gives_the_same_trajectories_and_metrics(
+    sequence_root, run, tmp_path
+):
+    from rosbag_tools.bag_source import open_source
+    from rosbag_tools.writer import write_bag
+
+    bag = tmp_path / "bag"
+    write_bag(sequence_root, bag)
+    from_bag = detect_frames(open_source(bag), split="test", progress=False)
+    # The bag has no trajectory column: its trajectories are found from the stamps' gaps,
+    # and must split the frames where the sequence's column does.
+    assert len(from_bag.frames) == len(run.frames)
+
+    def boundaries(frames):
+        return [
+            k for k in range(1, len(frames)) if frames[k].trajectory != frames[k - 1].trajectory
+        ]
+
+    assert boundaries(from_bag.frames) == boundaries(run.frames)
+    assert [f.showing for f in from_bag.frames] == [f.showing for f in run.frames]
+    params = ObjectParams(confirm_hits=2, confirm_window=3, parallax_sigma=0)
+    bag_metrics, _ = score_run(from_bag, params)
+    sequence_metrics, _ = score_run(run, params)
+    assert bag_metrics.as_dict() == sequence_metrics.as_dict()
