@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-node-load bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations cycles-setup bench-detector bench-render bench-node bench-node-load bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark bench-objects bench-tracker param-study station-model clean
 
 setup: $(STAMP)
 
@@ -219,6 +219,15 @@ bench-dark: $(STAMP) data/bench_dark/frames.csv
 
 data/bench_dark/frames.csv: | $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-dark --seed 0 --out data/bench_dark --overwrite
+
+# Objects in the station frame (docs/objects.md): generates data/objects if missing, chooses
+# the tracker's parameters on val, reports val and test; reports/bench_objects.json.
+bench-objects: $(STAMP)
+	$(PY) -m benchmarks.objects --out reports/bench_objects.json
+
+# The object tracker's cost per frame: 20 regions, 50 objects.
+bench-tracker: $(STAMP)
+	$(PY) -m benchmarks.tracker
 
 eval-bench: $(STAMP) data/bench/frames.csv
 	$(PY) -m rosbag_tools evaluate data/bench --out reports/eval_bench --overwrite --jobs 2

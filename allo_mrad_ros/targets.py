@@ -253,6 +253,9 @@ EVALUATION_REPORT = OutputKind(
         "metrics.json",
     ),
 )
+OBJECTS_REPORT = OutputKind(
+    "report", _report(frozenset({"objects.json", "objects.md"}), "objects.json")
+)
 ABLATION_REPORT = OutputKind(
     "report", _report(frozenset({"ablation.json", "ablation.md"}), "ablation.json")
 )

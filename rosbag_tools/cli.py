@@ -29,6 +29,7 @@ from allo_mrad_ros.staging import (
 from allo_mrad_ros.targets import (
     ABLATION_REPORT,
     EVALUATION_REPORT,
+    OBJECTS_REPORT,
     OutputArgumentParser,
     TargetError,
     check_target,
@@ -170,6 +171,20 @@ def _parser() -> argparse.ArgumentParser:
                 help="comma-separated methods (default MRAD,PAD,RXD)",
             )
             sub.add_argument("--overlays", type=int, default=8, help="example frames (default 8)")
+            sub.add_argument(
+                "--objects",
+                action="store_true",
+                help="track MRAD's regions as objects in the station frame and measure them "
+                "against the input's ground-truth objects (docs/evaluation.md, Objects): "
+                "writes objects.json and objects.md",
+            )
+            sub.add_argument(
+                "--object-set",
+                action="append",
+                default=[],
+                metavar="NAME=VALUE",
+                help="an object tracker parameter (docs/objects.md), with --objects; repeatable",
+            )
     return parser
 
 
@@ -245,8 +260,69 @@ def pipeline_config(args: argparse.Namespace, methods: Sequence[str] = ("MRAD",)
         raise CliError(str(error)) from None
 
 
+def object_params(assignments: Sequence[str]) -> object:
+    """The :class:`~allo_mrad_ros.objects.ObjectParams` of ``--object-set name=value``.
+
+    Raises
+    ------
+    CliError
+        For a malformed assignment, an unknown name or a value out of range.
+    """
+    from allo_mrad_ros.objects import ObjectParams
+
+    changes: dict[str, float] = {}
+    for text in assignments:
+        name, sep, value = text.partition("=")
+        if not sep or not name.strip():
+            raise CliError(f"--object-set expects NAME=VALUE, got {text!r}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise CliError(f"--object-set {name.strip()}: not a number: {value!r}") from None
+        changes[name.strip()] = int(number) if number.is_integer() else number
+    try:
+        return ObjectParams().replace(**changes)
+    except ValueError as error:  # ObjectsError
+        raise CliError(str(error)) from None
+
+
+def _evaluate_objects(args: argparse.Namespace) -> str:
+    from allo_mrad_ros.evaluation.objects import (
+        ObjectEvaluationConfig,
+        evaluate_objects,
+        objects_markdown,
+    )
+
+    config = ObjectEvaluationConfig(
+        pipeline=pipeline_config(args, ("MRAD",)),
+        params=object_params(args.object_set),
+        split=args.split,
+        jobs=args.jobs,
+        progress=not args.quiet,
+    )
+    check_target(args.out, OBJECTS_REPORT, overwrite=args.overwrite, inputs=(args.input, args.mesh))
+    result = evaluate_objects(_source(args), config)
+    markdown = objects_markdown(result)
+    with staged_folder(args.out) as staging:
+        (staging / "objects.json").write_text(json.dumps(result.as_dict(), indent=2) + "\n")
+        (staging / "objects.md").write_text(markdown)
+    return f"{markdown.rstrip()}\n\nreport in {args.out}"
+
+
 def _evaluate(args: argparse.Namespace) -> str:
     from allo_mrad_ros.evaluation.evaluate import EvaluationConfig, evaluate
+
+    if args.objects:
+        if args.limit is not None:
+            raise CliError("--limit does not apply with --objects: the tracker needs every frame")
+        if args.use_sequence_references:
+            raise CliError(
+                "--use-sequence-references does not apply with --objects: it needs "
+                "the rendered reference's depth"
+            )
+        return _evaluate_objects(args)
+    if args.object_set:
+        raise CliError("--object-set needs --objects")
     from allo_mrad_ros.evaluation.report import evaluation_markdown, write_evaluation_report
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())

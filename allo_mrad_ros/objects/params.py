@@ -40,7 +40,7 @@ class ObjectParams:
     """
 
     pixel_sigma: float = parameter(
-        2.0, "standard deviation of a region's centroid, pixels", 0.0, 1000.0, low_open=True
+        4.0, "standard deviation of a region's centroid, pixels", 0.0, 1000.0, low_open=True
     )
     extent_sigma_fraction: float = parameter(
         0.1,
@@ -50,7 +50,7 @@ class ObjectParams:
         1.0,
     )
     min_range: float = parameter(
-        0.3, "nearest an object may be to the camera", 0.0, 1e4, low_open=True
+        1.5, "nearest an object may be to the camera", 0.0, 1e4, low_open=True
     )
     max_range: float = parameter(
         50.0,
@@ -75,7 +75,7 @@ class ObjectParams:
         1e3,
     )
     gate_sigma: float = parameter(
-        4.0,
+        3.0,
         "association gate: largest Mahalanobis distance of a region's centroid from an "
         "object's projection",
         0.0,
@@ -104,7 +104,7 @@ class ObjectParams:
     )
     end_misses: int = parameter(5, "K: consecutive in-view misses that end an object", 1, 100000)
     parallax_sigma: float = parameter(
-        3.0,
+        4.0,
         "an object is confirmed only when parallax places it nearer than max_range by this "
         "many standard deviations (of its inverse range); 0 drops the requirement",
         0.0,
@@ -116,7 +116,7 @@ class ObjectParams:
         2.0, "a tentative object not hit for this long ends", 0.0, 1e6, low_open=True
     )
     min_region_score: float = parameter(
-        0.0, "regions scoring below this are ignored (Region.score, 0..1)", 0.0, 1.0
+        0.5, "regions scoring below this are ignored (Region.score, 0..1)", 0.0, 1.0
     )
     max_objects: int = parameter(
         256, "most objects kept; beyond, the stalest tentative objects end", 1, 100000

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -82,22 +83,46 @@ def depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> Came
 
 
 def checked_pose(pose: object) -> np.ndarray:
-    """``pose`` as a float64 rigid 4x4 transform, else :class:`ObjectsError`."""
+    """``pose`` as a float64 rigid 4x4 transform, else :class:`ObjectsError`.
+
+    The checks of :func:`~allo_mrad_ros.geometry.validate_transform`, with its tolerances,
+    in a few array operations (the tracker checks a pose every frame); a pose they refuse
+    goes through ``validate_transform`` for its message."""
+    matrix = np.asarray(pose, dtype=np.float64)
+    if matrix.shape == (4, 4):
+        rotation = matrix[:3, :3]
+        # numpy.allclose(a, b, atol): |a - b| <= atol + 1e-5 |b|
+        row_ok = np.abs(matrix[3] - _LAST_ROW) <= 1e-9 + 1e-5 * _LAST_ROW
+        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= 1e-6 + 1e-5 * _EYE3
+        if np.isfinite(matrix).all() and row_ok.all() and gram_ok.all():
+            (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
+            if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0:
+                return matrix
     try:
         return validate_transform(pose, "camera pose")
     except PoseError as error:
         raise ObjectsError(str(error)) from None
 
 
-def checked_depth(depth: object) -> np.ndarray:
-    """``depth`` as a 2-D float array with space (0, negative or not finite) set to 0."""
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_EYE3 = np.eye(3)
+
+
+def depth_array(depth: object) -> np.ndarray:
+    """``depth`` as a non-empty 2-D float32 array, its values as given (what reads it
+    treats 0, negative or not finite values as space), else :class:`ObjectsError`."""
     array = np.asarray(depth)
     if array.ndim != 2 or array.size == 0 or not np.issubdtype(array.dtype, np.number):
         raise ObjectsError(
             f"depth must be a non-empty 2-D array of numbers, got shape {array.shape} "
             f"and dtype {array.dtype}"
         )
-    array = array.astype(np.float32, copy=False)
+    return array.astype(np.float32, copy=False)
+
+
+def checked_depth(depth: object) -> np.ndarray:
+    """``depth`` as a 2-D float array with space (0, negative or not finite) set to 0."""
+    array = depth_array(depth)
     surface = np.isfinite(array) & (array > 0)
     return array if surface.all() else np.where(surface, array, np.float32(0.0))
 
@@ -166,10 +191,67 @@ def _footprint(
     return _Footprint(u, v, surface_range.ravel(), inside)
 
 
+@lru_cache(maxsize=8)
+def _depth_grid(
+    camera: CameraIntrinsics, reference: CameraIntrinsics
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per depth pixel, the length of its ray per unit z (as :func:`_footprint` computes
+    it), and the image column and row each depth column and row samples the mask at."""
+    sx, sy = reference.width / camera.width, reference.height / camera.height
+    cols = np.arange(reference.width)
+    rows = np.arange(reference.height)
+    xn = ((cols + 0.5) / sx - 0.5 - camera.cx) / camera.fx
+    yn = ((rows + 0.5) / sy - 0.5 - camera.cy) / camera.fy
+    stretch = np.sqrt((xn * xn)[None, :] + (yn * yn)[:, None] + 1.0)
+    ui = np.clip(np.floor((cols + 0.5) / sx).astype(np.int64), 0, camera.width - 1)
+    vi = np.clip(np.floor((rows + 0.5) / sy).astype(np.int64), 0, camera.height - 1)
+    for array in (stretch, ui, vi):
+        array.setflags(write=False)
+    return stretch, ui, vi
+
+
+class _FrameRanges:
+    """One frame's surface ranges at the depth's resolution, for many regions: what
+    :func:`_footprint` computes per region (the same values), with the per-pixel geometry
+    computed once per camera."""
+
+    __slots__ = ("_depth", "_mask", "_reference", "_stretch", "_sx", "_sy", "_ui", "_vi")
+
+    def __init__(
+        self,
+        camera: CameraIntrinsics,
+        depth: np.ndarray,
+        reference: CameraIntrinsics,
+        mask: np.ndarray | None,
+    ) -> None:
+        self._stretch, self._ui, self._vi = _depth_grid(camera, reference)
+        self._depth = depth
+        self._mask = mask
+        self._sx = reference.width / camera.width
+        self._sy = reference.height / camera.height
+        self._reference = reference
+
+    def surface_range(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """The surface ranges behind the box's depth pixels (under the mask, if any)."""
+        reference, sx, sy = self._reference, self._sx, self._sy
+        x, y, w, h = box
+        c0 = min(max(math.floor(x * sx), 0), reference.width - 1)
+        r0 = min(max(math.floor(y * sy), 0), reference.height - 1)
+        c1 = min(max(math.ceil((x + w) * sx), c0 + 1), reference.width)
+        r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
+        ranges = self._depth[r0:r1, c0:c1] * self._stretch[r0:r1, c0:c1]
+        if self._mask is not None:
+            inside = self._mask[np.ix_(self._vi[r0:r1], self._ui[c0:c1])] != 0
+            if inside.any():  # else the region is smaller than a depth pixel: the whole box
+                return ranges[inside]
+        return ranges.ravel()
+
+
 def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
     """The ``quantile`` of the positive ``surface_range`` values (the lower of two order
     statistics, no interpolation), or None where all are space."""
-    surface = surface_range[surface_range > 0]
+    # Positive and finite: a depth given unchecked (depth_array) may hold NaN or inf.
+    surface = surface_range[(surface_range > 0) & (surface_range < np.inf)]
     if surface.size == 0:
         return None
     k = min(math.floor(quantile * (surface.size - 1)), surface.size - 1)
@@ -303,16 +385,17 @@ def observe(
 ) -> Observations:
     """The centroid rays and range intervals of ``regions`` (those scoring at least
     ``min_score``); ``pose`` and ``depth`` already checked (:func:`checked_pose`,
-    :func:`checked_depth`). The interval of each is :func:`region_rays`'s."""
+    :func:`depth_array`: values not positive or not finite are space). The interval of
+    each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
+    frame = _FrameRanges(camera, depth, reference, mask)
     kept, low, high, surface, extent, scores, pixels = [], [], [], [], [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
-        footprint = _footprint(region, camera, depth, reference, mask)
-        bound = surface_bound(footprint.surface_range, surface_quantile)
+        bound = surface_bound(frame.surface_range(region.box), surface_quantile)
         kept.append(index)
         low.append(min_range)
         high.append(max_range if bound is None else max(min(bound, max_range), min_range))

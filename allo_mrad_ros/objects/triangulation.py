@@ -178,37 +178,45 @@ def triangulate(rays: RayBatch, *, iterations: int = 3) -> Triangulation:
     index = np.arange(batch)
     c, d, valid = rays.origins, rays.directions, rays.valid
     low, high = rays.low, rays.high
-    projector = np.eye(3) - d[..., :, None] * d[..., None, :]  # (B, R, 3, 3)
-    projected_origin = np.einsum("brij,brj->bri", projector, c)
+    # d . c of every ray: the projector (I - d d^T) is applied through it, never built.
+    origin_along = np.einsum("brj,brj->br", d, c)
     anchor_d = d[index, rays.anchor]
     anchor_c = c[index, rays.anchor]
     anchor_low, anchor_high = low[index, rays.anchor], high[index, rays.anchor]
     prior_point = anchor_c + anchor_prior_range(anchor_low, anchor_high)[:, None] * anchor_d
     anchor_outer = anchor_d[:, :, None] * anchor_d[:, None, :]
     position = prior_point
-    ranges = _clipped_ranges(position, c, d, low, high)
+    ranges = _clipped_ranges(position, d, origin_along, low, high)
     for _ in range(max(1, iterations)):
         weights = np.where(
             valid, 1.0 / (rays.angular_variance * ranges**2 + rays.extra_variance), 0.0
         )
-        a_rays = np.einsum("br,brij->bij", weights, projector)
-        b_rays = np.einsum("br,bri->bi", weights, projected_origin)
+        a_rays, b_rays = _information(weights, c, d, origin_along)
         floor = _NULL * np.trace(a_rays, axis1=1, axis2=2)
         free = prior_point + _solve(a_rays, b_rays - _apply(a_rays, prior_point), floor)
         position = _bounded(
-            free, prior_point, a_rays, b_rays, floor, weights, c, d, low, high, valid
+            free, prior_point, a_rays, b_rays, floor, weights, d, origin_along, low, high, valid
         )
-        ranges = _clipped_ranges(position, c, d, low, high)
+        ranges = _clipped_ranges(position, d, origin_along, low, high)
     weights = np.where(valid, 1.0 / (rays.angular_variance * ranges**2 + rays.extra_variance), 0.0)
-    a_rays = np.einsum("br,brij->bij", weights, projector)
+    a_rays, _ = _information(weights, c, d, origin_along)
     # Rays-only spread along the anchor: inf where the rays leave it undetermined.
-    values, vectors = np.linalg.eigh(a_rays)
-    floor = _NULL * values.sum(axis=1)
-    share = np.einsum("bi,bik->bk", anchor_d, vectors) ** 2
-    determined = values > floor[:, None]
-    along = np.where(determined, share / np.where(determined, values, 1.0), 0.0).sum(axis=1)
-    # A share of the anchor in an undetermined direction beyond rounding: parallel rays.
-    undetermined = np.where(determined, 0.0, share).sum(axis=1) > 1e-12
+    floor = _NULL * np.trace(a_rays, axis1=1, axis2=2)
+    along = np.zeros(batch)
+    undetermined = np.zeros(batch, dtype=bool)
+    good = _well_posed(a_rays, floor)
+    if good.any():  # every direction determined: d^T A^-1 d
+        inverse_d = np.linalg.solve(a_rays[good], anchor_d[good][..., None])[..., 0]
+        along[good] = np.einsum("bi,bi->b", anchor_d[good], inverse_d)
+    if not good.all():
+        rest = ~good
+        values, vectors = np.linalg.eigh(a_rays[rest])
+        share = np.einsum("bi,bik->bk", anchor_d[rest], vectors) ** 2
+        determined = values > floor[rest][:, None]
+        spread = share / np.where(determined, values, 1.0)
+        along[rest] = np.where(determined, spread, 0.0).sum(axis=1)
+        # A share of the anchor in an undetermined direction beyond rounding: parallel rays.
+        undetermined[rest] = np.where(determined, 0.0, share).sum(axis=1) > 1e-12
     free_sigma = np.where(undetermined, np.inf, np.sqrt(along))
     free_range = np.einsum("bi,bi->b", anchor_d, free - anchor_c)
     # The anchor interval's information: a uniform inverse range, linearised at the estimate.
@@ -226,25 +234,65 @@ def triangulate(rays: RayBatch, *, iterations: int = 3) -> Triangulation:
     )
 
 
+def _information(
+    weights: np.ndarray, c: np.ndarray, d: np.ndarray, origin_along: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rays' normal equations ``A X = b``: ``A = sum w (I - d d^T)`` and
+    ``b = sum w (I - d d^T) c`` (matrix products, no per-ray 3x3 projector)."""
+    # Batched matrix products over the rays (numpy's einsum and 3-D sums are slower here).
+    a = (
+        weights.sum(axis=1)[:, None, None] * np.eye(3)
+        - (d.transpose(0, 2, 1) * weights[:, None, :]) @ d
+    )
+    b = (weights[:, None, :] @ c)[:, 0] - ((weights * origin_along)[:, None, :] @ d)[:, 0]
+    return a, b
+
+
+def _along(position: np.ndarray, d: np.ndarray, origin_along: np.ndarray) -> np.ndarray:
+    """(B, R) the range of each object's ``position`` along each of its rays (unclipped)."""
+    return (d @ position[:, :, None])[..., 0] - origin_along
+
+
 def _clipped_ranges(
-    position: np.ndarray, c: np.ndarray, d: np.ndarray, low: np.ndarray, high: np.ndarray
+    position: np.ndarray,
+    d: np.ndarray,
+    origin_along: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
 ) -> np.ndarray:
     """The range of ``position`` along each ray, within its interval."""
-    along = np.einsum("brj,brj->br", d, position[:, None, :] - c)
-    return np.clip(along, low, high)
+    return np.clip(_along(position, d, origin_along), low, high)
 
 
 def _apply(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     return np.einsum("bij,bj->bi", matrix, vector)
 
 
+def _well_posed(matrix: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """(B,) whether every eigenvalue of each symmetric positive semi-definite 3x3 ``matrix``
+    surely exceeds ``floor``: the least is at least ``4 det / trace^2`` (the other two
+    multiply to at most a quarter of the trace squared); twice the floor leaves room for
+    the determinant's rounding."""
+    trace = np.trace(matrix, axis1=1, axis2=2)
+    return 4.0 * np.linalg.det(matrix) > 2.0 * floor * trace**2
+
+
 def _solve(matrix: np.ndarray, rhs: np.ndarray, floor: np.ndarray) -> np.ndarray:
     """The least-norm solution of symmetric ``matrix x = rhs`` over the eigen-directions
-    whose eigenvalue exceeds ``floor`` (per object): 0 along the undetermined ones."""
-    values, vectors = np.linalg.eigh(matrix)
-    keep = values > floor[:, None]
+    whose eigenvalue exceeds ``floor`` (per object): 0 along the undetermined ones. Where
+    every direction is determined that is the plain solution (LU, cheaper than eigh)."""
+    good = _well_posed(matrix, floor)
+    if good.all():
+        return np.linalg.solve(matrix, rhs[..., None])[..., 0]
+    out = np.empty_like(rhs)
+    if good.any():
+        out[good] = np.linalg.solve(matrix[good], rhs[good][..., None])[..., 0]
+    rest = ~good
+    values, vectors = np.linalg.eigh(matrix[rest])
+    keep = values > floor[rest][:, None]
     inverse = np.where(keep, 1.0 / np.where(keep, values, 1.0), 0.0)
-    return _apply(vectors, inverse * np.einsum("bki,bk->bi", vectors, rhs))
+    out[rest] = _apply(vectors, inverse * np.einsum("bki,bk->bi", vectors, rhs[rest]))
+    return out
 
 
 def _bounded(
@@ -254,8 +302,8 @@ def _bounded(
     b_rays: np.ndarray,
     floor: np.ndarray,
     weights: np.ndarray,
-    c: np.ndarray,
     d: np.ndarray,
+    origin_along: np.ndarray,
     low: np.ndarray,
     high: np.ndarray,
     valid: np.ndarray,
@@ -264,6 +312,10 @@ def _bounded(
     object, the most violated bound becomes a stiff penalty pulling the range onto it, or,
     where none is violated, the active bound the solution presses away from most (the
     optimum lies inside it) is released."""
+    tolerance = 1e-9 * (1.0 + high)
+    along = _along(free, d, origin_along)
+    if not (valid & ((low - along > tolerance) | (along - high > tolerance))).any():
+        return free  # no bound violated: the free solution is the bounded one
     batch = len(free)
     index = np.arange(batch)
     position = free
@@ -271,10 +323,8 @@ def _bounded(
     active = np.zeros_like(valid)
     is_low = np.zeros_like(valid)
     stiffness = _STIFFNESS * weights.max(axis=1)[:, None]
-    tolerance = 1e-9 * (1.0 + high)
-    origin_along = np.einsum("brj,brj->br", d, c)
     for _ in range(_ACTIVE_PASSES):
-        along = np.einsum("brj,brj->br", d, position[:, None, :]) - origin_along
+        along = _along(position, d, origin_along)
         violation = (
             np.where(valid & ~active, np.maximum(low - along, along - high), 0.0) - tolerance
         )
@@ -301,7 +351,7 @@ def _bounded(
     # penalty's aim by what is left (the method of multipliers) closes the gap.
     aim = origin_along + target
     for _ in range(_REFINEMENTS):
-        along = np.einsum("brj,brj->br", d, position[:, None, :]) - origin_along
+        along = _along(position, d, origin_along)
         aim = aim + np.where(active, target - along, 0.0)
         position = _penalised(prior_point, a_rays, b_rays, floor, active, stiffness, d, aim)
     return position
@@ -319,6 +369,6 @@ def _penalised(
 ) -> np.ndarray:
     """The rays' least squares with each active ray's ``d . X`` pulled stiffly to ``aim``."""
     penalty = np.where(active, stiffness, 0.0)
-    a = a_rays + np.einsum("br,bri,brj->bij", penalty, d, d)
-    b = b_rays + np.einsum("br,bri->bi", penalty * aim, d)
+    a = a_rays + (penalty[..., None] * d).transpose(0, 2, 1) @ d
+    b = b_rays + ((penalty * aim)[:, None, :] @ d)[:, 0]
     return prior_point + _solve(a, b - _apply(a, prior_point), floor)

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from objects_scene import CAMERA, SPACE, project, region_at
+from objects_scene import CAMERA, SPACE, project, region_at, scene_params
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
-from allo_mrad_ros.objects import ObjectParams, ObjectsError, ObjectTracker, region_rays
+from allo_mrad_ros.objects import ObjectsError, ObjectTracker, region_rays
 from allo_mrad_ros.render import ReferenceRenderer
 
 POSE = look_at([0.0, -10.0, 0.0], [0.0, 0.0, 0.0])
@@ -96,7 +96,7 @@ def test_visibility_follows_the_renderer_s_depth(cube_depth):
     # Two confirmed objects seen from a sweep in front of the cube, then a frame with the
     # cube's depth and no regions: the one behind the cube is hidden, not missed; the one
     # in front of it is in view and missed.
-    params = ObjectParams(end_misses=1)
+    params = scene_params(end_misses=1)
     tracker = ObjectTracker(params, SMALL)
     behind = np.array([0.2, 3.0, 0.1])  # 13 m away, behind the cube
     front = np.array([-0.3, -5.0, 0.2])  # 5 m away, before it

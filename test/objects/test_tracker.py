@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from objects_scene import CAMERA, SPACE, project, region_at, sweep, wall_depth
+from objects_scene import CAMERA, SPACE, project, region_at, scene_params, sweep, wall_depth
 
 from allo_mrad_ros.objects import ObjectParams, ObjectsError, ObjectTracker
 from allo_mrad_ros.objects.params import parameter_table
@@ -30,7 +30,7 @@ def only(objects):
 
 
 def test_one_view_starts_a_tentative_object_on_the_ray_within_its_interval():
-    tracker = ObjectTracker(ObjectParams(min_range=0.5, max_range=40.0), CAMERA)
+    tracker = ObjectTracker(scene_params(min_range=0.5, max_range=40.0), CAMERA)
     obj = only(seen(tracker, POINT, 0.0))
     assert obj.state == "tentative" and obj.hits == 1 and obj.region == 0
     origin = sweep(0.0)[:3, 3]
@@ -43,7 +43,7 @@ def test_one_view_starts_a_tentative_object_on_the_ray_within_its_interval():
 
 
 def test_an_object_over_surface_starts_in_front_of_it():
-    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    tracker = ObjectTracker(scene_params(), CAMERA)
     obj = only(seen(tracker, POINT, 0.0, depth=wall_depth(4.0)))
     origin = sweep(0.0)[:3, 3]
     # In front of a wall 4 m away along the optical axis (the region is near the centre).
@@ -51,7 +51,7 @@ def test_an_object_over_surface_starts_in_front_of_it():
 
 
 def test_a_static_object_is_triangulated_confirmed_and_keeps_its_id():
-    tracker = ObjectTracker(ObjectParams(confirm_hits=3, confirm_window=5), CAMERA)
+    tracker = ObjectTracker(scene_params(confirm_hits=3, confirm_window=5), CAMERA)
     states = []
     for k in range(20):
         obj = only(seen(tracker, POINT, k / FPS))
@@ -65,7 +65,7 @@ def test_a_static_object_is_triangulated_confirmed_and_keeps_its_id():
 
 
 def test_confirmation_needs_n_hits_in_the_last_m_in_view_frames():
-    params = ObjectParams(confirm_hits=3, confirm_window=4, parallax_sigma=0.0, end_misses=50)
+    params = scene_params(confirm_hits=3, confirm_window=4, parallax_sigma=0.0, end_misses=50)
     tracker = ObjectTracker(params, CAMERA)
     # hit, miss, miss, hit: 2 hits in the last 4; then miss, hit: still 2 of the last 4.
     pattern = [True, False, False, True, False, True]
@@ -78,7 +78,7 @@ def test_confirmation_needs_n_hits_in_the_last_m_in_view_frames():
 
 
 def test_without_enough_parallax_a_tentative_object_is_not_confirmed():
-    params = ObjectParams(confirm_hits=2, confirm_window=2)
+    params = scene_params(confirm_hits=2, confirm_window=2)
     tracker = ObjectTracker(params, CAMERA)
     # A camera that does not move: no parallax, however often it is seen.
     for k in range(10):
@@ -87,7 +87,7 @@ def test_without_enough_parallax_a_tentative_object_is_not_confirmed():
 
 
 def test_an_object_ends_after_k_consecutive_in_view_misses_and_is_reported_once():
-    params = ObjectParams(end_misses=3)
+    params = scene_params(end_misses=3)
     tracker = ObjectTracker(params, CAMERA)
     for k in range(15):
         obj = only(seen(tracker, POINT, k / FPS))
@@ -110,7 +110,7 @@ def test_an_object_ends_after_k_consecutive_in_view_misses_and_is_reported_once(
 
 
 def test_an_object_hidden_behind_the_surface_is_not_missed():
-    params = ObjectParams(end_misses=3)
+    params = scene_params(end_misses=3)
     tracker = ObjectTracker(params, CAMERA)
     for k in range(30):
         seen(tracker, POINT, k / FPS)
@@ -127,7 +127,7 @@ def test_an_object_hidden_behind_the_surface_is_not_missed():
 
 
 def test_an_object_out_of_the_image_is_not_missed():
-    params = ObjectParams(end_misses=2)
+    params = scene_params(end_misses=2)
     tracker = ObjectTracker(params, CAMERA)
     for k in range(15):
         seen(tracker, POINT, k / FPS)
@@ -139,7 +139,7 @@ def test_an_object_out_of_the_image_is_not_missed():
 
 
 def test_a_region_outside_the_gate_starts_a_new_object_one_inside_is_a_hit():
-    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    tracker = ObjectTracker(scene_params(), CAMERA)
     for k in range(15):
         seen(tracker, POINT, k / FPS)
     t = 15 / FPS
@@ -153,7 +153,7 @@ def test_a_region_outside_the_gate_starts_a_new_object_one_inside_is_a_hit():
 
 
 def test_a_region_of_a_very_different_size_is_not_the_same_object():
-    params = ObjectParams(size_ratio_max=3.0)
+    params = scene_params(size_ratio_max=3.0)
     tracker = ObjectTracker(params, CAMERA)
     for k in range(15):
         seen(tracker, POINT, k / FPS, extent=8)
@@ -162,7 +162,7 @@ def test_a_region_of_a_very_different_size_is_not_the_same_object():
 
 
 def test_assignment_is_one_to_one_and_optimal():
-    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    tracker = ObjectTracker(scene_params(), CAMERA)
     other = POINT + np.array([0.15, 0.0, 0.0])  # 7.5 px apart in the image
     for k in range(15):
         t = k / FPS
@@ -183,7 +183,7 @@ def test_a_direction_fixed_in_the_station_frame_is_never_confirmed():
     # The Moon: a region always where one station-frame direction projects, while the
     # camera translates 1 m/s.
     direction = np.array([0.05, 1.0, 0.02]) / np.linalg.norm([0.05, 1.0, 0.02])
-    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    tracker = ObjectTracker(scene_params(), CAMERA)
     for k in range(60):
         t = k / FPS
         pose = sweep(t, speed=1.0)
@@ -196,7 +196,7 @@ def test_a_direction_fixed_in_the_station_frame_is_never_confirmed():
 def test_glare_fixed_in_direction_over_the_surface_is_never_confirmed():
     # A specular highlight on a flat panel: parallel rays, seen over station surface.
     direction = np.array([-0.1, 1.0, 0.05]) / np.linalg.norm([-0.1, 1.0, 0.05])
-    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    tracker = ObjectTracker(scene_params(), CAMERA)
     for k in range(60):
         t = k / FPS
         pose = sweep(t, speed=1.0)
@@ -218,14 +218,14 @@ def test_a_drifting_object_is_followed():
         assert obj.state == "confirmed"
         return np.linalg.norm(obj.position - (POINT + velocity * t))
 
-    followed = final_error(ObjectParams(drift_speed=0.05, max_rays=128))
-    static = final_error(ObjectParams(drift_speed=0.0, max_rays=128))
+    followed = final_error(scene_params(drift_speed=0.05, max_rays=128))
+    static = final_error(scene_params(drift_speed=0.0, max_rays=128))
     assert followed < 0.25
     assert static > 1.5 * followed
 
 
 def test_a_stamp_earlier_than_the_last_ends_every_object():
-    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    tracker = ObjectTracker(scene_params(), CAMERA)
     for k in range(5):
         seen(tracker, POINT, 10.0 + k / FPS)
     objects = seen(tracker, POINT, 0.0)
@@ -233,7 +233,7 @@ def test_a_stamp_earlier_than_the_last_ends_every_object():
 
 
 def test_a_tentative_object_not_seen_for_its_timeout_ends():
-    tracker = ObjectTracker(ObjectParams(tentative_timeout_s=1.0), CAMERA)
+    tracker = ObjectTracker(scene_params(tentative_timeout_s=1.0), CAMERA)
     seen(tracker, POINT, 0.0)
     away = sweep(1.5, look=(0.0, -1.0, 0.0))
     assert only(tracker.update([], away, SPACE, 0.5)).state == "tentative"
@@ -242,7 +242,7 @@ def test_a_tentative_object_not_seen_for_its_timeout_ends():
 
 
 def test_no_more_objects_than_allowed_are_kept():
-    tracker = ObjectTracker(ObjectParams(max_objects=3), CAMERA)
+    tracker = ObjectTracker(scene_params(max_objects=3), CAMERA)
     pose = sweep(0.0)
     regions = [region_at(100.0 + 60.0 * i, 200.0) for i in range(5)]
     objects = tracker.update(regions, pose, SPACE, 0.0)
@@ -251,7 +251,7 @@ def test_no_more_objects_than_allowed_are_kept():
 
 
 def test_regions_below_the_score_floor_are_ignored():
-    tracker = ObjectTracker(ObjectParams(min_region_score=0.5), CAMERA)
+    tracker = ObjectTracker(scene_params(min_region_score=0.5), CAMERA)
     pose = sweep(0.0)
     assert tracker.update([region_at(320.0, 240.0, score=0.4)], pose, SPACE, 0.0) == ()
 

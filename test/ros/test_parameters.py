@@ -4,6 +4,7 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
+from allo_mrad_ros.objects import ObjectParams
 from allo_mrad_ros.ros.node import MradDetectorNode
 from allo_mrad_ros.ros.parameters import ParameterError
 
@@ -45,7 +46,11 @@ def test_overrides_reach_the_detector(node):
         ("objects.confirm_window", 2000, "objects.confirm_window"),
         # Valid alone, not with the default confirm_window (5): the tracker's own rule.
         ("objects.confirm_hits", 6, "confirm_hits (6) must not exceed confirm_window (5)"),
-        ("objects.max_range", 0.2, "max_range (0.2) must exceed min_range (0.3)"),
+        (
+            "objects.max_range",
+            0.2,
+            f"max_range (0.2) must exceed min_range ({ObjectParams().min_range:g})",
+        ),
     ],
 )
 def test_invalid_changes_are_rejected_with_the_reason_and_the_old_value_stays(

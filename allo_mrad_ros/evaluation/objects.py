@@ -1,0 +1,415 @@
+"""Objects evaluation (``allo-bag evaluate --objects``): MRAD with the reference's depth over a
+sequence or bag, the object tracker fed per trajectory in frame order, and the metrics of
+:mod:`.object_metrics`.
+
+The run has two halves so that tracker parameters can be chosen without running the detector
+again: :func:`detect_frames` renders and detects every frame once (in ``jobs`` processes)
+and keeps what the tracker and the metrics need (:class:`ObjectFrame`, a few kilobytes a
+frame); :func:`track` feeds those frames to an
+:class:`~allo_mrad_ros.objects.ObjectTracker`, reset at each new trajectory.
+
+A frame's trajectory is the sequence's ``trajectory`` column where there is one; otherwise
+(bags, sequences without the column) a new trajectory starts where the stamps go back or
+jump by more than three times the median frame period.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from typing import Any
+
+import numpy as np
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector.regions import Region
+from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.evaluation.evaluate import (
+    WorkerSetup,
+    check_run_options,
+    release_worker_state,
+    start_worker,
+    worker_pipeline,
+)
+from allo_mrad_ros.evaluation.object_metrics import (
+    ConfirmedSample,
+    FrameTruth,
+    MatchRules,
+    ObjectMetrics,
+    object_metrics,
+)
+from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
+from allo_mrad_ros.evaluation.sources import (
+    EvalFrame,
+    FrameSource,
+    SequenceSource,
+    open_sequence,
+)
+from allo_mrad_ros.objects import ObjectParams, ObjectTracker
+from allo_mrad_ros.pipeline import PipelineConfig
+from allo_mrad_ros.sequence import GroundTruthObject
+
+# A stamp step beyond this many median frame periods starts a new trajectory (no column).
+_GAP_PERIODS = 3.0
+
+
+class ObjectEvaluationError(InvalidInput):
+    """The objects evaluation cannot run: an input without ground-truth objects, a bad
+    option, or a frame that failed (the message names it)."""
+
+
+@dataclass(frozen=True)
+class ObjectFrame:
+    """What the tracker and the metrics need of one detected frame (picklable, small).
+
+    ``mask_pixels`` are the flat indices of the detection mask's set pixels (the mask is
+    rebuilt for the tracker); ``depth`` the reference's z depth; ``showing`` the ids of the
+    ground-truth objects with pixels in the frame; ``frame_flagged`` the detector's verdict.
+    """
+
+    index: int
+    split: str
+    stamp_ns: int
+    pose: np.ndarray
+    regions: tuple[Region, ...]
+    depth: np.ndarray
+    mask_pixels: np.ndarray
+    frame_flagged: bool
+    showing: frozenset[int]
+    detect_ms: float
+    trajectory: str = ""
+
+
+@dataclass
+class ObjectRun:
+    """Every detected frame of a run, in input order, with the camera and the objects."""
+
+    name: str
+    camera: CameraIntrinsics
+    objects: tuple[GroundTruthObject, ...]
+    frames: list[ObjectFrame]
+    wall_s: float = 0.0
+
+    def split(self, name: str) -> ObjectRun:
+        """The frames of split ``name`` only."""
+        frames = [f for f in self.frames if f.split == name]
+        return ObjectRun(self.name, self.camera, self.objects, frames, self.wall_s)
+
+    @property
+    def splits(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(f.split for f in self.frames))
+
+
+@dataclass(frozen=True)
+class ObjectEvaluationConfig:
+    """Options of :func:`evaluate_objects`.
+
+    ``pipeline``: render settings and detector parameters (the first method's regions are
+    tracked); ``params``: the tracker's; ``split``: the split (None: ``test`` if present,
+    else every frame); ``jobs``: detection worker processes; ``rules``: the matching rules.
+    """
+
+    pipeline: PipelineConfig = field(default_factory=lambda: PipelineConfig(methods=("MRAD",)))
+    params: ObjectParams = field(default_factory=ObjectParams)
+    split: str | None = None
+    jobs: int = 1
+    progress: bool = True
+    rules: MatchRules = field(default_factory=MatchRules)
+
+    def __post_init__(self) -> None:
+        try:
+            check_run_options(self.jobs, None)
+        except InvalidInput as error:
+            raise ObjectEvaluationError(str(error)) from None
+
+
+@dataclass
+class ObjectEvaluation:
+    """The result of :func:`evaluate_objects`."""
+
+    input: str
+    name: str
+    split: str | None
+    frames: int
+    params: ObjectParams
+    metrics: ObjectMetrics
+    tracker_ms: list[float]
+    detect_ms: list[float]
+    wall_s: float
+
+    def as_dict(self) -> dict[str, Any]:
+        """The report: metrics, timings, the tracker's parameters."""
+        return {
+            "input": self.input,
+            "name": self.name,
+            "split": self.split,
+            **self.metrics.as_dict(),
+            "tracker_ms_per_frame": _median(self.tracker_ms),
+            "detect_ms_per_frame": _median(self.detect_ms),
+            "params": dict(vars(self.params)),
+        }
+
+
+def _median(values: Sequence[float]) -> float | None:
+    return float(np.median(values)) if len(values) else None
+
+
+# ----------------------------------------------------------------- detection
+def _detect_frame(frame: EvalFrame) -> ObjectFrame:
+    try:
+        processed = worker_pipeline().process(
+            frame.image, frame.view, time_s=frame.stamp_ns / 1e9, depth=True
+        )
+    except (ValueError, RuntimeError) as error:
+        raise ObjectEvaluationError(f"frame {frame.name} (index {frame.index}): {error}") from None
+    result = processed.primary
+    showing = frozenset()
+    if frame.instances is not None:
+        showing = frozenset(int(v) for v in np.unique(frame.instances) if v)
+    depth = processed.reference_depth
+    assert depth is not None  # asked for with depth=True
+    return ObjectFrame(
+        index=frame.index,
+        split=frame.split,
+        stamp_ns=frame.stamp_ns,
+        pose=np.asarray(frame.view.T_station_camera, dtype=np.float64),
+        regions=tuple(result.regions),
+        depth=np.asarray(depth, dtype=np.float32),
+        mask_pixels=np.flatnonzero(result.mask).astype(np.int32),
+        frame_flagged=bool(result.anomalous),
+        showing=showing,
+        detect_ms=float(processed.timings_ms.get("total", 0.0)),
+    )
+
+
+def trajectory_keys(
+    source: FrameSource, indices: Sequence[int], stamps_ns: Sequence[int]
+) -> list[str]:
+    """The trajectory of each frame: the sequence's ``trajectory`` column, else segments of
+    the stamps (see the module text); prefixed with the split."""
+    splits = {h.index: h.split for h in source.headers}
+    if isinstance(source, SequenceSource):
+        rows = [source.sequence.frames[i].extra.get("trajectory", "") for i in indices]
+        if all(rows):
+            return [f"{splits[i]}/{row}" for i, row in zip(indices, rows, strict=True)]
+    keys: list[str] = []
+    steps = np.diff(np.asarray(stamps_ns, dtype=np.int64))
+    period = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    segment = 0
+    for k, index in enumerate(indices):
+        if k and (
+            steps[k - 1] <= 0
+            or (period > 0 and steps[k - 1] > _GAP_PERIODS * period)
+            or splits[index] != splits[indices[k - 1]]
+        ):
+            segment += 1
+        keys.append(f"{splits[index]}/{segment}")
+    return keys
+
+
+def detect_frames(
+    source: FrameSource | str | PathLike[str],
+    *,
+    pipeline: PipelineConfig | None = None,
+    split: str | None = None,
+    jobs: int = 1,
+    progress: bool = True,
+) -> ObjectRun:
+    """Render (with depth) and detect every frame of ``split`` (None: every frame) once.
+
+    Raises
+    ------
+    ObjectEvaluationError
+        For an input without ground-truth objects, or a frame that failed.
+    """
+    if not isinstance(source, FrameSource):
+        source = open_sequence(source)
+    if not source.objects:
+        raise ObjectEvaluationError(
+            f"{source.path}: no ground-truth objects table (a sequence of format version 2, "
+            "e.g. allo-synth generate --preset objects, or its bag)"
+        )
+    pipeline = pipeline or PipelineConfig(methods=("MRAD",))
+    check_run_options(jobs, None)
+    indices = source.select(split)
+    setup = WorkerSetup(source.mesh, source.camera, pipeline)
+    clock = RunClock()
+    frames = list(
+        run_frames(
+            source.frames(indices),
+            len(indices),
+            initializer=start_worker,
+            initargs=(setup,),
+            work=_detect_frame,
+            jobs=jobs,
+            progress=progress,
+            desc="objects",
+            clock=clock,
+        )
+    )
+    if jobs == 1:
+        release_worker_state()
+    keys = trajectory_keys(source, indices, [f.stamp_ns for f in frames])
+    frames = [_with_trajectory(f, k) for f, k in zip(frames, keys, strict=True)]
+    return ObjectRun(source.name, source.camera, source.objects, frames, clock.seconds)
+
+
+def _with_trajectory(frame: ObjectFrame, key: str) -> ObjectFrame:
+    return ObjectFrame(**{**vars(frame), "trajectory": key})
+
+
+# ----------------------------------------------------------------- tracking
+def _masks(run: ObjectRun) -> Iterator[np.ndarray]:
+    """Each frame's detection mask, rebuilt in one buffer (reused: read before the next)."""
+    camera = run.camera
+    mask = np.zeros(camera.height * camera.width, dtype=np.uint8)
+    previous: np.ndarray | None = None
+    for frame in run.frames:
+        if previous is not None:
+            mask[previous] = 0
+        mask[frame.mask_pixels] = 255
+        previous = frame.mask_pixels
+        yield mask.reshape(camera.height, camera.width)
+
+
+def track(run: ObjectRun, params: ObjectParams) -> tuple[list[list[ConfirmedSample]], list[float]]:
+    """Feed ``run``'s frames to a tracker, reset at each new trajectory.
+
+    Returns
+    -------
+    confirmed : list of list of ConfirmedSample
+        Per frame, the confirmed objects after it.
+    milliseconds : list of float
+        The tracker's time per frame (``ObjectTracker.update`` alone).
+    """
+    tracker = ObjectTracker(params, run.camera)
+    confirmed: list[list[ConfirmedSample]] = []
+    timings: list[float] = []
+    current: str | None = None
+    for frame, mask in zip(run.frames, _masks(run), strict=True):
+        if frame.trajectory != current:
+            tracker.reset()
+            current = frame.trajectory
+        start = time.perf_counter()
+        objects = tracker.update(
+            frame.regions, frame.pose, frame.depth, frame.stamp_ns * 1e-9, mask=mask
+        )
+        timings.append(1e3 * (time.perf_counter() - start))
+        confirmed.append(
+            [
+                ConfirmedSample(o.id, o.position, o.in_view)
+                for o in objects
+                if o.state == "confirmed"
+            ]
+        )
+    return confirmed, timings
+
+
+def truths(run: ObjectRun) -> list[FrameTruth]:
+    """The :class:`FrameTruth` of every frame of ``run``."""
+    return [
+        FrameTruth(f.trajectory, f.stamp_ns, f.pose[:3, 3], f.showing, f.frame_flagged)
+        for f in run.frames
+    ]
+
+
+def score_run(
+    run: ObjectRun, params: ObjectParams, rules: MatchRules | None = None
+) -> tuple[ObjectMetrics, list[float]]:
+    """Track ``run`` with ``params`` and measure it; also the tracker's ms per frame."""
+    confirmed, timings = track(run, params)
+    return object_metrics(truths(run), confirmed, run.objects, rules=rules), timings
+
+
+def evaluate_objects(
+    source: FrameSource | str | PathLike[str],
+    config: ObjectEvaluationConfig | None = None,
+) -> ObjectEvaluation:
+    """Detect every frame of a split, track the objects, measure them (module text)."""
+    config = config or ObjectEvaluationConfig()
+    if not isinstance(source, FrameSource):
+        source = open_sequence(source)
+    split = config.split if config.split is not None else source.default_split()
+    start = time.perf_counter()
+    run = detect_frames(
+        source, pipeline=config.pipeline, split=split, jobs=config.jobs, progress=config.progress
+    )
+    metrics, timings = score_run(run, config.params, config.rules)
+    return ObjectEvaluation(
+        input=str(source.path),
+        name=source.name,
+        split=split,
+        frames=len(run.frames),
+        params=config.params,
+        metrics=metrics,
+        tracker_ms=timings,
+        detect_ms=[f.detect_ms for f in run.frames],
+        wall_s=time.perf_counter() - start,
+    )
+
+
+def objects_markdown(result: ObjectEvaluation) -> str:
+    """The metrics as Markdown tables: summary, both decisions, per type and placement."""
+    data = result.as_dict()
+
+    def fmt(value: object, digits: int = 3) -> str:
+        if value is None:
+            return "-"
+        if isinstance(value, float):
+            return f"{value:.{digits}f}"
+        return str(value)
+
+    frame = data["frame_level"]
+    lines = [
+        f"# Objects: {result.name} ({result.split or 'all'}, {result.frames} frames)",
+        "",
+        "| metric | value |",
+        "|---|---:|",
+    ]
+    for key in (
+        "recall",
+        "precision",
+        "error_m_median",
+        "error_m_p90",
+        "confirmation_s_median",
+        "false_objects_per_min",
+        "normal_frames_flagged_ratio",
+        "objects",
+        "confirmed",
+        "true_confirmed",
+        "false_objects_anomaly_free",
+        "anomaly_free_minutes",
+        "tracker_ms_per_frame",
+    ):
+        lines.append(f"| {key} | {fmt(data[key])} |")
+    lines += [
+        "",
+        f"Frames: {frame['positive_frames']} with an object showing, "
+        f"{frame['normal_frames']} normal.",
+        "",
+        "| decision | frame recall | false-alarm rate | normal frames flagged |",
+        "|---|---:|---:|---:|",
+    ]
+    for name in ("objects", "frame"):
+        row = frame[name]
+        lines.append(
+            f"| {name} | {fmt(row['recall'])} | {fmt(row['false_alarm_rate'])} | "
+            f"{row['normal_flagged']} |"
+        )
+    for title, key in (("type", "per_type"), ("placement", "per_placement")):
+        lines += [
+            "",
+            f"| {title} | objects | recall | error median | error p90 | confirmation s | "
+            "frame recall (objects) | frame recall (frame) |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        for label, row in data[key].items():
+            lines.append(
+                f"| {label} | {row['objects']} | {fmt(row['recall'])} | "
+                f"{fmt(row['error_m_median'])} | {fmt(row['error_m_p90'])} | "
+                f"{fmt(row['confirmation_s_median'])} | {fmt(row['frame_recall_objects'])} | "
+                f"{fmt(row['frame_recall_frame'])} |"
+            )
+    return "\n".join(lines) + "\n"
