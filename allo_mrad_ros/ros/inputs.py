@@ -330,6 +330,27 @@ class NodeInputs:
                 problem,
             )
 
+    def size_refusal(self, msg: Image | CompressedImage) -> MessageError | None:
+        """Why ``msg`` would be refused for its size, told without waiting or decoding: a
+        raw image's width and height against the camera_info of its stamp (the latest
+        where none is paired yet). None when it fits or cannot be told yet (a compressed
+        image says its size only once decoded; no camera_info received)."""
+        if not isinstance(msg, Image):
+            return None
+        entry = self._infos.nearest(
+            messages.stamp_to_ns(msg.header.stamp),
+            round(self._config.camera_info_tolerance_s * 1e9),
+        )
+        with self._lock:
+            intrinsics = self._intrinsics if entry is None else entry[0]
+        if intrinsics is None:
+            return None
+        try:
+            messages.check_size(msg.width, msg.height, (intrinsics.width, intrinsics.height))
+        except MessageError as error:
+            return error
+        return None
+
     def camera_info_of(self, msg: Image | CompressedImage) -> CameraInfo | None:
         """The camera_info message paired with ``msg`` by stamp, as :meth:`snapshot` pairs
         them, without waiting (None when none is within ``camera_info_tolerance_s``)."""

@@ -67,7 +67,7 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     width, height = int(msg.width), int(msg.height)
     if width <= 0 or height <= 0:
         raise MessageError("size", f"image size {width}x{height} is empty")
-    _check_size(width, height, expected_size)
+    check_size(width, height, expected_size)
     row_bytes = width * channels * dtype.itemsize
     step = int(msg.step)
     if step < row_bytes:
@@ -93,7 +93,9 @@ def _decode(msg: Any, expected_size: tuple[int, int] | None) -> np.ndarray:
     return pixels
 
 
-def _check_size(width: int, height: int, expected_size: tuple[int, int] | None) -> None:
+def check_size(width: int, height: int, expected_size: tuple[int, int] | None) -> None:
+    """Refuse an image whose size differs from its camera_info's (``expected_size``, width
+    and height; None: nothing to compare with)."""
     if expected_size is not None and (width, height) != tuple(expected_size):
         raise MessageError(
             "size",
@@ -121,7 +123,7 @@ def _decode_compressed(msg: Any, expected_size: tuple[int, int] | None) -> np.nd
         raise MessageError(
             "data", f"compressed image ({msg.format!r}, {data.size} bytes) cannot be decoded"
         )
-    _check_size(pixels.shape[1], pixels.shape[0], expected_size)
+    check_size(pixels.shape[1], pixels.shape[0], expected_size)
     if pixels.ndim == 2:
         return pixels[..., None]
     return cv2.cvtColor(pixels, cv2.COLOR_BGRA2RGB if pixels.shape[2] == 4 else cv2.COLOR_BGR2RGB)

@@ -228,6 +228,7 @@ class MradDetectorNode(Node):
             self.context.ok,
             max_input_age_s=lambda: self._config.max_input_age_s,
             objects_wanted=self._objects_wanted,
+            size_refusal=self._inputs.size_refusal,
         )
         self.get_logger().info(self._tuning)
         self.get_logger().info(

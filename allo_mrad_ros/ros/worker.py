@@ -179,6 +179,11 @@ class ProcessingWorker:
     max_input_age_s : callable
         The oldest a frame may be when taken, in seconds (``max_input_age_s`` in force;
         0: no limit); an older one is dropped and counted as ``frames_dropped_too_old``.
+    size_refusal : callable
+        ``(image message) -> MessageError or None``: why the image would be refused for
+        its size, told without waiting. A frame too old to process is still checked, so
+        a camera whose images never fit its camera_info is reported as such, not hidden
+        behind the count of frames dropped for their age. Default: never.
     objects_wanted : callable
         ``(NodeConfig) -> bool``: whether to track objects in the frame being taken (asked
         by the render thread, which then renders the reference's depth too; the detect
@@ -199,6 +204,7 @@ class ProcessingWorker:
         context_ok: Callable[[], bool] = lambda: True,
         max_input_age_s: Callable[[], float] = lambda: 0.0,
         objects_wanted: Callable[[NodeConfig], bool] = lambda _config: False,
+        size_refusal: Callable[[Any], MessageError | None] = lambda _msg: None,
     ) -> None:
         self._slot = slot
         self._snapshot = snapshot
@@ -211,6 +217,7 @@ class ProcessingWorker:
         self._context_ok = context_ok
         self._max_input_age_s = max_input_age_s
         self._objects_wanted = objects_wanted
+        self._size_refusal = size_refusal
         # Fed by whichever thread detects (one), in the order frames were rendered.
         self._tracking = ObjectTracking()
         hold = os.environ.get(HOLD_AT)
@@ -332,6 +339,10 @@ class ProcessingWorker:
         age_s = taken - arrival.origin
         if bound_s <= 0 or age_s <= bound_s:
             return False
+        refusal = self._size_refusal(arrival.msg)
+        if refusal is not None:  # unusable at any age: the cause is what the user must see
+            self._diagnostics.report(refusal)
+            return True
         self._diagnostics.count("frames_dropped_too_old")
         self._logger.warning(
             f"frame {_stamp_of(arrival)} ns taken {1e3 * age_s:.0f} ms after its publication, "

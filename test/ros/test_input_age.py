@@ -21,7 +21,7 @@ from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros.buffers import LatestSlot
 from allo_mrad_ros.ros.diagnostics import Diagnostics
 from allo_mrad_ros.ros.inputs import arrival_of
-from allo_mrad_ros.ros.messages import fill_image
+from allo_mrad_ros.ros.messages import MessageError, fill_image
 from allo_mrad_ros.ros.parameters import default_config
 from allo_mrad_ros.ros.worker import (
     STAGES,
@@ -238,6 +238,38 @@ def test_a_frame_older_than_the_bound_when_taken_is_dropped_and_counted_not_proc
         worker.stop()
     assert [call[0].header.stamp.sec for call in published] == [2]
     assert counter(diagnostics, "frames_dropped_too_old") == 1
+
+
+def test_a_frame_too_old_that_does_not_fit_its_camera_info_is_reported_for_its_size(
+    monkeypatch,
+):
+    # A camera whose images never fit its camera_info, on a machine slow enough that every
+    # frame is too old: the size is what the user must read, not the age.
+    diagnostics = Diagnostics(
+        StubNode(), default_config(), received=lambda: 1, pose_source=lambda: "topic"
+    )
+    published = []
+    refusal = MessageError("size", "image size 4000x4000 differs from camera_info 320x180")
+    slot, worker = a_worker(
+        monkeypatch,
+        diagnostics,
+        published,
+        max_input_age_s=lambda: 3600.0,
+        size_refusal=lambda msg: refusal if msg.header.stamp.sec == 1 else None,
+    )
+    try:
+        now = time.monotonic()
+        wrong = image()
+        wrong.header.stamp.sec = 1
+        slot.put(Arrival(wrong, now, published=now - 7200.0))
+        assert wait_for(lambda: counter(diagnostics, "errors_size") == 1)
+        fitting = image()
+        fitting.header.stamp.sec = 2
+        slot.put(Arrival(fitting, time.monotonic(), published=time.monotonic() - 7200.0))
+        assert wait_for(lambda: counter(diagnostics, "frames_dropped_too_old") == 1)
+    finally:
+        worker.stop()
+    assert published == [] and counter(diagnostics, "errors_size") == 1
 
 
 def test_without_a_bound_no_frame_is_too_old(monkeypatch):

@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float32
 
 from allo_mrad_ros.ros.inputs import NodeInputs, matched_publishers
@@ -77,3 +78,32 @@ def test_publisher_counts_are_zero_while_the_inputs_are_unsubscribed():
         object(), _config(), lambda: False, QoSOverridingOptions.with_default_policies
     )
     assert inputs.publisher_counts() == {"image": 0, "camera_info": 0}
+
+
+def _camera_info(width, height, sec):
+    info = CameraInfo(width=width, height=height)
+    info.header.stamp.sec = sec
+    info.k = [200.0, 0.0, width / 2, 0.0, 200.0, height / 2, 0.0, 0.0, 1.0]
+    info.p = [200.0, 0.0, width / 2, 0.0, 0.0, 200.0, height / 2, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return info
+
+
+def _raw_image(width, height, sec):
+    image = Image(width=width, height=height, encoding="rgb8", step=3 * width)
+    image.header.stamp.sec = sec
+    return image
+
+
+def test_the_size_refusal_compares_a_raw_image_with_the_camera_info_of_its_stamp():
+    inputs = NodeInputs(
+        object(), _config(), lambda: True, QoSOverridingOptions.with_default_policies
+    )
+    assert inputs.size_refusal(_raw_image(4000, 4000, 5)) is None  # no camera_info yet
+    inputs.on_camera_info(_camera_info(320, 180, 5))
+    inputs.on_camera_info(_camera_info(640, 360, 9))
+    refusal = inputs.size_refusal(_raw_image(4000, 4000, 5))
+    assert refusal is not None and refusal.cause == "size"
+    assert "4000x4000 differs from camera_info 320x180" in str(refusal)
+    assert inputs.size_refusal(_raw_image(320, 180, 5)) is None  # paired by its stamp
+    assert inputs.size_refusal(_raw_image(640, 360, 9)) is None
+    assert inputs.size_refusal(CompressedImage(format="jpeg")) is None  # size unknown undecoded
