@@ -28,6 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from allo_mrad_ros.evaluation.object_metrics import HEADLINE_METRICS
 from allo_mrad_ros.evaluation.objects import ObjectRun, detect_frames, score_run
 from allo_mrad_ros.objects import ObjectParams
 from allo_mrad_ros.pipeline import PipelineConfig
@@ -162,22 +163,7 @@ def table(reports: dict[str, dict[str, Any]]) -> str:
         "| metric | " + " | ".join(names) + " |",
         "|---|" + "---:|" * len(names),
     ]
-    keys = (
-        "recall",
-        "precision",
-        "error_m_median",
-        "error_m_p90",
-        "confirmation_s_median",
-        "false_objects_per_min",
-        "normal_frames_flagged_ratio",
-        "objects",
-        "confirmed",
-        "true_confirmed",
-        "false_objects_anomaly_free",
-        "anomaly_free_minutes",
-        "tracker_ms_per_frame_data",
-    )
-    for key in keys:
+    for key in (*HEADLINE_METRICS, "tracker_ms_per_frame_data"):
         rows.append(f"| {key} | " + " | ".join(_fmt(reports[n].get(key)) for n in names) + " |")
     for decision in ("objects", "frame"):
         for what in ("recall", "false_alarm_rate", "normal_flagged"):

@@ -47,6 +47,22 @@ from allo_mrad_ros.sequence import GroundTruthObject
 # Cost of an inadmissible pair in the assignment: never chosen over an admissible one.
 _FORBIDDEN = 1e9
 
+#: The headline keys of :meth:`ObjectMetrics.as_dict`, in the order a summary table shows them.
+HEADLINE_METRICS = (
+    "recall",
+    "precision",
+    "error_m_median",
+    "error_m_p90",
+    "confirmation_s_median",
+    "false_objects_per_min",
+    "normal_frames_flagged_ratio",
+    "objects",
+    "confirmed",
+    "true_confirmed",
+    "false_objects_anomaly_free",
+    "anomaly_free_minutes",
+)
+
 
 @dataclass(frozen=True)
 class FrameTruth:

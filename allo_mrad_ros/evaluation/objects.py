@@ -34,6 +34,7 @@ from allo_mrad_ros.evaluation.evaluate import (
     worker_pipeline,
 )
 from allo_mrad_ros.evaluation.object_metrics import (
+    HEADLINE_METRICS,
     ConfirmedSample,
     FrameTruth,
     MatchRules,
@@ -368,21 +369,7 @@ def objects_markdown(result: ObjectEvaluation) -> str:
         "| metric | value |",
         "|---|---:|",
     ]
-    for key in (
-        "recall",
-        "precision",
-        "error_m_median",
-        "error_m_p90",
-        "confirmation_s_median",
-        "false_objects_per_min",
-        "normal_frames_flagged_ratio",
-        "objects",
-        "confirmed",
-        "true_confirmed",
-        "false_objects_anomaly_free",
-        "anomaly_free_minutes",
-        "tracker_ms_per_frame",
-    ):
+    for key in (*HEADLINE_METRICS, "tracker_ms_per_frame"):
         lines.append(f"| {key} | {fmt(data[key])} |")
     lines += [
         "",
