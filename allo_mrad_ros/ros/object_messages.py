@@ -20,7 +20,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from allo_mrad_ros.geometry import matrix_to_quaternion
 from allo_mrad_ros.objects import TrackedObject
 
-# class_id of every object hypothesis (as ~/detections).
+# class_id of every hypothesis, ~/objects' and ~/detections'.
 ANOMALY_CLASS = "anomaly"
 # Marker namespaces: the object, its uncertainty, its label, and the station model.
 OBJECT_NS = "mrad_objects"
@@ -60,6 +60,15 @@ def pose_covariance(covariance: np.ndarray) -> list[float]:
     return [float(v) for v in full.ravel()]
 
 
+def anomaly_hypothesis(msg: Any, score: float) -> Any:
+    """One vision_msgs/ObjectHypothesisWithPose of class ``anomaly`` with ``score`` (its
+    pose left default); ``msg`` is the module of the message classes."""
+    hypothesis = msg.ObjectHypothesisWithPose()
+    hypothesis.hypothesis.class_id = ANOMALY_CLASS
+    hypothesis.hypothesis.score = float(score)
+    return hypothesis
+
+
 def object_array(msg: Any, header: Header, objects: Sequence[TrackedObject]) -> Any:
     """A vision_msgs/Detection3DArray of the confirmed ``objects``, in ``header``'s frame
     (the station frame): per object its box (centre: its position; a cube of its size), id
@@ -76,18 +85,13 @@ def object_array(msg: Any, header: Header, objects: Sequence[TrackedObject]) -> 
         detection.bbox.center.orientation.w = 1.0
         size = _size(obj)
         detection.bbox.size = Vector3(x=size, y=size, z=size)
-        hypothesis = msg.ObjectHypothesisWithPose()
-        hypothesis.hypothesis.class_id = ANOMALY_CLASS
-        hypothesis.hypothesis.score = float(min(max(obj.score, 0.0), 1.0))
+        hypothesis = anomaly_hypothesis(msg, min(max(obj.score, 0.0), 1.0))
         hypothesis.pose.pose.position = _point(obj.position)
         hypothesis.pose.pose.orientation.w = 1.0
         hypothesis.pose.covariance = pose_covariance(obj.covariance)
         detection.results = [hypothesis]
         detections.append(detection)
-    array = msg.Detection3DArray()
-    array.header = header
-    array.detections = detections
-    return array
+    return msg.Detection3DArray(header=header, detections=detections)
 
 
 def ellipsoid(

@@ -48,7 +48,7 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.pipeline import ProcessedFrame
 from allo_mrad_ros.ros import messages
-from allo_mrad_ros.ros.object_messages import object_array, object_markers
+from allo_mrad_ros.ros.object_messages import anomaly_hypothesis, object_array, object_markers
 from allo_mrad_ros.ros.object_tracking import ObjectsUpdate
 from allo_mrad_ros.ros.parameters import NodeConfig
 from allo_mrad_ros.visualise import outline
@@ -60,8 +60,6 @@ REGION_LINE_WIDTH = 2.0
 # sees them all within it), and in the frames between only the objects that changed:
 # building a Marker costs about 0.1 ms, and a hundred tentative objects are not rare.
 MARKERS_REFRESH_S = 1.0
-# class_id of every detection hypothesis.
-ANOMALY_CLASS = "anomaly"
 
 
 def vision_msgs_module() -> Any | None:
@@ -89,15 +87,9 @@ def detection_array(msg: Any, header: object, regions: Sequence[Region]) -> Any:
         detection.bbox.center.theta = 0.0
         detection.bbox.size_x = float(w)
         detection.bbox.size_y = float(h)
-        hypothesis = msg.ObjectHypothesisWithPose()
-        hypothesis.hypothesis.class_id = ANOMALY_CLASS
-        hypothesis.hypothesis.score = float(region.score)
-        detection.results = [hypothesis]
+        detection.results = [anomaly_hypothesis(msg, region.score)]
         detections.append(detection)
-    array = msg.Detection2DArray()
-    array.header = header
-    array.detections = detections
-    return array
+    return msg.Detection2DArray(header=header, detections=detections)
 
 
 def region_marker(header: object, regions: Sequence[Region]) -> ImageMarker:
