@@ -72,14 +72,7 @@ def depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> Came
             f"depth {width}x{height} does not have the aspect of the camera's "
             f"{camera.width}x{camera.height} image"
         )
-    return CameraIntrinsics(
-        width=width,
-        height=height,
-        fx=camera.fx * sx,
-        fy=camera.fy * sy,
-        cx=(camera.cx + 0.5) * sx - 0.5,
-        cy=(camera.cy + 0.5) * sy - 0.5,
-    )
+    return camera.resized(width, height)
 
 
 def checked_pose(pose: object) -> np.ndarray:
