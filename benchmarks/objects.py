@@ -29,7 +29,12 @@ from pathlib import Path
 from typing import Any
 
 from allo_mrad_ros.evaluation.object_metrics import HEADLINE_METRICS
-from allo_mrad_ros.evaluation.objects import ObjectRun, detect_frames, score_run
+from allo_mrad_ros.evaluation.objects import (
+    ObjectRun,
+    detect_frames,
+    detection_coverage,
+    score_run,
+)
 from allo_mrad_ros.objects import ObjectParams
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.sequence import read_sequence
@@ -193,6 +198,31 @@ def group_table(report: dict[str, Any], key: str) -> str:
     return "\n".join(rows)
 
 
+def coverage_of(data: Path, runs: dict[str, ObjectRun]) -> dict[str, dict[str, dict[str, int]]]:
+    """Per split, how much of the showing objects the detection mask covers (per placement)."""
+    sequence = read_sequence(data, check_images=False)
+
+    def instances(index: int) -> Any:
+        return sequence.load_instances(sequence.frames[index])
+
+    return {split: detection_coverage(run, instances) for split, run in runs.items()}
+
+
+def coverage_table(coverage: dict[str, dict[str, dict[str, int]]]) -> str:
+    """Object-frames the detection mask touches (a pixel) and half covers, as Markdown."""
+    rows = [
+        "| split | placement | object-frames | touched by the mask | half covered |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for split, groups in coverage.items():
+        for placement, row in groups.items():
+            rows.append(
+                f"| {split} | {placement} | {row['object_frames']} | {row['touched']} | "
+                f"{row['half_covered']} |"
+            )
+    return "\n".join(rows)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Objects in the station frame, val and test.")
     parser.add_argument("--data", type=Path, default=Path("data/objects"))
@@ -207,6 +237,8 @@ def main(argv: list[str] | None = None) -> None:
     ensure_data(args.data, args.width, args.height, args.seed)
     config = PipelineConfig(methods=("MRAD",))
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
+    coverage = coverage_of(args.data, runs)
+    print(coverage_table(coverage))
 
     defaults = ObjectParams()
     candidates = grid_params(defaults)
@@ -250,6 +282,7 @@ def main(argv: list[str] | None = None) -> None:
         "val_defaults": val_defaults,
         "test_defaults": test_defaults,
         "targets_met_test": met(test_chosen),
+        "detection_coverage": coverage,
         "grid_results": [
             {
                 "params": {k: getattr(p, k) for k in GRID_FIELDS},

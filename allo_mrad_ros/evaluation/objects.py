@@ -16,7 +16,7 @@ jump by more than three times the median frame period.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from os import PathLike
 from typing import Any
@@ -314,6 +314,60 @@ def truths(run: ObjectRun) -> list[FrameTruth]:
         FrameTruth(f.trajectory, f.stamp_ns, f.pose[:3, 3], f.showing, f.frame_flagged)
         for f in run.frames
     ]
+
+
+def detection_coverage(
+    run: ObjectRun, instances: Callable[[int], np.ndarray | None]
+) -> dict[str, dict[str, int]]:
+    """How much of each showing object the detector's mask covers, per placement.
+
+    The tracker can only follow what the detector marks, so this separates a detection
+    miss from a tracking miss. An object-frame is an object showing in a frame (its
+    instance pixels); it counts as ``touched`` when at least one of its pixels lies under
+    the detection mask and ``half_covered`` when at least half of them do.
+
+    Parameters
+    ----------
+    run : ObjectRun
+        The detected frames.
+    instances : callable
+        The instance mask (uint16, the camera's size) of the frame with a given input
+        index (:attr:`ObjectFrame.index`), or None where the frame has none.
+
+    Returns
+    -------
+    dict
+        Per placement (the objects table's ``placement`` column, ``-`` where there is
+        none) and ``all``: ``object_frames``, ``touched``, ``half_covered``.
+    """
+    placements = {o.id: o.extra.get("placement", "-") or "-" for o in run.objects}
+    size = run.camera.height * run.camera.width
+    out: dict[str, dict[str, int]] = {}
+    for frame in run.frames:
+        if not frame.showing:
+            continue
+        labels = instances(frame.index)
+        if labels is None:
+            continue
+        flat = labels.reshape(-1)
+        if flat.size != size:
+            raise ObjectEvaluationError(
+                f"frame index {frame.index}: instance mask of {flat.size} pixels, "
+                f"the camera has {size}"
+            )
+        pixels = np.bincount(flat, minlength=1)
+        under = np.bincount(flat[frame.mask_pixels], minlength=pixels.size)
+        for object_id in frame.showing:
+            total = int(pixels[object_id]) if object_id < pixels.size else 0
+            if total == 0:
+                continue
+            covered = int(under[object_id]) if object_id < under.size else 0
+            for group in (placements.get(object_id, "-"), "all"):
+                row = out.setdefault(group, {"object_frames": 0, "touched": 0, "half_covered": 0})
+                row["object_frames"] += 1
+                row["touched"] += covered > 0
+                row["half_covered"] += 2 * covered >= total
+    return out
 
 
 def score_run(
