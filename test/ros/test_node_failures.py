@@ -86,9 +86,19 @@ def latest_status(feed) -> DiagnosticStatus | None:
     return feed.diagnostics[-1].status[0] if feed.diagnostics else None
 
 
+# How often frames go out while a test waits: a camera's rate. Polling publishes at
+# whatever rate the machine spins, hundreds per second when idle, which overflows the
+# node's camera_info queue so that images lose their camera_info and the level never
+# settles.
+FRAME_PERIOD_S = 0.05
+
+
 def wait_for_level(feed, level, timeout=TIMEOUT, keep_publishing=False):
+    last = [-FRAME_PERIOD_S]
+
     def reached():
-        if keep_publishing:
+        if keep_publishing and time.monotonic() - last[0] >= FRAME_PERIOD_S:
+            last[0] = time.monotonic()
             feed.publish_frame(Stamps.take(), IMAGE, POSE)
         status = latest_status(feed)
         return status is not None and status.level == level
