@@ -34,7 +34,9 @@ from .model import (
     MASK_ANOMALY,
     MAX_STAMP_NS,
     META_FILE,
+    POSE_COLUMNS,
     SPLITS,
+    SUN_COLUMNS,
     Frame,
     SequenceError,
     SequenceMeta,
@@ -402,19 +404,7 @@ class SequenceWriter:
             "anomaly": anomaly,
         }
         values = [*position, *quaternion, *sun_direction, sun_strength]
-        numeric = (
-            "tx",
-            "ty",
-            "tz",
-            "qx",
-            "qy",
-            "qz",
-            "qw",
-            "sun_x",
-            "sun_y",
-            "sun_z",
-            "sun_strength",
-        )
+        numeric = (*POSE_COLUMNS, *SUN_COLUMNS, "sun_strength")
         record.update({c: format_float(v) for c, v in zip(numeric, values, strict=True)})
         for body, value in (("earth", earth), ("moon", moon)):
             for axis, component in zip(("x", "y", "z", "r"), range(4), strict=True):
