@@ -23,7 +23,13 @@ from allo_mrad_ros.metrics import (
     frame_counts,
     roc_auc,
 )
-from allo_mrad_ros.metrics.score_counts import ScoreCounts, merge, score_keys
+from allo_mrad_ros.metrics.pixel import pixel_metrics
+from allo_mrad_ros.metrics.score_counts import (
+    PooledScoreCounts,
+    ScoreCounts,
+    merge,
+    score_keys,
+)
 
 
 def sklearn_fpr95(labels, scores):
@@ -394,6 +400,37 @@ def test_coarsened_counts_bound_every_metrics_error(seed, max_entries, ties):
     expected = sklearn_pixel_metrics(*_pixels(frames))
     for key, value in expected.items():
         assert abs(getattr(metrics, key) - value) <= metrics.error_bounds[key] + 1e-12, key
+
+
+def test_pools_coarsened_apart_merge_without_their_ranges_running_together():
+    # How evaluate pools a split: one pool per anomaly type, each coarsened on its own, then
+    # merged. Two pools of continuous scores whose ranges interleave must not chain into a
+    # few huge ranges: the merge keeps about as many entries as the pools, no entry holds
+    # more than a small share of the pixels, and the bounds stay about those of one pool
+    # fed every frame.
+    rng = np.random.default_rng(7)
+    pools, frames = [PooledScoreCounts(max_entries=2048) for _ in range(2)], []
+    single = PooledScoreCounts(max_entries=2048)
+    for index in range(40):
+        mask = np.where(rng.random((48, 64)) < 0.05, 2, 0)
+        score = (rng.gamma(2.0, 20.0, mask.shape) + 60.0 * (mask == 2)).astype(np.float32)
+        pools[index % 2].update(score, mask)
+        single.update(score, mask)
+        frames.append((score, mask))
+    assert not pools[0].table().exact and not pools[1].table().exact
+    merged = PooledScoreCounts(max_entries=2048)
+    for pool in pools:
+        merged.add_pool(pool)
+    table = merged.table()
+    weight = table.positives.astype(np.int64) + table.negatives
+    assert table.size >= min(p.table().size for p in pools) // 2
+    assert weight.max() <= 0.01 * table.pixels
+    values, bounds = pixel_metrics(table)
+    single_bounds = pixel_metrics(single.table())[1]
+    expected = sklearn_pixel_metrics(*_pixels(frames))
+    for key, value in expected.items():
+        assert abs(values[key] - value) <= bounds[key] + 1e-12, key
+        assert bounds[key] <= 1.5 * single_bounds[key] + 1e-9, key
 
 
 def test_a_heavy_tie_keeps_its_exact_entry_when_the_table_is_coarsened():

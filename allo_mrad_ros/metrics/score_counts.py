@@ -9,10 +9,12 @@ float64 to ``uint64``), so counting is exact, with no binning and no rounding.
 :class:`PooledScoreCounts` merges frames' tables into one. Their union grows with every
 frame of a float map (a bilinearly upscaled 1080p map holds some 0.4-0.9 M distinct
 values), so once it passes ``max_entries`` the table is coarsened (:func:`coarsen`):
-neighbouring entries are merged into runs of about equal pixel count, each spanning a key
-range, while the entries holding the most pixels (a map's floor, a block of normal pixels
-at one value) keep their exact entry. A range entry is what makes a metric inexact, and
-only where it holds both classes; :mod:`allo_mrad_ros.metrics.pixel` bounds each metric's
+neighbouring entries are merged within buckets of the key space aligned to a power of two,
+as narrow as the budget allows, while the entries holding the most pixels (a map's floor, a
+block of normal pixels at one value) keep their exact entry. Aligned buckets nest, so
+tables coarsened apart (one per anomaly type) still merge into one without their ranges
+running together. A range entry is what makes a metric inexact, and only where it holds
+both classes; :mod:`allo_mrad_ros.metrics.pixel` bounds each metric's
 error.
 """
 
@@ -346,30 +348,33 @@ def merge(tables: Iterable[ScoreCounts]) -> ScoreCounts:
 def coarsen(table: ScoreCounts, target: int) -> ScoreCounts:
     """Merge adjacent entries into at most ``target`` entries, in one pass.
 
-    The ``target // 8`` entries holding the most pixels stay as they are where they hold
-    more than a run's share (a heavily tied score keeps its exact entry); the others are
-    cut, in score order, into runs of about equal pixel count, a run also ending at each
-    kept entry, so a merged entry holds at most about ``1.6 / target`` of the pixels plus
-    its last score's.
+    Entries are merged within buckets of the key space aligned to a power of two (all keys
+    equal but for their lowest ``shift`` bits: a relative width of ``2**(shift - 23)`` of a
+    float32 score), with the smallest shift that leaves few enough buckets. Because every
+    table's ranges lie inside such aligned buckets, two coarsened tables merge without
+    their ranges chaining into one another: two aligned buckets either nest or are apart,
+    so a range of the merge never reaches past the bucket of the coarser table that holds
+    it. The ``target // 8`` entries holding the most pixels stay as they are where they
+    hold more than an average entry's share (a heavily tied score keeps its exact entry),
+    and split their bucket around them.
     """
     if target < 2:
         raise MetricsError(f"cannot coarsen a table to {target} entries")
     if table.size <= target:
         return table
     weight = table.positives.astype(np.int64) + table.negatives
-    # Entries: runs (at most run_budget + kept_budget + 1 of them), kept entries and the
-    # runs they split (kept_budget each).
-    kept_budget = target // 8
-    run_budget = target - 3 * kept_budget - 1
     kept = np.zeros(table.size, dtype=bool)
+    kept_budget = (target - 1) // 8
     if kept_budget:
-        kept[np.argpartition(weight, table.size - kept_budget)[table.size - kept_budget :]] = True
-    quota = max(1, -(-int(weight[~kept].sum()) // run_budget))  # ceiling
-    kept &= weight > quota
-    light = np.where(kept, 0, weight)
-    run = (np.cumsum(light) - light) // quota
+        heaviest = np.argpartition(weight, table.size - kept_budget)[table.size - kept_budget :]
+        kept[heaviest] = True
+        kept &= weight > -(-int(weight.sum()) // target)
+    # A kept entry splits its bucket in three at most: two entries more than its bucket.
+    shift = bucket_shift(table, target - 2 * int(np.count_nonzero(kept)))
+    bits = 8 * table.low.itemsize
+    bucket = table.low >> table.low.dtype.type(shift) if shift < bits else np.zeros_like(table.low)
     starts = np.ones(table.size, dtype=bool)
-    starts[1:] = kept[1:] | kept[:-1] | (run[1:] != run[:-1])
+    starts[1:] = kept[1:] | kept[:-1] | (bucket[1:] != bucket[:-1])
     starts = np.flatnonzero(starts)
     ends = np.append(starts[1:], table.size) - 1
     return ScoreCounts(
@@ -379,6 +384,32 @@ def coarsen(table: ScoreCounts, target: int) -> ScoreCounts:
         group_sums(table.negatives, starts, table.pixels),
         table.pixels,
     )
+
+
+def bucket_shift(table: ScoreCounts, buckets: int) -> int:
+    """The smallest shift whose aligned buckets (keys ``>> shift``) number at most
+    ``buckets`` and each hold every range of ``table`` whole."""
+    bits = 8 * table.low.itemsize
+    lowest = 0
+    if not table.exact:
+        spread = int(np.bitwise_xor(table.low, table.high).max())
+        lowest = spread.bit_length()
+
+    def count(shift: int) -> int:
+        if shift >= bits:
+            return 1
+        keys = table.low >> table.low.dtype.type(shift)
+        return 1 + int(np.count_nonzero(keys[1:] != keys[:-1]))
+
+    high = bits
+    low = lowest
+    while low < high:  # the count falls as the shift grows
+        middle = (low + high) // 2
+        if count(middle) <= max(1, buckets):
+            high = middle
+        else:
+            low = middle + 1
+    return low
 
 
 # ----------------------------------------------------------------- pooling frames
