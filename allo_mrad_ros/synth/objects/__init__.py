@@ -28,6 +28,7 @@ from .base import (
 )
 from .cables import cable, handrail, tether_hook
 from .glossy import dark_visor
+from .hard import black_foil, small_debris, station_patch, thin_cable
 from .satellites import cubesat_1u, cubesat_3u, cubesat_6u, helicopter, smallsat
 from .sheets import blanket_crumpled, blanket_curved, debris_panel, mli_strip
 from .tools import drill, glove, pistol_grip_tool, wrench
@@ -56,17 +57,25 @@ ANOMALY_TYPES: MappingProxyType[str, Builder] = MappingProxyType(
 )
 """Object type name to builder, in a fixed order: the types a sequence draws by default."""
 
-OPT_IN_TYPES: MappingProxyType[str, Builder] = MappingProxyType({"dark_visor": dark_visor})
+OPT_IN_TYPES: MappingProxyType[str, Builder] = MappingProxyType(
+    {
+        "dark_visor": dark_visor,
+        "thin_cable": thin_cable,
+        "black_foil": black_foil,
+        "small_debris": small_debris,
+        "station_patch": station_patch,
+    }
+)
 """Types drawn only when a sequence names them (adding one to the default draw would
 change the frame plan of every existing preset)."""
 
 KNOWN_TYPES: MappingProxyType[str, Builder] = MappingProxyType({**ANOMALY_TYPES, **OPT_IN_TYPES})
 """Every type :func:`build_anomaly` and a sequence's ``anomaly_types`` accept."""
 
-DARK_TYPES = frozenset({"dark_visor"})
+DARK_TYPES = frozenset({"dark_visor", "black_foil"})
 """Types whose own materials are dark (diffuse albedo under 10 %)."""
 
-SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip"})
+SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip", "black_foil"})
 """Types made of open sheets (zero thickness); all others are closed solids."""
 
 
