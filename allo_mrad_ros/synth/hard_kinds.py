@@ -22,6 +22,7 @@ mask still holds it, and per-kind figures report it apart.
 
 from __future__ import annotations
 
+import math
 from os import PathLike
 
 import cv2
@@ -60,8 +61,10 @@ def silhouette_width_px(mask: np.ndarray) -> float:
     """Mean width of a thin silhouette: twice its area over its perimeter, pixels.
 
     For a strip of length L and width w (L >> w) the area is L w and the perimeter about
-    2 L; contours run through the outer pixels' centres, so the perimeter is measured on the
-    mask grown by half a pixel (contours of the 2x upsampled mask, halved).
+    2 L. The perimeter is Crofton's estimate from the mask's edge crossings along rows,
+    columns and both diagonals (``pi / 8 * (n_row + n_col + (n_diag1 + n_diag2) / sqrt 2)``),
+    which, unlike a contour's length, does not depend much on the strip's direction: a
+    rasterised strip 2-6 px wide measures within a quarter pixel of its width at most angles.
 
     Parameters
     ----------
@@ -73,15 +76,16 @@ def silhouette_width_px(mask: np.ndarray) -> float:
     float
         0 for an empty mask.
     """
-    area = float(np.count_nonzero(mask))
+    m = np.pad(np.asarray(mask, dtype=bool), 1).astype(np.int8)
+    area = float(m.sum())
     if area == 0:
         return 0.0
-    big = cv2.resize(mask.astype(np.uint8), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
-    big = np.pad(big, 1)
-    contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    # Upsampled contours run half a (fine) pixel inside the edge: +1 fine pixel per side.
-    perimeter = sum(cv2.arcLength(c, True) + 4.0 for c in contours) / 2.0
-    return 2.0 * area / max(perimeter, 1e-9)
+    rows = np.abs(np.diff(m, axis=1)).sum()
+    cols = np.abs(np.diff(m, axis=0)).sum()
+    diag1 = np.abs(m[1:, 1:] - m[:-1, :-1]).sum()
+    diag2 = np.abs(m[1:, :-1] - m[:-1, 1:]).sum()
+    perimeter = math.pi / 8.0 * (rows + cols + (diag1 + diag2) / math.sqrt(2.0))
+    return 2.0 * area / float(perimeter)
 
 
 def behind_station_share(mask: np.ndarray, background: np.ndarray) -> float:

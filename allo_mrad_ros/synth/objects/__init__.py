@@ -1,9 +1,11 @@
 """Procedural anomaly objects, built deterministically from trimesh primitives and a seed.
 
 Sixteen types cover the families of ALLO's test set: thermal blankets, cables, tools lost
-during EVAs, an astronaut glove, CubeSats and small satellites, debris. One more, a dark
-glossy helmet visor, is opt-in (:data:`OPT_IN_TYPES`): a sequence gets it only when its
-settings name it, so the sequences of every existing preset keep their frames. Each builder draws
+during EVAs, an astronaut glove, CubeSats and small satellites, debris. Five more are opt-in
+(:data:`OPT_IN_TYPES`): a dark glossy helmet visor and the path-traced bench's hard kinds
+(a thin cable, black foil, small debris, a panel painted like the station; :mod:`.hard`). A
+sequence gets them only when its settings name them, so the sequences of every existing
+preset keep their frames. Each builder draws
 its dimensions from a seeded NumPy generator, so ``build_anomaly(kind, seed)`` always gives
 the same object; sizes are those of the real things (a 1U CubeSat is 10 cm).
 """

@@ -1,8 +1,8 @@
 """Objects of the kinds per-cell colour statistics find hardest, for the path-traced bench.
 
-* :func:`thin_cable` - a bare cable a few millimetres to a few centimetres thick and metres
-  long: 1-4 pixels wide at the bench's resolution and distances, its grey or black jacket
-  already in most cells' colours;
+* :func:`thin_cable` - a bare cable 12-44 mm thick and metres long: about 1-4 pixels wide
+  at the bench's resolution and distances, its grey, black or white jacket already in most
+  cells' colours;
 * :func:`black_foil` - a crumpled sheet of black Kapton (albedo 3 %), dark over a lit
   surface and as dark as space in front of space when unlit;
 * :func:`small_debris` - a bracket with a bolt, 7-13 cm: under 100 pixels at 4 m;
@@ -19,19 +19,20 @@ import numpy as np
 import trimesh
 
 from .base import Part
-from .cables import _random_walk
+from .cables import random_walk
 from .shapes import catmull_rom, rod, tube
 from .sheets import blanket_crumpled, debris_panel
 
 THIN_CABLE_RADIUS_M = (0.006, 0.022)
-"""Radius range of :func:`thin_cable`: 1-4 px wide at 2-6 m on a 512 px wide ALLO camera."""
+"""Radius range of :func:`thin_cable`: about 1-4 px wide at 4 m on a 512 px wide ALLO camera;
+the bench's generator keeps only placements whose silhouette is 1-4 px wide."""
 
 
 def thin_cable(rng: np.random.Generator) -> list[Part]:
     """A thin loose cable: a tube along a random spline, 2-4 m, no connectors."""
     length = rng.uniform(2.0, 4.0)
     radius = rng.uniform(*THIN_CABLE_RADIUS_M)
-    controls = _random_walk(rng, int(rng.integers(4, 7)), 1.0, rng.uniform(0.5, 0.8))
+    controls = random_walk(rng, int(rng.integers(4, 7)), 1.0, rng.uniform(0.5, 0.8))
     path = catmull_rom(controls, 16)
     path *= length / np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
     jacket = rng.choice(["grey_plastic", "black_cable", "white_cloth"])
