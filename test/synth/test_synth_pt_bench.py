@@ -53,6 +53,8 @@ from allo_mrad_ros.synth.hard_kinds import (
     visible_fraction,
 )
 from allo_mrad_ros.synth.objects import DARK_TYPES, KNOWN_TYPES, build_anomaly
+from allo_mrad_ros.synth.realism_config import RealismConfig
+from allo_mrad_ros.synth.surfaces import as_built_station
 
 needs_bpy = pytest.mark.skipif(
     importlib.util.find_spec("bpy") is None, reason="optional bpy not installed"
@@ -351,3 +353,13 @@ def test_cycles_query_materials_and_lamps_differ_from_the_reference(tmp_path):
                 assert lit.mean() > dark.mean() + 5.0
         finally:
             renderer.close()
+
+
+def test_the_as_built_station_keeps_a_textured_models_maps():
+    model = build_outpost("spine", textured=True)
+    built = as_built_station(model, np.random.default_rng(0), RealismConfig())
+    for name, mesh in built.geometry.items():
+        before, after = model.geometry[name].visual.material, mesh.visual.material
+        for slot in ("metallicRoughnessTexture", "normalTexture", "occlusionTexture"):
+            assert getattr(after, slot) is getattr(before, slot), (name, slot)
+        assert after.baseColorTexture is before.baseColorTexture
