@@ -106,6 +106,9 @@ PT_SPLITS: dict[str, tuple[str, ...]] = {
 one station with its materials in texture maps and one with flat factors; none is shared."""
 BENCHES = {"stations": ("bench-stations", BENCH_SPLITS), "pt": ("bench-pt", PT_SPLITS)}
 """Bench name to (generator preset, stations per split)."""
+STATION_SEEDS = {"stations": False, "pt": True}
+"""Whether a bench gives each station of a split its own seed (its own objects and draws:
+per-kind figures then count distinct objects) or one seed per split."""
 
 
 def write_outposts(out: Path) -> list[Path]:
@@ -180,10 +183,13 @@ def generate_bench(
     out: Path,
     splits: dict[str, tuple[str, ...]] = BENCH_SPLITS,
     preset_name: str = "bench-stations",
+    station_seeds: bool = False,
 ) -> list[Path]:
     """Generate each split's station sequences (``preset_name``) not yet there.
 
-    The validation split uses seed 1, the test split seed 0, so no two share a frame plan.
+    The validation split uses seed 1, the test split seed 0, so no two share a frame plan;
+    with ``station_seeds`` the i-th station of a split adds ``2 i`` (val 1, 3, ...; test 0,
+    2, ...), so no two stations share their objects either.
     The package's own station is ``station``. Needs the optional ``bpy``. A station folder
     without ``frames.csv`` is regenerated only when it holds nothing but a sequence's files.
 
@@ -199,7 +205,7 @@ def generate_bench(
 
     made = []
     for split, stations in splits.items():
-        for station in stations:
+        for index, station in enumerate(stations):
             folder = out / split / station
             if (folder / "frames.csv").is_file():
                 continue
@@ -215,7 +221,7 @@ def generate_bench(
                 check_target(folder, SEQUENCE, overwrite=True, inputs=(mesh,))
             except TargetError as error:
                 raise StationError(str(error)) from None
-            seed = 1 if split == "val" else 0
+            seed = (1 if split == "val" else 0) + (2 * index if station_seeds else 0)
             start = time.perf_counter()
             generate(preset(preset_name), folder, seed, mesh=mesh, overwrite=True, progress=False)
             print(f"generated {folder} in {time.perf_counter() - start:.0f} s", flush=True)
@@ -241,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.step == "generate":
         preset_name, splits = BENCHES[args.bench]
         try:
-            generate_bench(args.source, args.out, splits, preset_name)
+            generate_bench(args.source, args.out, splits, preset_name, STATION_SEEDS[args.bench])
         except StationError as error:
             print(f"stations: {error}", file=sys.stderr)
             return 2

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from allo_mrad_ros.synth.config import preset
-from benchmarks.stations import OUTPOSTS, PT_SPLITS, write_outposts
+from benchmarks.stations import OUTPOSTS, PT_SPLITS, generate_bench, write_outposts
 from benchmarks.stations_bench import (
     BenchFrame,
     NamedSetting,
@@ -98,3 +98,23 @@ def test_frame_kind_reads_the_columns():
     assert frame_kind(frame("drill")) == "other"
     assert frame_kind(frame("thin_cable", kind="thin_cable", visible="1")) == "thin_cable"
     assert frame_kind(frame("black_foil", kind="dark_over_space", visible="0")) == "invisible"
+
+
+def test_each_station_of_the_pt_bench_gets_its_own_seed(tmp_path, monkeypatch):
+    import allo_mrad_ros.synth.generator as generator
+
+    seeds = {}
+
+    def fake_generate(config, folder, seed, **options):
+        seeds[(folder.parent.name, folder.name)] = (config.name, seed)
+        folder.mkdir(parents=True, exist_ok=True)
+
+    monkeypatch.setattr(generator, "generate", fake_generate)
+    write_outposts(tmp_path / "models")
+    generate_bench(tmp_path / "models", tmp_path / "bench", PT_SPLITS, "bench-pt", True)
+    assert seeds == {
+        ("val", "station"): ("bench-pt", 1),
+        ("val", "outpost_hub"): ("bench-pt", 3),
+        ("test", "outpost_spine"): ("bench-pt", 0),
+        ("test", "outpost_ring"): ("bench-pt", 2),
+    }
