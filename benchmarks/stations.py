@@ -10,17 +10,26 @@ The models are not part of the package or of git: put the ``.glb`` files named i
 :data:`STATIONS` into a folder (``STATIONS_SRC``, default ``data/stations``) and run
 ``make bench-stations``. The ISS model is held out for evaluation: it is in no bench.
 
+The extended path-traced bench (``make bench-pt``) uses no external model: the package's
+station and three procedural outposts of other layouts and materials
+(:mod:`allo_mrad_ros.render.outpost_model`; two of them with their materials in texture
+maps, as a CAD export writes them), :data:`PT_SPLITS`, generated with the ``bench-pt``
+preset.
+
 Usage::
 
     python -m benchmarks.stations prepare data/stations --out data/stations_prepared
     python -m benchmarks.stations generate data/stations_prepared \\
         --out data/bench_stations
+    python -m benchmarks.stations outposts data/stations_pt
+    python -m benchmarks.stations generate data/stations_pt --bench pt --out data/bench_pt
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +40,8 @@ from allo_mrad_ros.errors import InvalidInput
 
 __all__ = [
     "BENCH_SPLITS",
+    "OUTPOSTS",
+    "PT_SPLITS",
     "STATIONS",
     "StationError",
     "StationModel",
@@ -79,6 +90,39 @@ BENCH_SPLITS: dict[str, tuple[str, ...]] = {
     "test": ("hubble", "apollo_soyuz", "mir"),
 }
 """Stations per split: defaults are chosen on ``val``; ``test`` shares no model with it."""
+
+OUTPOSTS: dict[str, tuple[str, bool]] = {
+    "outpost_hub": ("hub", True),
+    "outpost_spine": ("spine", True),
+    "outpost_ring": ("ring", False),
+}
+"""Procedural outposts of the extended path-traced bench: name to (layout, textured)."""
+
+PT_SPLITS: dict[str, tuple[str, ...]] = {
+    "val": ("station", "outpost_hub"),
+    "test": ("outpost_spine", "outpost_ring"),
+}
+"""Stations per split of the extended path-traced bench (``make bench-pt``): each split has
+one station with its materials in texture maps and one with flat factors; none is shared."""
+BENCHES = {"stations": ("bench-stations", BENCH_SPLITS), "pt": ("bench-pt", PT_SPLITS)}
+"""Bench name to (generator preset, stations per split)."""
+STATION_SEEDS = {"stations": False, "pt": True}
+"""Whether a bench gives each station of a split its own seed (its own objects and draws:
+per-kind figures then count distinct objects) or one seed per split."""
+
+
+def write_outposts(out: Path) -> list[Path]:
+    """Write the outposts of :data:`OUTPOSTS` into ``out`` (each ``<name>.glb``)."""
+    from allo_mrad_ros.render.outpost_model import build_outpost
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, (layout, textured) in OUTPOSTS.items():
+        path = out / f"{name}.glb"
+        scene = build_outpost(layout, textured)
+        path.write_bytes(scene.export(file_type="glb", include_normals=True))
+        written.append(path)
+    return written
 
 
 def prepare_station(source: Path, destination: Path, length_m: float) -> dict[str, float]:
@@ -135,11 +179,17 @@ def prepare_station(source: Path, destination: Path, length_m: float) -> dict[st
 
 
 def generate_bench(
-    prepared: Path, out: Path, splits: dict[str, tuple[str, ...]] = BENCH_SPLITS
+    prepared: Path,
+    out: Path,
+    splits: dict[str, tuple[str, ...]] = BENCH_SPLITS,
+    preset_name: str = "bench-stations",
+    station_seeds: bool = False,
 ) -> list[Path]:
-    """Generate each split's station sequences (``bench-stations`` preset) not yet there.
+    """Generate each split's station sequences (``preset_name``) not yet there.
 
-    The validation split uses seed 1, the test split seed 0, so no two share a frame plan.
+    The validation split uses seed 1, the test split seed 0, so no two share a frame plan;
+    with ``station_seeds`` the i-th station of a split adds ``2 i`` (val 1, 3, ...; test 0,
+    2, ...), so no two stations share their objects either.
     The package's own station is ``station``. Needs the optional ``bpy``. A station folder
     without ``frames.csv`` is regenerated only when it holds nothing but a sequence's files.
 
@@ -155,7 +205,7 @@ def generate_bench(
 
     made = []
     for split, stations in splits.items():
-        for station in stations:
+        for index, station in enumerate(stations):
             folder = out / split / station
             if (folder / "frames.csv").is_file():
                 continue
@@ -171,25 +221,33 @@ def generate_bench(
                 check_target(folder, SEQUENCE, overwrite=True, inputs=(mesh,))
             except TargetError as error:
                 raise StationError(str(error)) from None
-            seed = 1 if split == "val" else 0
-            generate(
-                preset("bench-stations"), folder, seed, mesh=mesh, overwrite=True, progress=False
-            )
-            print(f"generated {folder}")
+            seed = (1 if split == "val" else 0) + (2 * index if station_seeds else 0)
+            start = time.perf_counter()
+            generate(preset(preset_name), folder, seed, mesh=mesh, overwrite=True, progress=False)
+            print(f"generated {folder} in {time.perf_counter() - start:.0f} s", flush=True)
             made.append(folder)
     return made
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``prepare SOURCE --out PREPARED`` or ``generate PREPARED --out BENCH``."""
+    """``prepare SOURCE --out PREPARED``, ``outposts FOLDER`` or ``generate PREPARED --out
+    BENCH [--bench pt]``."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("step", choices=("prepare", "generate"))
+    parser.add_argument("step", choices=("prepare", "outposts", "generate"))
     parser.add_argument("source", type=Path, help="models' .glb folder, or prepared models")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--out", type=Path, help="output folder (prepare, generate)")
+    parser.add_argument("--bench", choices=tuple(BENCHES), default="stations")
     args = parser.parse_args(argv)
+    if args.step == "outposts":
+        for path in write_outposts(args.source):
+            print(f"wrote {path}")
+        return 0
+    if args.out is None:
+        parser.error(f"{args.step} needs --out")
     if args.step == "generate":
+        preset_name, splits = BENCHES[args.bench]
         try:
-            generate_bench(args.source, args.out)
+            generate_bench(args.source, args.out, splits, preset_name, STATION_SEEDS[args.bench])
         except StationError as error:
             print(f"stations: {error}", file=sys.stderr)
             return 2

@@ -10,7 +10,13 @@ on the same frames, so settings are compared on identical inputs.
 Per split it prints, per setting, the pooled P.AP, P.AUROC, P.FPR95 and I.AUROC and the
 P.AP of each station, then (``--compare A,B``) a paired frame bootstrap of the P.AP
 difference of B over A with its 95 % interval, and the pixel recall per anomaly type at the
-threshold where the setting's false-positive rate is 5 %. Writes a JSON report.
+threshold where the setting's false-positive rate is 5 %. With ``--bench pt`` it reads the
+extended path-traced bench (:data:`~benchmarks.stations.PT_SPLITS`) and ``--kinds`` adds,
+per object kind (the sequences' ``kind`` column; objects marked invisible apart, as
+``invisible``), P.AP against every negative pixel of the split, the pixel recall at that 5 %
+threshold and the anomalous frames found (the method's decision says anomalous and its mask
+touches the object), and per station the normal frames flagged and anomalous ones found.
+Writes a JSON report.
 
 Usage::
 
@@ -33,14 +39,17 @@ import numpy as np
 from allo_mrad_ros.detector import METHODS, MradParams, profile
 from allo_mrad_ros.metrics import (
     MetricsAccumulator,
+    PooledScoreCounts,
+    ScoreCounts,
     bootstrap_ap_difference,
     frame_counts,
+    pixel_metrics,
 )
 from allo_mrad_ros.render import ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
 from benchmarks import machine_facts
-from benchmarks.stations import BENCH_SPLITS
+from benchmarks.stations import BENCH_SPLITS, BENCHES
 
 MASK_ANOMALY = 2
 
@@ -54,6 +63,8 @@ class BenchFrame:
     image: np.ndarray
     truth: np.ndarray
     reference: np.ndarray
+    kind: str = ""
+    """The object's kind (``invisible`` for an object marked invisible); "" when normal."""
 
 
 @dataclass(frozen=True)
@@ -75,6 +86,9 @@ class SettingResult:
     counts: list[np.ndarray] = field(default_factory=list)
     scores: list[np.ndarray] = field(default_factory=list)
     detect_ms: list[float] = field(default_factory=list)
+    found: list[bool] = field(default_factory=list)
+    """Per frame: the decision says anomalous (and, on an anomalous frame, its mask touches
+    the object)."""
 
 
 SETTINGS: dict[str, tuple[str, dict[str, object]]] = {
@@ -117,10 +131,15 @@ def _typed(default: object, text: str) -> object:
     return text if isinstance(default, str) else type(default)(text)
 
 
-def load_frames(root: Path, split: str, reference_scale: float) -> list[BenchFrame]:
+def load_frames(
+    root: Path,
+    split: str,
+    reference_scale: float,
+    splits: Mapping[str, Sequence[str]] = BENCH_SPLITS,
+) -> list[BenchFrame]:
     """Read every station sequence of ``split`` and render each frame's reference once."""
     frames = []
-    for station in BENCH_SPLITS[split]:
+    for station in splits[split]:
         folder = root / split / station
         if not (folder / "frames.csv").is_file():
             raise FileNotFoundError(f"{folder}: station sequence missing (make bench-stations)")
@@ -144,10 +163,23 @@ def sequence_frames(
             image = sequence.load_image(frame)
             truth = sequence.load_mask(frame)
             reference = provider.render(View.of_frame(frame))
-            frames.append(BenchFrame(station, frame.anomaly, image, truth, reference))
+            frames.append(
+                BenchFrame(station, frame.anomaly, image, truth, reference, frame_kind(frame))
+            )
     finally:
         provider.close()
     return frames
+
+
+def frame_kind(frame: object) -> str:
+    """A frame's object kind: its ``kind`` column (``other`` without one), ``invisible``
+    when its ``visible`` column is 0, "" for a normal frame."""
+    if not frame.anomaly:
+        return ""
+    extra = frame.extra
+    if extra.get("visible", "1") in ("0", "0.0"):
+        return "invisible"
+    return extra.get("kind") or "other"
 
 
 def run_settings(
@@ -166,6 +198,7 @@ def run_settings(
             station.update(detection.score, detection.image_score, frame.truth)
             result.counts.append(frame_counts(detection.score, frame.truth))
             result.scores.append(detection.score)
+            result.found.append(frame_found(detection, frame.truth))
     return results
 
 
@@ -184,6 +217,85 @@ def recall_per_type(frames: Sequence[BenchFrame], result: SettingResult, fpr: fl
         hits[0] += int(np.count_nonzero(score[positive] > threshold))
         hits[1] += int(np.count_nonzero(positive))
     return {kind: round(100.0 * a / b, 1) for kind, (a, b) in sorted(found.items())}
+
+
+def frame_found(detection: object, truth: np.ndarray) -> bool:
+    """Whether a method's decision flags the frame; on a frame with an object, its mask must
+    also touch the object (a false alarm elsewhere does not find it)."""
+    if not bool(getattr(detection, "anomalous", False)):
+        return False
+    positive = truth == MASK_ANOMALY
+    if not positive.any():
+        return True
+    mask = getattr(detection, "mask", None)
+    return mask is not None and bool(np.any(np.asarray(mask, dtype=bool) & positive))
+
+
+def per_kind(frames: Sequence[BenchFrame], result: SettingResult, fpr: float = 0.05) -> dict:
+    """Per object kind: P.AP against every negative pixel of the split, pixel recall at the
+    threshold where the pooled false-positive rate is ``fpr``, and frames found.
+
+    Returns
+    -------
+    dict
+        Kind to ``{"frames", "p_ap", "recall", "found"}`` (percent; ``found`` a count).
+    """
+    negatives_only = []
+    for frame, score in zip(frames, result.scores, strict=True):
+        keep = frame.truth != MASK_ANOMALY
+        negatives_only.append(ScoreCounts.of_frame(score[keep], frame.truth[keep]))
+    negatives = np.concatenate(
+        [s[f.truth != MASK_ANOMALY] for f, s in zip(frames, result.scores, strict=True)]
+    )
+    threshold = float(np.quantile(negatives, 1.0 - fpr))
+    kinds = sorted({f.kind for f in frames if f.kind})
+    report = {}
+    for kind in kinds:
+        pool = PooledScoreCounts()
+        hits = total = found = count = 0
+        for i, (frame, score) in enumerate(zip(frames, result.scores, strict=True)):
+            if frame.kind != kind:
+                pool.add(negatives_only[i])
+                continue
+            pool.update(score, frame.truth)
+            positive = frame.truth == MASK_ANOMALY
+            hits += int(np.count_nonzero(score[positive] > threshold))
+            total += int(np.count_nonzero(positive))
+            found += int(result.found[i])
+            count += 1
+        table = pool.table()
+        p_ap = pixel_metrics(table)[0]["p_ap"] if total else float("nan")
+        report[kind] = {
+            "frames": count,
+            "p_ap": round(100 * p_ap, 1),
+            "recall": round(100.0 * hits / max(total, 1), 1),
+            "found": found,
+        }
+    return report
+
+
+def per_station_decisions(frames: Sequence[BenchFrame], result: SettingResult) -> dict:
+    """Per station: normal frames flagged and anomalous frames found, as counts of totals."""
+    report: dict[str, dict[str, list[int]]] = {}
+    for frame, found in zip(frames, result.found, strict=True):
+        row = report.setdefault(frame.station, {"flagged": [0, 0], "found": [0, 0]})
+        key = "found" if frame.anomaly else "flagged"
+        row[key][0] += int(found)
+        row[key][1] += 1
+    return report
+
+
+def format_kinds(name: str, kinds: Mapping[str, dict]) -> str:
+    """A plain-text table of :func:`per_kind` for one setting."""
+    lines = [
+        f"per kind, {name}: {'kind':<20} {'frames':>6} {'P.AP':>6} {'recall5':>8} {'found':>6}"
+    ]
+    for kind, row in kinds.items():
+        lines.append(
+            f"{'':<{len(name) + 11}}{kind:<20} {row['frames']:>6} {row['p_ap']:>6.1f} "
+            f"{row['recall']:>8.1f} {row['found']:>6}"
+        )
+    return "\n".join(lines)
 
 
 def summarise(result: SettingResult) -> dict:
@@ -235,14 +347,21 @@ def main(argv: list[str] | None = None) -> int:
         help="ROOT is one sequence (e.g. the rasterised data/bench): use its --split",
     )
     parser.add_argument("--split", choices=("train", "val", "test"), default="val")
+    parser.add_argument(
+        "--bench", choices=tuple(BENCHES), default="stations", help="which stations per split"
+    )
+    parser.add_argument(
+        "--kinds", action="store_true", help="per object kind and per-station decisions"
+    )
     parser.add_argument("--settings", default="default,no_transfer,PAD,RXD")
     parser.add_argument("--compare", default="PAD,default", help="A,B: bootstrap P.AP(B)-P.AP(A)")
     parser.add_argument("--reference-scale", type=float, default=RenderSettings().reference_scale)
     parser.add_argument("--recall", action="store_true", help="recall per anomaly type")
     parser.add_argument("--out", type=Path, help="JSON report")
     args = parser.parse_args(argv)
-    if not args.sequence and args.split not in BENCH_SPLITS:
-        parser.error(f"--split must be one of {', '.join(BENCH_SPLITS)} without --sequence")
+    splits = BENCHES[args.bench][1]
+    if not args.sequence and args.split not in splits:
+        parser.error(f"--split must be one of {', '.join(splits)} without --sequence")
     try:
         settings = [parse_setting(text) for text in args.settings.split(",")]
     except ValueError as error:
@@ -253,11 +372,11 @@ def main(argv: list[str] | None = None) -> int:
         stations: tuple[str, ...] = (args.root.name,)
     else:
         try:
-            frames = load_frames(args.root, args.split, args.reference_scale)
+            frames = load_frames(args.root, args.split, args.reference_scale, splits)
         except FileNotFoundError as error:
             print(f"stations_bench: {error}", file=sys.stderr)
             return 2
-        stations = BENCH_SPLITS[args.split]
+        stations = tuple(splits[args.split])
     results = run_settings(frames, settings)
     summaries = {r.setting.name: summarise(r) for r in results}
     by_name = {r.setting.name: r for r in results}
@@ -273,6 +392,18 @@ def main(argv: list[str] | None = None) -> int:
         report["recall_at_fpr5"] = {r.setting.name: recall_per_type(frames, r) for r in results}
         for name, recall in report["recall_at_fpr5"].items():
             print(f"recall at 5 % FPR, {name}: {recall}")
+    if args.kinds:
+        report["kinds"] = {r.setting.name: per_kind(frames, r) for r in results}
+        report["decisions"] = {r.setting.name: per_station_decisions(frames, r) for r in results}
+        for name, kinds in report["kinds"].items():
+            print(format_kinds(name, kinds))
+        for name, stations_row in report["decisions"].items():
+            text = ", ".join(
+                f"{st}: normal flagged {v['flagged'][0]}/{v['flagged'][1]}, "
+                f"anomalous found {v['found'][0]}/{v['found'][1]}"
+                for st, v in stations_row.items()
+            )
+            print(f"decisions, {name}: {text}")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         report["machine"] = machine_facts()

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
 from allo_mrad_ros.sequence import SPLITS
+from allo_mrad_ros.synth.cycles_light import CyclesLightConfig
 from allo_mrad_ros.synth.realism_config import RealismConfig
 from allo_mrad_ros.synth.trajectory_config import TrajectoryConfig
 from allo_mrad_ros.synth.validation import SynthError, finite_number, integer_at_least, number_pair
@@ -22,6 +23,7 @@ from allo_mrad_ros.synth.validation import SynthError, finite_number, integer_at
 __all__ = [
     "PRESETS",
     "QUERY_RENDERERS",
+    "CyclesLightConfig",
     "RealismConfig",
     "SplitSpec",
     "SynthConfig",
@@ -156,6 +158,13 @@ class SynthConfig:
         Nominal frame rate for the stamps.
     png_compression : int
         zlib level of the written PNGs.
+    cycles_light : CyclesLightConfig or None
+        Materials and lamps of the Cycles query that depart from the reference's
+        (:mod:`~.cycles_light`); None keeps the reference's.
+    hard_kinds : bool
+        Place the hard object kinds as their kind needs (thin cables 1-4 px wide, small
+        objects at most 100 px, station-coloured ones against the station) and write each
+        anomalous frame's ``kind`` and visibility columns (:mod:`~.hard_kinds`).
     trajectory : TrajectoryConfig or None
         None: ALLO's frames, each from its own perturbed base pose. Set: arm trajectories
         (:mod:`~.trajectories`), each split's ``anomalous`` count being its number of
@@ -201,6 +210,8 @@ class SynthConfig:
     jpeg_quality: int = 0
     rate_hz: float = 10.0
     png_compression: int = 3
+    cycles_light: CyclesLightConfig | None = None
+    hard_kinds: bool = False
     trajectory: TrajectoryConfig | None = None
 
     def __post_init__(self) -> None:
@@ -292,6 +303,10 @@ class SynthConfig:
         finite_number(self.rate_hz, "rate_hz", 1e-3, 1e4)
         if isinstance(self.png_compression, bool) or self.png_compression not in range(10):
             raise SynthError(f"png_compression must be 0-9, got {self.png_compression!r}")
+        if self.cycles_light is not None and not isinstance(self.cycles_light, CyclesLightConfig):
+            raise SynthError(f"cycles_light must be a CyclesLightConfig, got {self.cycles_light!r}")
+        if not isinstance(self.hard_kinds, bool):
+            raise SynthError(f"hard_kinds must be a bool, got {self.hard_kinds!r}")
         if self.trajectory is not None:
             if not isinstance(self.trajectory, TrajectoryConfig):
                 raise SynthError(f"trajectory must be a TrajectoryConfig, got {self.trajectory!r}")
@@ -432,6 +447,43 @@ def _bench_stations() -> SynthConfig:
     )
 
 
+PT_TYPES = (
+    "thin_cable",
+    "black_foil",
+    "dark_visor",
+    "small_debris",
+    "station_patch",
+    "blanket_curved",
+)
+"""Object types of the path-traced bench: the hard kinds and one ordinary type."""
+
+
+def _bench_pt() -> SynthConfig:
+    # One station's share of the extended path-traced bench (``make bench-pt``): the
+    # bench-stations frames with queries that share neither the reference's materials
+    # (roughness and specular strength moved per material) nor its lamps (Earth-shine, an
+    # area light for the spot lamp; the Sun a 0.53 degree disc), developed by a view
+    # transform and then by a camera response of our own (tone curve, white balance error,
+    # vignetting, noise); the hard object kinds placed as their kind needs, unscaled and
+    # in their own colours, down to 30 px.
+    return _bench_stations().with_overrides(
+        name="bench-pt",
+        anomaly_types=PT_TYPES,
+        colour_probability=0.0,
+        scale_probability=0.0,
+        min_anomaly_fraction=0.00015,
+        camera_effects=True,
+        realism=RealismConfig(
+            white_balance_sigma=0.06,
+            vignetting=0.25,
+            tone_contrast=(1.2, 1.6),
+            noise_gain=(1.0, 2.0),
+        ),
+        cycles_light=CyclesLightConfig(),
+        hard_kinds=True,
+    )
+
+
 def _bench_dark() -> SynthConfig:
     # Dark glossy objects against dark station parts: the dark visor alone, kept dark (no
     # colour variant), placed where the station around it is dark, under a Sun weighted to
@@ -478,6 +530,7 @@ PRESETS = MappingProxyType(
         "bench-val": _bench_val,
         "bench-cycles": _bench_cycles,
         "bench-stations": _bench_stations,
+        "bench-pt": _bench_pt,
         "bench-dark": _bench_dark,
         "objects": _objects,
         "objects-normal": _objects_normal,
@@ -497,6 +550,9 @@ def preset(name: str) -> SynthConfig:
         (val 330 at 1920x1080: the selection split of ``make bench``, generated with seed 1)
         or ``bench-cycles`` (test 48 at 640x360, queries path-traced by Blender Cycles
         without our camera model; needs the optional bpy, ``make bench-cycles``) or
+        ``bench-pt`` (test 24 at 512x384, one station's share of ``make bench-pt``: Cycles
+        queries with their own materials, lamps and camera response, the hard object
+        kinds) or
         ``bench-dark`` (val 32 and test 32 at 1920x1080: the opt-in dark visor against
         dark station parts) or ``objects`` (arm trajectories at 960x540 and 10 Hz, 80
         frames each: per split 6 past objects and 3 anomaly-free) or ``objects-normal``

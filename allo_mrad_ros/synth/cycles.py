@@ -40,6 +40,13 @@ from allo_mrad_ros.render import ExtraObject
 from allo_mrad_ros.render.bodies import CelestialBody, bodies_in_view, frustum_planes
 from allo_mrad_ros.render.renderer import AMBIENT, SPOT_CONE_DEG, SPOT_INTENSITY, SUN_INTENSITY
 from allo_mrad_ros.render.values import object_pose, unit_vector, z_towards
+from allo_mrad_ros.synth.cycles_light import (
+    EARTHSHINE_COLOUR,
+    CyclesLightConfig,
+    apply_material_departures,
+    draw_material_departures,
+    material_roughness,
+)
 from allo_mrad_ros.synth.cycles_scene import (
     GLTF_TO_BLENDER,
     CyclesError,
@@ -101,6 +108,12 @@ class CyclesRenderer:
         plain sRGB curve (close to the rasteriser's gamma 2.2).
     seed : int
         Cycles' sampling seed.
+    light : CyclesLightConfig or None
+        Materials and lamps that depart from the reference's (:mod:`.cycles_light`): the
+        station's materials changed once here, an Earth-shine lamp, and a disc area light
+        instead of the spot lamp. None keeps the reference's materials and lamps.
+    light_rng : numpy.random.Generator or None
+        Source of the material draws (required with ``light``).
 
     Raises
     ------
@@ -121,6 +134,8 @@ class CyclesRenderer:
         spot_cone_deg: float = SPOT_CONE_DEG,
         view_transform: str | None = None,
         seed: int = 0,
+        light: CyclesLightConfig | None = None,
+        light_rng: np.random.Generator | None = None,
     ) -> None:
         if not isinstance(intrinsics, CameraIntrinsics):
             raise CyclesError(f"intrinsics must be a CameraIntrinsics, got {type(intrinsics)}")
@@ -151,22 +166,56 @@ class CyclesRenderer:
         self._camera = self._add("camera", bpy.data.cameras.new("camera"))
         scene.camera = self._camera
         set_camera(self._camera.data, intrinsics, _ZNEAR, _ZFAR)
-        spot = bpy.data.lights.new("spot", "SPOT")
-        spot.energy = 4.0 * math.pi * float(spot_intensity)  # W over the sphere -> W/sr
-        spot.spot_size = math.radians(spot_cone_deg)
-        spot.spot_blend = 0.15  # the rasteriser's inner cone is 0.85 of the outer
-        spot.shadow_soft_size = SPOT_RADIUS_M
+        if light is not None and light.area_lamp:
+            # A Lambertian disc of power P sends P / pi W/sr along its axis; the spread
+            # keeps its light within the spot lamp's cone.
+            spot = bpy.data.lights.new("spot", "AREA")
+            spot.shape = "DISK"
+            spot.size = light.area_lamp_size_m
+            spot.energy = math.pi * float(spot_intensity)
+            spot.spread = math.radians(spot_cone_deg)
+        else:
+            spot = bpy.data.lights.new("spot", "SPOT")
+            spot.energy = 4.0 * math.pi * float(spot_intensity)  # W over the sphere -> W/sr
+            spot.spot_size = math.radians(spot_cone_deg)
+            spot.spot_blend = 0.15  # the rasteriser's inner cone is 0.85 of the outer
+            spot.shadow_soft_size = SPOT_RADIUS_M
         self._spot = self._add("spot", spot)
         sun = bpy.data.lights.new("sun", "SUN")
         sun.angle = math.radians(SUN_ANGLE_DEG)
         self._sun = self._add("sun", sun)
+        self._earthshine = None
+        if light is not None:
+            earth = bpy.data.lights.new("earthshine", "SUN")
+            earth.angle = math.radians(light.earthshine_angle_deg)
+            earth.color = EARTHSHINE_COLOUR
+            earth.energy = 0.0
+            self._earthshine = self._add("earthshine", earth)
         station_path = as_glb(station, self._dir, "station")
         self._station = self._import(station_path)
         if not any(o.type == "MESH" for o in self._station):
             raise CyclesError(f"station model {station!r} has no mesh Blender could import")
         self._bodies: dict[str, object] = {}
+        self.gltf_roughness: dict[str, float] = {}
+        self.material_values: dict[str, tuple[float, float]] = {}
+        if light is not None:
+            if light_rng is None:
+                raise CyclesError("light needs light_rng, the source of the material draws")
+            materials = self.station_materials()
+            self.gltf_roughness = material_roughness(materials)
+            departures = draw_material_departures(self.gltf_roughness, light_rng, light)
+            self.material_values = apply_material_departures(materials, departures)
 
     # ------------------------------------------------------------------ scene set-up
+    def station_materials(self) -> list:
+        """The Blender materials of the station's meshes, each once, in name order."""
+        found = {}
+        for obj in self._station:
+            for slot in getattr(obj, "material_slots", ()):
+                if slot.material is not None:
+                    found[slot.material.name] = slot.material
+        return [found[name] for name in sorted(found)]
+
     def _add(self, name: str, data: object) -> object:
         obj = self.bpy.data.objects.new(name, data)
         self.scene.collection.objects.link(obj)
@@ -262,6 +311,7 @@ class CyclesRenderer:
         *,
         view_transform: str | None = None,
         exposure_ev: float = 0.0,
+        earthshine: tuple[Sequence[float], float] | None = None,
     ) -> np.ndarray:
         """Path-trace one query, as :meth:`ReferenceRenderer.render` rasterises it.
 
@@ -281,6 +331,10 @@ class CyclesRenderer:
             Blender view transform of this frame; None keeps the renderer's.
         exposure_ev : float
             Exposure of the view, stops (finite).
+        earthshine : (sequence of 3 floats, float) or None
+            Direction towards the Earth (station frame) and the Earth-shine lamp's
+            irradiance relative to the Sun's at strength 1; needs a renderer built with
+            ``light``. None leaves the lamp off.
 
         Returns
         -------
@@ -302,6 +356,18 @@ class CyclesRenderer:
         self._pose_frame(T_station_camera, bodies)
         self._sun.matrix_world = _matrix(self._Matrix, z_towards(direction))  # shines along -z
         self._sun.data.energy = self._sun_intensity * float(sun_strength)
+        if earthshine is not None and self._earthshine is None:
+            raise CyclesError("earthshine needs a renderer built with a light model")
+        if self._earthshine is not None:
+            level = 0.0
+            if earthshine is not None:
+                towards, level = earthshine
+                if not math.isfinite(level) or level < 0:
+                    raise CyclesError(f"earthshine level must be finite and >= 0, got {level!r}")
+                self._earthshine.matrix_world = _matrix(
+                    self._Matrix, z_towards(unit_vector(towards, "earthshine direction"))
+                )
+            self._earthshine.data.energy = self._sun_intensity * float(level)
         with self._extras(extra_objects):
             return self._render("query")
 

@@ -28,6 +28,14 @@ from allo_mrad_ros.render import (
 )
 from allo_mrad_ros.synth import placement
 from allo_mrad_ros.synth.config import SynthConfig, SynthError
+from allo_mrad_ros.synth.cycles_light import draw_earthshine
+from allo_mrad_ros.synth.hard_kinds import (
+    STATION_COLOURED_TYPES,
+    kind_columns,
+    paint_like_station,
+    placement_penalty,
+    station_palette,
+)
 from allo_mrad_ros.synth.lighting import QueryLight, query_lamps, query_light
 from allo_mrad_ros.synth.objects import AnomalyObject, build_anomaly
 from allo_mrad_ros.synth.occupancy import StationOccupancy
@@ -38,6 +46,9 @@ from allo_mrad_ros.synth.planning import (
     STREAM_LIGHT,
     STREAM_MATERIALS,
     STREAM_POSES,
+    STREAM_PT_KIND,
+    STREAM_PT_LIGHT,
+    STREAM_PT_MATERIALS,
     STREAM_WEAR,
     FramePlan,
     stream,
@@ -205,7 +216,12 @@ class FrameSynthesizer:
                 samples=config.cycles_samples,
                 ambient=self.ambient,
                 spot_intensity=self.spot_intensity,
+                light=config.cycles_light,
+                light_rng=stream(seed, STREAM_PT_MATERIALS),
             )
+        # The station's own materials, for objects painted like it (the nominal model's:
+        # what a designer choosing a colour would have had).
+        self._palette = station_palette(self.mesh) if config.hard_kinds else []
 
     def close(self) -> None:
         """Free the renderers."""
@@ -271,6 +287,14 @@ class FrameSynthesizer:
             # Path-traced from the same pose, light and objects; the mask stays the
             # rasteriser's label image of the same geometry.
             view_transform, exposure_ev = self._development(plan)
+            earthshine = None
+            if self.config.cycles_light is not None:
+                # Sunlight the Earth sends back, so it scales with the Sun's strength.
+                level = draw_earthshine(
+                    stream(plan.seed, STREAM_PT_LIGHT, plan.index), self.config.cycles_light
+                )
+                towards = np.asarray(sky.earth[:3], dtype=np.float64)
+                earthshine = (towards, level * light.sun_strength)
             query = self._cycles.render(
                 T_true,
                 light.sun_direction,
@@ -279,10 +303,19 @@ class FrameSynthesizer:
                 extras,
                 view_transform=view_transform,
                 exposure_ev=exposure_ev,
+                earthshine=earthshine,
             )
             if view_transform is not None:
                 extra["view_transform"] = view_transform
             extra["exposure_ev"] = round(exposure_ev, 4)
+            if earthshine is not None:
+                extra["earthshine"] = round(earthshine[1], 5)
+        if self.config.hard_kinds and extras:
+            # Measured on the clean query: the camera's noise would make space "visible".
+            background = self._query.render(
+                T_true, light.sun_direction, light.sun_strength, bodies, labels=True
+            ).labels
+            extra.update(kind_columns(plan.anomaly, result.labels, background, query))
         sun = find_sun(result, sky.sun[:3], T_true, float(sky.sun[3]))
         # Drawn even when not applied: the pose error below comes from the same stream.
         image, effects = apply_camera(query, rng, realism, sun, light.sun_strength, self.look)
@@ -365,7 +398,8 @@ class FrameSynthesizer:
         # A scale variant too small to be seen is placed at the next larger scale, finally 1.
         scales = [plan.scale, *sorted(s for s in {*config.scales, 1.0} if s > plan.scale)]
         dark = plan.anomaly in config.dark_background_types
-        # The darkest valid placement of a dark-background type, kept if none is dark enough.
+        # The darkest valid placement of a dark-background type, kept if none is dark enough;
+        # for a hard kind, the placement nearest what its kind needs.
         darkest: tuple[float, tuple] | None = None
         for scale in scales:
             obj = build_anomaly(plan.anomaly, plan.object_seed, plan.colour, scale)
@@ -373,7 +407,11 @@ class FrameSynthesizer:
                 reasons["scale"] = reasons.get("scale", 0) + 1
                 continue
             wear = stream(plan.seed, STREAM_WEAR, plan.index)
-            worn = worn_object(obj.scene, wear, config.realism)
+            scene = obj.scene
+            if config.hard_kinds and plan.anomaly in STATION_COLOURED_TYPES:
+                paint = stream(plan.seed, STREAM_PT_KIND, plan.index)
+                scene = paint_like_station(scene, self._palette, paint)
+            worn = worn_object(scene, wear, config.realism)
             for depth in self._depth_order(plan.depth_m):
                 for _ in range(config.camera_attempts):
                     T = self._camera(base, rng)
@@ -405,16 +443,12 @@ class FrameSynthesizer:
                             pixels = int(np.count_nonzero(result.labels == LABEL_ANOMALY))
                             if pixels >= need:
                                 extra = self._anomaly_extra(plan, obj, candidate, pixels, tries)
-                                if not dark:
-                                    return T, result, extra, extras
-                                level = background_level(result.rgb, result.labels)
-                                if math.isfinite(level):
-                                    extra["background_level"] = round(level, 4)
-                                if level <= config.dark_background_level:
-                                    return T, result, extra, extras
-                                if darkest is None or level < darkest[0]:
-                                    darkest = (level, (T, result, extra, extras))
-                                reason = "bright"
+                                chosen = (T, result, extra, extras)
+                                rank, reason = self._judge(plan.anomaly, chosen, dark, light)
+                                if not reason:
+                                    return chosen
+                                if darkest is None or rank < darkest[0]:
+                                    darkest = (rank, chosen)
                             else:
                                 reason = "small"
                         reasons[reason] = reasons.get(reason, 0) + 1
@@ -424,6 +458,26 @@ class FrameSynthesizer:
             f"frame {plan.index} ({plan.anomaly}, camera {plan.split}/{plan.camera}): no "
             f"placement met the rules in {tries} tries ({reasons})"
         )
+
+    def _judge(
+        self, anomaly: str, chosen: tuple, dark: bool, light: QueryLight
+    ) -> tuple[float, str]:
+        """Rank (lower is better) of a visible placement and why it is not kept ('' keeps
+        it): a dark-background type wants a dark ring, a hard kind what its kind needs."""
+        T, result, extra, _ = chosen
+        if self.config.hard_kinds:
+            background = self._query.render(
+                T, light.sun_direction, light.sun_strength, (), labels=True
+            ).labels
+            mask = result.labels == LABEL_ANOMALY
+            penalty = placement_penalty(anomaly, mask, background)
+            return penalty, "" if penalty <= 0 else "kind"
+        if not dark:
+            return 0.0, ""
+        level = background_level(result.rgb, result.labels)
+        if math.isfinite(level):
+            extra["background_level"] = round(level, 4)
+        return level, "" if level <= self.config.dark_background_level else "bright"
 
     def _area_bound(self, obj: AnomalyObject) -> float:
         """Upper bound of the object's image area (pixels) at the nearest placement."""

@@ -19,6 +19,9 @@ from allo_mrad_ros.synth.objects import ANOMALY_TYPES, COLOURS, DEFAULT_COLOUR
 STREAM_PLAN, STREAM_POSES, STREAM_MATERIALS, STREAM_FRAME, STREAM_CAMERA = range(5)
 STREAM_LIGHT, STREAM_WEAR = 5, 6  # per frame: the query's Sun, the object's wear
 STREAM_DEVELOP = 7  # per frame: the path tracer's view transform and exposure
+# The path-traced bench's departures: the Cycles materials (per sequence), the Earth-shine
+# (per frame) and a hard kind's paint (per frame).
+STREAM_PT_MATERIALS, STREAM_PT_LIGHT, STREAM_PT_KIND = 8, 9, 10
 
 
 def stream(seed: int, kind: int, *index: int) -> np.random.Generator:

@@ -27,6 +27,13 @@ from allo_mrad_ros.synth.validation import SynthError
 TEXTURE_SIZE = 256
 """Texels along one side of a texture tile."""
 _SEAM_WIDTH = 0.012  # of a tile: about 2.5 cm at the 2 m default
+_TEXTURE_SLOTS = (
+    "baseColorTexture",
+    "metallicRoughnessTexture",
+    "normalTexture",
+    "occlusionTexture",
+    "emissiveTexture",
+)
 
 
 def procedural_texture(
@@ -192,9 +199,10 @@ def as_built_station(
             continue  # vertex-coloured or plain parts keep their look
         colour, roughness = nominal[material.name]
         colour = colour * _log_gain(rng, realism.part_variation)
-        if material.baseColorTexture is not None:
-            # A textured part of a real CAD export keeps its own texture and UVs: the model's
-            # artwork is what the station looks like; only its colour factor varies.
+        if any(getattr(material, slot, None) is not None for slot in _TEXTURE_SLOTS):
+            # A textured part of a real CAD export keeps its own textures and UVs: the
+            # model's artwork (and its metallic-roughness, normal, occlusion and emissive
+            # maps) is what the station looks like; only its colour factor varies.
             scene.geometry[name] = _retinted(mesh, material, colour, roughness, name)
             continue
         texture = None
@@ -227,6 +235,13 @@ def _retinted(
             baseColorTexture=material.baseColorTexture,
             metallicFactor=material.metallicFactor,
             roughnessFactor=roughness,
+            metallicRoughnessTexture=material.metallicRoughnessTexture,
+            normalTexture=material.normalTexture,
+            occlusionTexture=material.occlusionTexture,
+            emissiveTexture=material.emissiveTexture,
+            emissiveFactor=material.emissiveFactor,
+            alphaMode=material.alphaMode,
+            alphaCutoff=material.alphaCutoff,
             doubleSided=material.doubleSided,
         ),
     )

@@ -1,9 +1,11 @@
 """Procedural anomaly objects, built deterministically from trimesh primitives and a seed.
 
 Sixteen types cover the families of ALLO's test set: thermal blankets, cables, tools lost
-during EVAs, an astronaut glove, CubeSats and small satellites, debris. One more, a dark
-glossy helmet visor, is opt-in (:data:`OPT_IN_TYPES`): a sequence gets it only when its
-settings name it, so the sequences of every existing preset keep their frames. Each builder draws
+during EVAs, an astronaut glove, CubeSats and small satellites, debris. Five more are opt-in
+(:data:`OPT_IN_TYPES`): a dark glossy helmet visor and the path-traced bench's hard kinds
+(a thin cable, black foil, small debris, a panel painted like the station; :mod:`.hard`). A
+sequence gets them only when its settings name them, so the sequences of every existing
+preset keep their frames. Each builder draws
 its dimensions from a seeded NumPy generator, so ``build_anomaly(kind, seed)`` always gives
 the same object; sizes are those of the real things (a 1U CubeSat is 10 cm).
 """
@@ -28,6 +30,7 @@ from .base import (
 )
 from .cables import cable, handrail, tether_hook
 from .glossy import dark_visor
+from .hard import black_foil, small_debris, station_patch, thin_cable
 from .satellites import cubesat_1u, cubesat_3u, cubesat_6u, helicopter, smallsat
 from .sheets import blanket_crumpled, blanket_curved, debris_panel, mli_strip
 from .tools import drill, glove, pistol_grip_tool, wrench
@@ -56,17 +59,25 @@ ANOMALY_TYPES: MappingProxyType[str, Builder] = MappingProxyType(
 )
 """Object type name to builder, in a fixed order: the types a sequence draws by default."""
 
-OPT_IN_TYPES: MappingProxyType[str, Builder] = MappingProxyType({"dark_visor": dark_visor})
+OPT_IN_TYPES: MappingProxyType[str, Builder] = MappingProxyType(
+    {
+        "dark_visor": dark_visor,
+        "thin_cable": thin_cable,
+        "black_foil": black_foil,
+        "small_debris": small_debris,
+        "station_patch": station_patch,
+    }
+)
 """Types drawn only when a sequence names them (adding one to the default draw would
 change the frame plan of every existing preset)."""
 
 KNOWN_TYPES: MappingProxyType[str, Builder] = MappingProxyType({**ANOMALY_TYPES, **OPT_IN_TYPES})
 """Every type :func:`build_anomaly` and a sequence's ``anomaly_types`` accept."""
 
-DARK_TYPES = frozenset({"dark_visor"})
+DARK_TYPES = frozenset({"dark_visor", "black_foil"})
 """Types whose own materials are dark (diffuse albedo under 10 %)."""
 
-SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip"})
+SHEET_TYPES = frozenset({"blanket_crumpled", "blanket_curved", "mli_strip", "black_foil"})
 """Types made of open sheets (zero thickness); all others are closed solids."""
 
 

@@ -32,6 +32,8 @@ MATERIALS: dict[str, tuple[tuple[float, float, float], float, float]] = {
     # A dark tinted visor: a dielectric (specular reflectance 4 %) of very low roughness,
     # so nearly all it sends back is a sharp highlight of the lights.
     "visor_black": ((0.02, 0.02, 0.025), 0.0, 0.06),
+    # Black Kapton, a blanket's outer layer: 3 % albedo, a soft sheen.
+    "black_kapton": ((0.03, 0.03, 0.03), 0.0, 0.35),
 }
 
 # ALLO's colour variants recolour an object; these are the named colours used.

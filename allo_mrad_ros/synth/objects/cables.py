@@ -8,7 +8,7 @@ from .base import Part
 from .shapes import catmull_rom, rod, tube
 
 
-def _random_walk(rng: np.random.Generator, count: int, step: float, stiffness: float) -> np.ndarray:
+def random_walk(rng: np.random.Generator, count: int, step: float, stiffness: float) -> np.ndarray:
     """Control points of a cable: each step keeps some of the previous direction."""
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
@@ -32,7 +32,7 @@ def cable(rng: np.random.Generator) -> list[Part]:
     """A loose power or data cable: a tube along a random spline, a connector at each end."""
     length = rng.uniform(1.5, 3.0)
     radius = rng.uniform(0.012, 0.03)
-    controls = _random_walk(rng, int(rng.integers(5, 9)), 1.0, rng.uniform(0.3, 0.7))
+    controls = random_walk(rng, int(rng.integers(5, 9)), 1.0, rng.uniform(0.3, 0.7))
     path = catmull_rom(controls, 14)
     path *= length / np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
     jacket = rng.choice(["black_cable", "orange_cable", "white_cloth", "grey_plastic"])
@@ -57,7 +57,7 @@ def tether_hook(rng: np.random.Generator) -> list[Part]:
     gate = rod(loop[-1], loop[0], 0.7 * rod_radius, 10)
     # Webbing: a thin tube leaving the hook's far end, drifting in a gentle curve.
     strap_len = rng.uniform(0.5, 1.0)
-    controls = _random_walk(rng, 5, 1.0, 0.7)
+    controls = random_walk(rng, 5, 1.0, 0.7)
     controls -= controls[0]
     controls[:, 0] -= np.arange(5) * 1.5  # away from the hook, along -x
     path = catmull_rom(controls, 10)
