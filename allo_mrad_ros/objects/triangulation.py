@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import erfcx, ndtr
 
 from allo_mrad_ros.objects.params import ObjectsError
 
@@ -36,11 +37,13 @@ _STIFFNESS = 1e8
 # An eigenvalue of the rays' information below this fraction of its trace is a direction the
 # rays do not determine (parallel rays along it): the solution keeps the anchor's prior there.
 _NULL = 1e-12
+# Beyond this many standard deviations past a bound, the truncated normal's moments are taken
+# from its exponential limit.
+_FAR_TAIL = 30.0
 # Passes of the active set (each adds or releases at most one bound per object).
 _ACTIVE_PASSES = 12
 # Multiplier updates that take an active bound's residual from force / stiffness to rounding.
 _REFINEMENTS = 2
-_SQRT12 = math.sqrt(12.0)
 
 
 @dataclass(frozen=True)
@@ -219,11 +222,34 @@ def triangulate(rays: RayBatch, *, iterations: int = 3) -> Triangulation:
         undetermined[rest] = np.where(determined, 0.0, share).sum(axis=1) > 1e-12
     free_sigma = np.where(undetermined, np.inf, np.sqrt(along))
     free_range = np.einsum("bi,bi->b", anchor_d, free - anchor_c)
-    # The anchor interval's information: a uniform inverse range, linearised at the estimate.
-    anchor_range = np.maximum(ranges[index, rays.anchor], anchor_low)
-    inverse_sigma = np.maximum(1.0 / anchor_low - 1.0 / anchor_high, 1e-9) / _SQRT12
-    interval_information = 1.0 / (anchor_range**2 * inverse_sigma) ** 2
-    covariance = np.linalg.inv(a_rays + interval_information[:, None, None] * anchor_outer)
+    # Along the anchor the rays' likelihood (Gaussian in inverse range, where parallax is
+    # linear) times the interval (uniform in inverse range) is a truncated normal. Its mode
+    # (the constrained least squares) is what noise makes it while parallax is weak: on a
+    # bound, where the curvature claims a spread far below the interval's. Its mean and
+    # variance are what the next view can be gated with: where the rays say little they are
+    # the interval's middle and spread, where they say much, the rays' own.
+    rho_low, rho_high = 1.0 / anchor_high, 1.0 / anchor_low
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_free = 1.0 / free_range
+        rho_sigma = free_sigma / free_range**2
+    informed = np.isfinite(rho_free) & np.isfinite(rho_sigma) & (rho_sigma > 0)
+    mean, variance = truncated_normal_moments(
+        np.where(informed, rho_free, 0.0),
+        np.where(informed, rho_sigma, np.inf),
+        rho_low,
+        rho_high,
+    )
+    rho = np.clip(mean, rho_low, rho_high)
+    anchor_range = np.einsum("bi,bi->b", anchor_d, position - anchor_c)
+    position = position + (1.0 / rho - anchor_range)[:, None] * anchor_d
+    ranges = _clipped_ranges(position, d, origin_along, low, high)
+    # The covariance holds the rays' information and as much along the anchor as takes its
+    # variance there to the truncated normal's (linearised to range).
+    # (A spread below a billionth of the range is rounding: floored there.)
+    range_information = rho**4 / np.maximum(variance, (1e-9 * rho) ** 2)
+    rays_information = np.where(undetermined, 0.0, 1.0 / np.maximum(along, 1e-300))
+    extra = np.maximum(range_information - rays_information, 0.0)
+    covariance = np.linalg.inv(a_rays + extra[:, None, None] * anchor_outer)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
     return Triangulation(
         position=position,
@@ -232,6 +258,61 @@ def triangulate(rays: RayBatch, *, iterations: int = 3) -> Triangulation:
         free_range=free_range,
         free_range_sigma=free_sigma,
     )
+
+
+def truncated_normal_moments(
+    mean: np.ndarray, sigma: np.ndarray, low: np.ndarray, high: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance of ``N(mean, sigma^2)`` restricted to ``[low, high]`` (elementwise);
+    an infinite ``sigma`` gives the uniform distribution on the interval.
+
+    An interval on one side of the mean is taken in the normal's upper tail through the
+    scaled complementary error function (``erfcx``), where the tail's mass would round to 0:
+    far past a bound the mean is the bound plus about ``sigma^2 / distance``.
+    """
+    width = np.maximum(high - low, 0.0)
+    uniform = ~np.isfinite(sigma) | (sigma <= 0)
+    scale = np.where(uniform, 1.0, sigma)
+    alpha = (low - mean) / scale
+    beta = (high - mean) / scale
+    left = beta < 0
+    tail = left | (alpha > 0)
+    # Standardised bounds with the interval right of the mean (mirrored where it is left).
+    a = np.where(left, -beta, alpha)
+    b = np.where(left, -alpha, beta)
+    root2pi = math.sqrt(2.0 * math.pi)
+    # In the tail (0 <= a <= b): every term carries exp(-a^2/2), divided out.
+    at = np.where(tail, a, 0.0)
+    bt = np.where(tail, b, 0.0)
+    decay = np.exp(-0.5 * (bt - at) * (bt + at))
+    tail_mass = 0.5 * (erfcx(at / math.sqrt(2.0)) - erfcx(bt / math.sqrt(2.0)) * decay)
+    tail_mass = np.where(tail_mass > 0, tail_mass, 1.0)
+    tail_shift = (1.0 - decay) / root2pi / tail_mass
+    tail_spread = 1.0 + (at - bt * decay) / root2pi / tail_mass - tail_shift**2
+    # Across the mean: plain normal probabilities (the mass is not small).
+    phi_a = np.exp(-0.5 * a * a) / root2pi
+    phi_b = np.exp(-0.5 * b * b) / root2pi
+    mass = ndtr(b) - ndtr(a)
+    mass = np.where(mass > 0, mass, 1.0)
+    # Far in the tail (the two formulas above cancel to rounding) the density on [a, b] is
+    # exponential with rate a: its truncated mean and variance, relative error ~ 1 / a^2.
+    far = tail & (at > _FAR_TAIL)
+    rate = np.where(far, at, 1.0)
+    length = np.where(far, bt - at, 1.0)
+    ratio = np.exp(-rate * length) / -np.expm1(-rate * length)  # e^(-kL) / (1 - e^(-kL))
+    far_offset = 1.0 / rate - length * ratio
+    far_spread = 1.0 / rate**2 - length**2 * ratio * (1.0 + ratio)
+    tail_shift = np.where(far, at + far_offset, tail_shift)
+    tail_spread = np.where(far, far_spread, tail_spread)
+    shift = np.where(tail, tail_shift, (phi_a - phi_b) / mass)
+    spread = np.where(
+        tail, tail_spread, 1.0 + (a * phi_a - b * phi_b) / mass - ((phi_a - phi_b) / mass) ** 2
+    )
+    out_mean = mean + np.where(left, -shift, shift) * scale
+    out_variance = scale**2 * np.maximum(spread, 0.0)
+    out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
+    out_variance = np.where(uniform, width**2 / 12.0, out_variance)
+    return np.clip(out_mean, low, high), np.minimum(out_variance, width**2 / 12.0)
 
 
 def _information(

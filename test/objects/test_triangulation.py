@@ -75,7 +75,9 @@ def test_a_bound_holds_where_the_rays_would_cross_beyond_it():
     high = np.array([50.0, 50.0, 6.0])
     rays = RayBatch.single(origins, point - origins, 1e-6, 0.3, high)
     solution = triangulate(rays)
-    assert solution.ranges[0, 2] == pytest.approx(6.0, abs=1e-6)
+    # At the bound's side of it: the mean of the rays' normal cut there (1 mrad rays, crossing
+    # 4 m beyond: a few micrometres inside).
+    assert 6.0 - 1e-3 < solution.ranges[0, 2] <= 6.0
     # Parallax alone still says 10 m (what the tracker checks against the surface).
     assert solution.free_range[0] == pytest.approx(np.linalg.norm(point - origins[2]), abs=1e-6)
     oracle, *_ = triangulate_one(origins, point - origins, [1e-6] * 3, [0.0] * 3, [0.3] * 3, high)

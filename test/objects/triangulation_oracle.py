@@ -1,6 +1,7 @@
 """A slow float64 oracle of :func:`allo_mrad_ros.objects.triangulation.triangulate`, one
 object and one ray at a time: the same weights, its constrained least squares solved by
-SciPy's SLSQP (an independent solver) instead of the penalty active set."""
+SciPy's SLSQP (an independent solver) instead of the penalty active set, and SciPy's
+truncated normal for the spread along the anchor."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import math
 
 import numpy as np
 from scipy.optimize import minimize
+from scipy.stats import truncnorm
 
 
 def triangulate_one(origins, directions, angular_variance, extra_variance, low, high):
@@ -71,10 +73,22 @@ def triangulate_one(origins, directions, angular_variance, extra_variance, low, 
     ranges = ranges_of(position)
     weights = weights_of(ranges)
     a = sum(weights[i] * (np.eye(3) - np.outer(d[i], d[i])) for i in range(n))
-    anchor_range = max(ranges[anchor], low[anchor])
-    inverse_sigma = (1.0 / low[anchor] - 1.0 / high[anchor]) / math.sqrt(12.0)
-    information = 1.0 / (anchor_range**2 * inverse_sigma) ** 2
-    covariance = np.linalg.inv(a + information * np.outer(d[anchor], d[anchor]))
     free_range = float(d[anchor] @ (free - c[anchor]))
     free_sigma = math.sqrt(float(d[anchor] @ np.linalg.inv(a) @ d[anchor])) if n > 1 else math.inf
+    # Along the anchor: the rays' Gaussian in inverse range times the interval's uniform one,
+    # a truncated normal (SciPy's), whose mean places the object and whose variance (to
+    # range) is its spread along the anchor.
+    rho_low, rho_high = 1.0 / high[anchor], 1.0 / low[anchor]
+    if math.isinf(free_sigma):
+        mean, variance = (rho_low + rho_high) / 2.0, (rho_high - rho_low) ** 2 / 12.0
+        rays_variance = math.inf
+    else:
+        mu, sigma = 1.0 / free_range, free_sigma / free_range**2
+        alpha, beta = (rho_low - mu) / sigma, (rho_high - mu) / sigma
+        mean, variance = (float(x) for x in truncnorm.stats(alpha, beta, mu, sigma, "mv"))
+        rays_variance = free_sigma**2
+    along = float(d[anchor] @ (position - c[anchor]))
+    position = position + (1.0 / mean - along) * d[anchor]
+    extra = max(mean**4 / variance - 1.0 / rays_variance, 0.0)
+    covariance = np.linalg.inv(a + extra * np.outer(d[anchor], d[anchor]))
     return position, covariance, free_range, free_sigma
