@@ -13,10 +13,13 @@ Every ray also bounds the range: ``low_i <= d_i . (X - c_i) <= high_i`` (one vie
 evidence, :mod:`.rays`); violated bounds are enforced as stiff penalties, added one active
 set at a time.
 
-The newest ray is the *anchor*. Where the rays do not fix the range (one view, or rays that
-keep one direction), the solution along the anchor is the middle of its interval in inverse
-range, and the covariance along it is that interval's (a uniform inverse range), so that an
-object's projection into a later view spans the epipolar segment the interval allows.
+The newest ray is the *anchor*. Along it the object is placed at the mean, with the
+variance, of the rays' inverse range (a normal, from the rays alone) cut to the anchor's
+interval (uniform in inverse range): a truncated normal. Where the rays do not fix the range
+(one view, rays that keep one direction, or a baseline too short for the pixel noise) that
+is the middle of the interval in inverse range with the interval's spread, so that an
+object's projection into a later view spans the epipolar segment the interval allows; where
+they do, it is their own estimate and spread.
 
 :func:`triangulate` works on a batch of objects (rays padded to one count); test/objects
 holds a loop-by-loop float64 oracle of it.
@@ -126,9 +129,11 @@ class Triangulation:
     Attributes
     ----------
     position : numpy.ndarray
-        (B, 3) the constrained least-squares position.
+        (B, 3) the constrained least-squares position, moved along the anchor to the
+        truncated normal's mean (module text).
     covariance : numpy.ndarray
-        (B, 3, 3) its covariance: the rays' information plus the anchor interval's.
+        (B, 3, 3) its covariance: the rays' information, plus along the anchor what takes
+        its variance there to the truncated normal's.
     ranges : numpy.ndarray
         (B, R) the range of ``position`` along each ray (0 for padding).
     free_range : numpy.ndarray
