@@ -166,3 +166,37 @@ def test_a_malformed_batch_is_refused_naming_the_array():
             rays.valid,
             rays.anchor,
         )
+
+
+def test_the_truncated_normal_moments_match_scipy_and_its_tail_limit():
+    from scipy.stats import truncnorm
+
+    from allo_mrad_ros.objects.triangulation import truncated_normal_moments
+
+    rng = np.random.default_rng(7)
+    low = rng.uniform(0.01, 0.5, 2000)
+    high = low + rng.uniform(0.01, 3.0, 2000)
+    sigma = 10 ** rng.uniform(-3, 1, 2000)
+    mean = rng.uniform(-3.0, 5.0, 2000)
+    alpha, beta = (low - mean) / sigma, (high - mean) / sigma
+    # SciPy's own formulas lose their digits far in a tail: compared within 25 sigma.
+    near = np.minimum(np.abs(alpha), np.abs(beta)) < 25
+    got_mean, got_variance = truncated_normal_moments(mean, sigma, low, high)
+    want_mean, want_variance = truncnorm.stats(
+        alpha[near], beta[near], loc=mean[near], scale=sigma[near], moments="mv"
+    )
+    assert np.all(np.abs(got_mean[near] - want_mean) <= 1e-7 * sigma[near])
+    spread_error = np.abs(np.sqrt(got_variance[near]) - np.sqrt(want_variance))
+    assert np.all(spread_error <= 1e-7 * sigma[near])
+    # Far past a bound: the bound plus sigma / distance (in sigmas), spread the same.
+    m, v = truncated_normal_moments(
+        np.array([0.0]), np.array([1.0]), np.array([1e3]), np.array([2e3])
+    )
+    assert m[0] - 1e3 == pytest.approx(1e-3, rel=1e-5) and math.sqrt(v[0]) == pytest.approx(
+        1e-3, rel=1e-5
+    )
+    # No information: the uniform distribution.
+    m, v = truncated_normal_moments(
+        np.array([0.0]), np.array([np.inf]), np.array([1.0]), np.array([3.0])
+    )
+    assert m[0] == 2.0 and v[0] == pytest.approx(4.0 / 12.0)
