@@ -49,6 +49,20 @@ class ObjectParams:
         0.0,
         1.0,
     )
+    edge_sigma_fraction: float = parameter(
+        0.5,
+        "more centroid noise for a region touching the image's edge (the object may extend "
+        "beyond it): this fraction of the region's side across that edge, added in quadrature",
+        0.0,
+        10.0,
+    )
+    position_sigma: float = parameter(
+        0.02,
+        "standard deviation of the camera position the pose reports, m (per axis): its rays "
+        "count with that much more variance across them",
+        0.0,
+        100.0,
+    )
     min_range: float = parameter(
         1.5, "nearest an object may be to the camera", 0.0, 1e4, low_open=True
     )

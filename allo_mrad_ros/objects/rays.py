@@ -344,6 +344,10 @@ class Observations:
         (n,) bool.
     extent_px : numpy.ndarray
         (n,) the larger side of each region's box, pixels.
+    edge_px : numpy.ndarray
+        (n,) the larger side of each region's box across the image edges it touches (0 for
+        a box inside the image): there the object may extend beyond the image, and the
+        centroid of what shows is not the object's.
     scores : numpy.ndarray
         (n,) each region's score.
     indices : numpy.ndarray
@@ -357,6 +361,7 @@ class Observations:
     high: np.ndarray
     over_surface: np.ndarray
     extent_px: np.ndarray
+    edge_px: np.ndarray
     scores: np.ndarray
     indices: np.ndarray
 
@@ -382,7 +387,7 @@ def observe(
     each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
-    kept, low, high, surface, extent, scores, pixels = [], [], [], [], [], [], []
+    kept, low, high, surface, extent, edge, scores, pixels = [], [], [], [], [], [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
@@ -393,8 +398,11 @@ def observe(
         low.append(min_range)
         high.append(max_range if bound is None else max(min(bound, max_range), min_range))
         surface.append(bound is not None)
-        _, _, w, h = region.box
+        x, y, w, h = region.box
         extent.append(max(w, h))
+        across_x = w if x <= 0 or x + w >= camera.width else 0
+        across_y = h if y <= 0 or y + h >= camera.height else 0
+        edge.append(max(across_x, across_y))
         scores.append(region.score)
         pixels.append(region.centroid)
     pixel_array = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
@@ -407,6 +415,7 @@ def observe(
         high=np.asarray(high, dtype=np.float64),
         over_surface=np.asarray(surface, dtype=bool),
         extent_px=np.asarray(extent, dtype=np.float64),
+        edge_px=np.asarray(edge, dtype=np.float64),
         scores=np.asarray(scores, dtype=np.float64),
         indices=np.asarray(kept, dtype=np.int64),
     )

@@ -59,13 +59,19 @@ def test_one_ray_sits_mid_interval_in_inverse_range_with_the_interval_s_spread()
     assert math.isinf(solution.free_range_sigma[0])  # the ray alone fixes no range
 
 
-def test_parallel_rays_leave_the_range_to_the_interval():
+def test_parallel_rays_place_the_point_at_infinity_and_the_range_at_the_interval_s_end():
+    # Rays that keep one direction while the camera translates meet at infinity: inverse
+    # range 0, with the spread a linear regression of the directions on the baselines gives
+    # (sigma over the root of the baselines' squared deviations across the rays).
     origins = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.5, 0.0]])
     rays = RayBatch.single(origins, np.tile([0.0, 0.0, 1.0], (3, 1)), 1e-6, 0.3, 50.0)
     solution = triangulate(rays)
-    _, sigma = solution.free_inverse_range()
-    assert math.isinf(solution.free_range_sigma[0]) and math.isinf(sigma[0])
-    assert 0.3 <= solution.ranges[0, -1] <= 50.0
+    rho, sigma = solution.free_inverse_range()
+    across = origins[:, :2] - origins[:, :2].mean(axis=0)
+    assert abs(rho[0]) < 1e-9
+    assert sigma[0] == pytest.approx(1e-3 / math.sqrt(np.sum(across**2)), rel=1e-6)
+    # Cut to the interval, the object sits at its far end.
+    assert 50.0 * 0.999 <= solution.ranges[0, -1] <= 50.0
 
 
 def test_a_bound_holds_where_the_rays_would_cross_beyond_it():
