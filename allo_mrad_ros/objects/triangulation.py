@@ -231,8 +231,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
         rho = new_rho
     informed = inverse_variance > 0
     free_rho = np.where(informed, mean, rho)
-    with np.errstate(divide="ignore"):
-        rho_sigma = np.where(informed, 1.0 / np.sqrt(np.where(informed, inverse_variance, 1.0)), np.inf)
+    rho_sigma = np.where(informed, 1.0 / np.sqrt(np.where(informed, inverse_variance, 1.0)), np.inf)
     # The interval every ray's range bound leaves the inverse range (at this direction).
     rho_low, rho_high = _feasible(ab, directions, baseline, rays, anchor_low, anchor_high)
     # Only where a bound lies within _TRUNCATED standard deviations does the cut change the

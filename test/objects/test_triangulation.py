@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from triangulation_oracle import triangulate_one
 
+from allo_mrad_ros.objects import triangulation
 from allo_mrad_ros.objects.params import ObjectsError
 from allo_mrad_ros.objects.triangulation import RayBatch, triangulate
 
@@ -59,7 +60,7 @@ def test_one_ray_sits_mid_interval_in_inverse_range_with_the_interval_s_spread()
     assert math.isinf(solution.free_range_sigma[0])  # the ray alone fixes no range
 
 
-def test_parallel_rays_place_the_point_at_infinity_and_the_range_at_the_interval_s_end():
+def test_parallel_rays_place_the_point_at_infinity():
     # Rays that keep one direction while the camera translates meet at infinity: inverse
     # range 0, with the spread a linear regression of the directions on the baselines gives
     # (sigma over the root of the baselines' squared deviations across the rays).
@@ -70,24 +71,40 @@ def test_parallel_rays_place_the_point_at_infinity_and_the_range_at_the_interval
     across = origins[:, :2] - origins[:, :2].mean(axis=0)
     assert abs(rho[0]) < 1e-9
     assert sigma[0] == pytest.approx(1e-3 / math.sqrt(np.sum(across**2)), rel=1e-6)
-    # Cut to the interval, the object sits at its far end.
-    assert 50.0 * 0.999 <= solution.ranges[0, -1] <= 50.0
+    # The interval (up to 50 m) is contradicted by hundreds of sigma: the point stays on the
+    # rays' direction, as far as the triangulation places anything (1000 times the
+    # interval's far end), so that it projects where the next such ray will point.
+    assert solution.ranges[0, -1] == pytest.approx(50.0e3)
 
 
-def test_a_bound_holds_where_the_rays_would_cross_beyond_it():
+def test_a_bound_holds_where_the_rays_cross_beyond_it_within_their_noise():
     point = np.array([0.0, 0.0, 10.0])
-    origins = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-    # The newest ray sees surface at 6 m: the object must be in front of it.
-    high = np.array([50.0, 50.0, 6.0])
-    rays = RayBatch.single(origins, point - origins, 1e-6, 0.3, high)
+    origins = np.array([[-0.1, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]])
+    # 3 mrad rays over a 0.2 m baseline: inverse range 0.1 +- 0.02. The newest ray sees
+    # surface at 9.5 m (inverse 0.105, a quarter sigma off): the object lies in front of it.
+    high = np.array([50.0, 50.0, 9.5])
+    rays = RayBatch.single(origins, point - origins, 1e-5, 0.3, high)
     solution = triangulate(rays)
-    # At the bound's side of it: the mean of the rays' normal cut there (1 mrad rays, crossing
-    # 4 m beyond: a few micrometres inside).
-    assert 6.0 - 1e-3 < solution.ranges[0, 2] <= 6.0
+    assert 0.3 <= solution.ranges[0, 2] <= 9.5
+    # The truncated normal's mean: well inside, where most of the cut mass lies.
+    assert solution.ranges[0, 2] < 9.0
     # Parallax alone still says 10 m (what the tracker checks against the surface).
     assert solution.free_range[0] == pytest.approx(np.linalg.norm(point - origins[2]), abs=1e-6)
-    oracle, *_ = triangulate_one(origins, point - origins, [1e-6] * 3, [0.0] * 3, [0.3] * 3, high)
+    oracle, *_ = triangulate_one(origins, point - origins, [1e-5] * 3, [0.0] * 3, [0.3] * 3, high)
     assert np.linalg.norm(solution.position[0] - oracle) < 1e-5
+
+
+def test_rays_that_meet_far_beyond_a_bound_keep_their_own_crossing():
+    # 1 mrad rays over 2 m meet 4 m behind the surface the newest one sees (40 sigma of
+    # inverse range): the intervals are contradicted (glare, a reflection), so the point is
+    # where the rays meet and parallax alone places it behind (the tracker does not confirm).
+    point = np.array([0.0, 0.0, 10.0])
+    origins = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    high = np.array([50.0, 50.0, 6.0])
+    solution = triangulate(RayBatch.single(origins, point - origins, 1e-6, 0.3, high))
+    assert np.linalg.norm(solution.position[0] - point) < 1e-6
+    rho, sigma = solution.free_inverse_range()
+    assert rho[0] + 3.0 * sigma[0] < 1.0 / 6.0
 
 
 def test_the_true_point_lies_in_the_3_sigma_ellipsoid_in_99_percent_of_noisy_draws():
@@ -114,7 +131,10 @@ def test_the_true_point_lies_in_the_3_sigma_ellipsoid_in_99_percent_of_noisy_dra
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_the_vectorised_batch_matches_the_slow_oracle(seed):
+def test_the_vectorised_batch_matches_the_slow_oracle(seed, monkeypatch):
+    # Converged to rounding (the shipped triangulation stops within half a standard
+    # deviation of inverse range, a speed trade-off), so both sit at the same optimum.
+    monkeypatch.setattr(triangulation, "_CONVERGED", 1e-9)
     rng = np.random.default_rng(100 + seed)
     batch, capacity = 5, 9
     counts = rng.integers(1, capacity + 1, batch)
@@ -128,7 +148,7 @@ def test_the_vectorised_batch_matches_the_slow_oracle(seed):
     high = rng.uniform(5.0, 40.0, (batch, capacity))
     valid = np.arange(capacity)[None, :] < counts[:, None]
     rays = RayBatch(origins, directions, variance, extra, low, high, valid, counts - 1)
-    solution = triangulate(rays)
+    solution = triangulate(rays, iterations=12)
     for b in range(batch):
         n = counts[b]
         position, covariance, free_range, free_sigma = triangulate_one(
@@ -142,7 +162,7 @@ def test_the_vectorised_batch_matches_the_slow_oracle(seed):
         assert np.linalg.norm(solution.position[b] - position) < 1e-5 * (
             1 + np.linalg.norm(position)
         )
-        np.testing.assert_allclose(solution.covariance[b], covariance, rtol=1e-4, atol=1e-9)
+        np.testing.assert_allclose(solution.covariance[b], covariance, rtol=1e-3, atol=1e-9)
         if n > 1:
             assert solution.free_range[b] == pytest.approx(free_range, rel=1e-6, abs=1e-6)
             assert solution.free_range_sigma[b] == pytest.approx(free_sigma, rel=1e-4)
