@@ -1,28 +1,37 @@
-"""Where rays meet: weighted least squares with range-interval constraints, for many objects
-at once.
+"""Where rays meet: the reprojection error minimised in inverse range, with range
+intervals, for many objects at once.
 
-An object seen in views ``i`` lies near each ray ``c_i + r d_i``. Its position ``X``
-minimises the weighted squared distances from the rays,
+An object seen in views ``i`` lies near each ray ``c_i + r d_i``. The newest ray is the
+*anchor*; the object is parameterised from it as ``X = c_a + E^T (alpha, beta, 1) / rho``
+(``E`` the anchor's frame, ``rho`` the inverse range along it). Its estimate minimises the
+rays' angular residuals,
 
-    sum_i w_i |(I - d_i d_i^T)(X - c_i)|^2,   w_i = 1 / (sigma_i^2 r_i^2 + q_i),
+    sum_i w_i tan^2(angle between d_i and X - c_i),   w_i = 1 / (sigma_i^2 + q_i / r_i^2),
 
-where ``sigma_i`` is the ray's angular noise (pixel noise over the focal length), ``r_i``
-the range along it (the weights are re-evaluated at the estimate, a few iterations) and
-``q_i`` a variance added for the ray's age (a drifting object: old rays count less).
+``sigma_i`` the ray's angular noise (pixel noise over the focal length), ``q_i`` a variance
+across the ray in metres squared (the camera position's noise, and the ray's age times the
+drift speed, squared: a drifting object's old rays count less) and ``r_i`` the range along
+it. With ``u_i = rho (X - c_i) = m + rho (c_a - c_i)`` each residual is nearly linear in
+``(alpha, beta, rho)`` however weak the parallax, so the estimate is not pulled towards the
+cameras as the least squares of the rays' distances from the point is (the noise is then in
+the regressor: with a short baseline it attenuated the range by half). Gauss-Newton starts
+from that least squares (exact for noise-free rays) and stops once a step moves ``rho`` by
+less than half its standard deviation; where the rays keep one direction, ``rho`` is 0 (the
+point is at infinity).
+
 Every ray also bounds the range: ``low_i <= d_i . (X - c_i) <= high_i`` (one view's range
-evidence, :mod:`.rays`); violated bounds are enforced as stiff penalties, added one active
-set at a time.
-
-The newest ray is the *anchor*. Along it the object is placed at the mean, with the
-variance, of the rays' inverse range (a normal, from the rays alone) cut to the anchor's
-interval (uniform in inverse range): a truncated normal. Where the rays do not fix the range
-(one view, rays that keep one direction, or a baseline too short for the pixel noise) that
-is the middle of the interval in inverse range with the interval's spread, so that an
-object's projection into a later view spans the epipolar segment the interval allows; where
-they do, it is their own estimate and spread.
+evidence, :mod:`.rays`), linear in ``rho`` at the estimate's direction: together an interval
+of ``rho``. Along the anchor the object is placed at the mean, with the variance, of the
+rays' inverse range (a normal) cut to that interval (uniform in inverse range): a truncated
+normal. Where the rays do not fix the range (one view) that is the middle of the interval
+in inverse range with the interval's spread, so that an object's projection into a later
+view spans the epipolar segment the interval allows; where they do, it is their own
+estimate and spread. Where they place the object outside the interval by more than three
+standard deviations (glare that keeps its direction over a module), the intervals are
+contradicted and the rays' own estimate is kept (the tracker does not confirm it).
 
 :func:`triangulate` works on a batch of objects (rays padded to one count); test/objects
-holds a loop-by-loop float64 oracle of it.
+holds a one-object float64 oracle of it (SciPy's least squares on the same cost).
 """
 
 from __future__ import annotations
@@ -31,7 +40,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import erfcx, ndtr
+from scipy.special import erfcx
 
 from allo_mrad_ros.objects.params import ObjectsError
 
@@ -50,9 +59,11 @@ _CONVERGED = 0.5
 # Rays whose own inverse range lies this many standard deviations outside the intervals'
 # contradict them (see triangulate).
 _CONFLICT = 3.0
+_SQRT2 = math.sqrt(2.0)
 # Beyond this many standard deviations past a bound, the truncated normal's moments are taken
 # from its exponential limit.
 _FAR_TAIL = 30.0
+_SQRT_2_PI = math.sqrt(2.0 / math.pi)
 
 
 @dataclass(frozen=True)
@@ -135,18 +146,23 @@ class Triangulation:
     Attributes
     ----------
     position : numpy.ndarray
-        (B, 3) the constrained least-squares position, moved along the anchor to the
-        truncated normal's mean (module text).
+        (B, 3) the position: along the anchor the truncated normal's mean (module text),
+        across it the rays' estimate at that inverse range.
     covariance : numpy.ndarray
-        (B, 3, 3) its covariance: the rays' information, plus along the anchor what takes
-        its variance there to the truncated normal's.
+        (B, 3, 3) its covariance: the rays' information across the anchor, the truncated
+        normal's variance along it.
     ranges : numpy.ndarray
         (B, R) the range of ``position`` along each ray (0 for padding).
     free_range : numpy.ndarray
         (B,) range along the anchor ray of the rays-only solution (no bounds, no interval
-        information): what parallax alone says; may be negative or huge.
+        information): what parallax alone says, ``1 / inverse_range``; may be negative or
+        huge.
     free_range_sigma : numpy.ndarray
-        (B,) its standard deviation from the rays alone (inf where they are parallel).
+        (B,) its standard deviation from the rays alone, linearised (inf for one ray).
+    inverse_range : numpy.ndarray
+        (B,) the rays-only inverse range along the anchor (0: at infinity, parallel rays).
+    inverse_range_sigma : numpy.ndarray
+        (B,) its standard deviation (inf where the rays do not determine it: one ray).
     """
 
     position: np.ndarray
@@ -199,11 +215,11 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     basis = _anchor_basis(anchor_d)
     directions = d @ basis.transpose(0, 2, 1)  # (B, R, 3) each ray in the anchor frame
     baseline = (anchor_c[:, None, :] - c) @ basis.transpose(0, 2, 1)  # c_a - c_i, ditto
+    middle = anchor_prior_range(anchor_low, anchor_high)
+    origin_along = np.einsum("brj,brj->br", d, c)
     # Seed: the rays' linear least squares (exact for noise-free rays), weighted at the
     # interval's middle; only its direction from the anchor and its inverse range are kept.
-    middle = anchor_prior_range(anchor_low, anchor_high)
     prior_point = anchor_c + middle[:, None] * anchor_d
-    origin_along = np.einsum("brj,brj->br", d, c)
     seed_ranges = np.clip(_along(prior_point, d, origin_along), rays.low, rays.high)
     weights = np.where(
         valid, 1.0 / (rays.angular_variance * seed_ranges**2 + rays.extra_variance), 0.0
@@ -444,49 +460,46 @@ def truncated_normal_moments(
     """Mean and variance of ``N(mean, sigma^2)`` restricted to ``[low, high]`` (elementwise);
     an infinite ``sigma`` gives the uniform distribution on the interval.
 
-    An interval on one side of the mean is taken in the normal's upper tail through the
-    scaled complementary error function (``erfcx``), where the tail's mass would round to 0:
-    far past a bound the mean is the bound plus about ``sigma^2 / distance``.
+    In standard units ``a < b`` (mirrored so that ``a + b >= 0``: the bound nearer the mean,
+    or the one on its side, is ``a``), every term carries ``exp(-a^2 / 2)``, divided out
+    through the scaled complementary error function ``erfcx``: with ``D = exp(-(b^2 - a^2)
+    / 2)`` and ``E = erfcx(a / sqrt 2) - D erfcx(b / sqrt 2)``, the mean moves by
+    ``sqrt(2 / pi) (1 - D) / E`` and the variance is ``1 + sqrt(2 / pi) (a - b D) / E``
+    less that squared (arranged so that nothing cancels far in a tail). Far past a bound
+    (``a >> 1``) that stays exact where the tail's mass would round to 0: the mean is the
+    bound plus about ``1 / a``, the spread about ``1 / a``. ``a`` below -10 is -10 (the
+    mass beyond rounds to nothing).
     """
     width = np.maximum(high - low, 0.0)
     uniform = ~np.isfinite(sigma) | (sigma <= 0)
     scale = np.where(uniform, 1.0, sigma)
-    alpha = (low - mean) / scale
-    beta = (high - mean) / scale
-    left = beta < 0
-    tail = left | (alpha > 0)
-    # Standardised bounds with the interval right of the mean (mirrored where it is left).
-    a = np.where(left, -beta, alpha)
-    b = np.where(left, -alpha, beta)
-    root2pi = math.sqrt(2.0 * math.pi)
-    # In the tail (0 <= a <= b): every term carries exp(-a^2/2), divided out.
-    at = np.where(tail, a, 0.0)
-    bt = np.where(tail, b, 0.0)
-    decay = np.exp(-0.5 * (bt - at) * (bt + at))
-    tail_mass = 0.5 * (erfcx(at / math.sqrt(2.0)) - erfcx(bt / math.sqrt(2.0)) * decay)
-    tail_mass = np.where(tail_mass > 0, tail_mass, 1.0)
-    tail_shift = (1.0 - decay) / root2pi / tail_mass
-    tail_spread = 1.0 + (at - bt * decay) / root2pi / tail_mass - tail_shift**2
-    # Across the mean: plain normal probabilities (the mass is not small).
-    phi_a = np.exp(-0.5 * a * a) / root2pi
-    phi_b = np.exp(-0.5 * b * b) / root2pi
-    mass = ndtr(b) - ndtr(a)
-    mass = np.where(mass > 0, mass, 1.0)
-    # Far in the tail (the two formulas above cancel to rounding) the density on [a, b] is
-    # exponential with rate a: its truncated mean and variance, relative error ~ 1 / a^2.
-    far = tail & (at > _FAR_TAIL)
-    rate = np.where(far, at, 1.0)
-    length = np.where(far, bt - at, 1.0)
-    ratio = np.exp(-rate * length) / -np.expm1(-rate * length)  # e^(-kL) / (1 - e^(-kL))
-    far_offset = 1.0 / rate - length * ratio
-    far_spread = 1.0 / rate**2 - length**2 * ratio * (1.0 + ratio)
-    tail_shift = np.where(far, at + far_offset, tail_shift)
-    tail_spread = np.where(far, far_spread, tail_spread)
-    shift = np.where(tail, tail_shift, (phi_a - phi_b) / mass)
-    spread = np.where(
-        tail, tail_spread, 1.0 + (a * phi_a - b * phi_b) / mass - ((phi_a - phi_b) / mass) ** 2
-    )
-    out_mean = mean + np.where(left, -shift, shift) * scale
+    a = (low - mean) / scale
+    b = (high - mean) / scale
+    mirror = a + b < 0
+    a, b = np.where(mirror, -b, a), np.where(mirror, -a, b)
+    a = np.maximum(a, -10.0)
+    decay = np.exp(-0.5 * (b - a) * (b + a))
+    tail = erfcx(a / _SQRT2) - decay * erfcx(b / _SQRT2)
+    tail = np.where(tail > 0, tail, 1.0)
+    kept = np.maximum(-np.expm1(-0.5 * (b - a) * (b + a)), 1e-300)  # 1 - D
+    shift = _SQRT_2_PI * kept / tail
+    far_term = np.where(np.isinf(b), 0.0, b * decay)
+    # 1 + sqrt(2/pi) (a - b D) / E - shift^2, arranged so that far in a tail (shift ~ a,
+    # the variance ~ 1 / a^2) nothing cancels: 1 - shift (shift - a / (1 - D)) - ...
+    spread = 1.0 - shift * (shift - a / kept) - _SQRT_2_PI * far_term / tail
+    # Far in a tail even that loses the spread (shift - a is ~1 / a): the density on [a, b]
+    # is then exponential with rate a (relative error ~1 / a^2), its moments exact.
+    far = a > _FAR_TAIL
+    if far.any():
+        rate = np.where(far, a, 1.0)
+        length = np.where(far, b - a, 1.0)
+        ratio = np.exp(-rate * length) / -np.expm1(-rate * length)  # e^(-aL) / (1 - e^(-aL))
+        bounded = np.isfinite(length)
+        offset = 1.0 / rate - np.where(bounded, length * ratio, 0.0)
+        tail_spread = 1.0 / rate**2 - np.where(bounded, length**2 * ratio * (1.0 + ratio), 0.0)
+        shift = np.where(far, a + offset, shift)
+        spread = np.where(far, tail_spread, spread)
+    out_mean = mean + np.where(mirror, -shift, shift) * scale
     out_variance = scale**2 * np.maximum(spread, 0.0)
     out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
     out_variance = np.where(uniform, width**2 / 12.0, out_variance)
