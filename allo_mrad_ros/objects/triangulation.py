@@ -220,7 +220,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     # Seed: the rays' linear least squares (exact for noise-free rays), weighted at the
     # interval's middle; only its direction from the anchor and its inverse range are kept.
     prior_point = anchor_c + middle[:, None] * anchor_d
-    seed_ranges = np.clip(_along(prior_point, d, origin_along), rays.low, rays.high)
+    seed_ranges = np.minimum(np.maximum(_along(prior_point, d, origin_along), rays.low), rays.high)
     weights = np.where(
         valid, 1.0 / (rays.angular_variance * seed_ranges**2 + rays.extra_variance), 0.0
     )
@@ -230,14 +230,15 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     local = np.einsum("bij,bj->bi", basis, seed - anchor_c)
     rho_floor, rho_ceiling = 0.1 / anchor_high, 10.0 / anchor_low
     rho = np.where(local[:, 2] > 0, 1.0 / np.maximum(local[:, 2], 1e-300), 1.0 / middle)
-    rho = np.clip(rho, rho_floor, rho_ceiling)
+    rho = np.minimum(np.maximum(rho, rho_floor), rho_ceiling)
     ab = np.where(local[:, 2:3] > 0, local[:, :2] * rho[:, None], 0.0)
     geometry = _Geometry.of(directions, baseline, rays)
     for step in range(iterations + 1):
         hessian, gradient = geometry.normal_equations(ab, rho)
         step_ab, slope, mean, inverse_variance = _marginal(hessian, gradient, rho)
         # Where the rays leave the inverse range undetermined it stays where it is.
-        new_rho = np.where(inverse_variance > 0, np.clip(mean, rho_floor, rho_ceiling), rho)
+        bounded = np.minimum(np.maximum(mean, rho_floor), rho_ceiling)
+        new_rho = np.where(inverse_variance > 0, bounded, rho)
         # Linearised close enough to the optimum (half a standard deviation in inverse
         # range): this linearisation is the last; else step there and linearise again.
         change = (new_rho - rho) ** 2 * inverse_variance
@@ -249,7 +250,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     free_rho = np.where(informed, mean, rho)
     rho_sigma = np.where(informed, 1.0 / np.sqrt(np.where(informed, inverse_variance, 1.0)), np.inf)
     # The interval every ray's range bound leaves the inverse range (at this direction).
-    rho_low, rho_high = _feasible(ab, directions, baseline, rays, anchor_low, anchor_high)
+    rho_low, rho_high = _feasible(ab, geometry, rays, anchor_low, anchor_high)
     # Only where a bound lies within _TRUNCATED standard deviations does the cut change the
     # normal's moments (to rounding): the rest keep the rays' own.
     rho_mean = free_rho.copy()
@@ -274,7 +275,12 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     position = anchor_c + np.einsum("bji,bj->bi", basis, m) / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
     # truncated normal's; mapped through X = c_a + E^T m / rho.
-    cov_ab = np.linalg.inv(hessian[:, :2, :2])
+    a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
+    det = a * cc - b * b
+    cov_ab = np.empty((batch, 2, 2))
+    cov_ab[:, 0, 0] = cc / det
+    cov_ab[:, 1, 1] = a / det
+    cov_ab[:, 0, 1] = cov_ab[:, 1, 0] = -b / det
     theta = np.zeros((batch, 3, 3))
     theta[:, :2, :2] = cov_ab + slope[:, :, None] * slope[:, None, :] * rho_variance[:, None, None]
     theta[:, :2, 2] = theta[:, 2, :2] = slope * rho_variance[:, None]
@@ -286,15 +292,17 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     covariance = jacobian @ theta @ jacobian.transpose(0, 2, 1)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
     ranges = np.where(valid, _along(position, d, origin_along), 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        free_range = np.where(free_rho != 0, 1.0 / free_rho, np.inf)
-        free_sigma = np.where(informed, rho_sigma / free_rho**2, np.inf)
+    nonzero = free_rho != 0
+    free_range = np.divide(1.0, free_rho, out=np.full(batch, np.inf), where=nonzero)
+    free_sigma = np.divide(
+        rho_sigma, free_rho**2, out=np.full(batch, np.inf), where=informed & nonzero
+    )
     return Triangulation(
         position=position,
         covariance=covariance,
         ranges=ranges,
         free_range=free_range,
-        free_range_sigma=np.where(np.isfinite(free_sigma), free_sigma, np.inf),
+        free_range_sigma=free_sigma,
         inverse_range=free_rho,
         inverse_range_sigma=rho_sigma,
     )
@@ -422,8 +430,7 @@ def _marginal(
 
 def _feasible(
     ab: np.ndarray,
-    directions: np.ndarray,
-    baseline: np.ndarray,
+    geometry: _Geometry,
     rays: RayBatch,
     anchor_low: np.ndarray,
     anchor_high: np.ndarray,
@@ -431,25 +438,26 @@ def _feasible(
     """The inverse ranges along the anchor at which every ray's range lies in its interval,
     ``low_i <= (g_i + rho h_i) / rho <= high_i`` (``g_i = d_i . m``, ``h_i = d_i . b_i``):
     linear in ``rho``. Where the rays' intervals exclude each other, the anchor's alone."""
-    g = directions[..., 2] + np.einsum("bri,bi->br", directions[..., :2], ab)
-    h = np.einsum("brj,brj->br", directions, baseline)
+    directions = geometry.directions
+    g = (
+        directions[..., 2]
+        + directions[..., 0] * ab[:, 0, None]
+        + directions[..., 1] * ab[:, 1, None]
+    )
+    h = geometry.coupling[..., 2]
     lower = rays.low - h  # rho * lower <= g
     upper = rays.high - h  # rho * upper >= g
-    with np.errstate(divide="ignore", invalid="ignore"):
-        from_low = g / lower
-        from_high = g / upper
     valid = rays.valid
-    rho_low = np.maximum(
-        np.where(valid & (lower < 0), from_low, 0.0).max(axis=1),
-        np.where(valid & (upper > 0), from_high, 0.0).max(axis=1),
+    # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
+    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=valid & (lower > 0))
+    above = np.minimum(
+        above, np.divide(g, upper, out=np.full_like(g, np.inf), where=valid & (upper < 0))
     )
-    rho_high = np.minimum(
-        np.where(valid & (lower > 0), from_low, np.inf).min(axis=1),
-        np.where(valid & (upper < 0), from_high, np.inf).min(axis=1),
-    )
+    below = np.divide(g, upper, out=np.zeros_like(g), where=valid & (upper > 0))
+    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=valid & (lower < 0)))
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
-    rho_low = np.maximum(rho_low, own_low)
-    rho_high = np.minimum(rho_high, own_high)
+    rho_low = np.maximum(below.max(axis=1), own_low)
+    rho_high = np.minimum(above.min(axis=1), own_high)
     clash = ~(rho_low < rho_high)
     return np.where(clash, own_low, rho_low), np.where(clash, own_high, rho_high)
 
