@@ -49,8 +49,22 @@ class ObjectParams:
         0.0,
         1.0,
     )
+    edge_sigma_fraction: float = parameter(
+        2.0,
+        "more centroid noise for a region touching the image's edge (the object may extend "
+        "beyond it): this fraction of the region's side across that edge, added in quadrature",
+        0.0,
+        10.0,
+    )
+    position_sigma: float = parameter(
+        0.04,
+        "standard deviation of the camera position the pose reports, m (per axis): its rays "
+        "count with that much more variance across them",
+        0.0,
+        100.0,
+    )
     min_range: float = parameter(
-        1.5, "nearest an object may be to the camera", 0.0, 1e4, low_open=True
+        0.3, "nearest an object may be to the camera", 0.0, 1e4, low_open=True
     )
     max_range: float = parameter(
         50.0,
@@ -75,7 +89,7 @@ class ObjectParams:
         1e3,
     )
     gate_sigma: float = parameter(
-        3.0,
+        5.0,
         "association gate: largest Mahalanobis distance of a region's centroid from an "
         "object's projection",
         0.0,
@@ -97,10 +111,10 @@ class ObjectParams:
         10.0,
     )
     confirm_hits: int = parameter(
-        3, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
+        5, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
     )
     confirm_window: int = parameter(
-        5, "M: the in-view frames the confirmation counts hits over", 1, 1000
+        8, "M: the in-view frames the confirmation counts hits over", 1, 1000
     )
     end_misses: int = parameter(5, "K: consecutive in-view misses that end an object", 1, 100000)
     parallax_sigma: float = parameter(

@@ -251,6 +251,25 @@ def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
     return float(np.partition(surface, k)[k])
 
 
+def surface_bounds(ranges: Sequence[np.ndarray], quantile: float) -> np.ndarray:
+    """:func:`surface_bound` of each array of ``ranges`` at once (NaN where all are space):
+    one sort of all of them, by region and then by value."""
+    if not ranges:
+        return np.zeros(0)
+    values = np.concatenate(ranges)
+    counts = np.array([len(r) for r in ranges])
+    region = np.repeat(np.arange(len(ranges)), counts)
+    surface = (values > 0) & (values < np.inf)
+    values, region = values[surface], region[surface]
+    sizes = np.bincount(region, minlength=len(ranges))
+    ordered = values[np.lexsort((values, region))]
+    starts = np.cumsum(sizes) - sizes
+    k = np.minimum(np.floor(quantile * (sizes - 1)).astype(np.int64), sizes - 1)
+    found = sizes > 0
+    picked = ordered[np.where(found, starts + np.maximum(k, 0), 0)] if ordered.size else None
+    return np.where(found, picked, np.nan) if picked is not None else np.full(len(ranges), np.nan)
+
+
 def region_rays(
     region: Region,
     pose: np.ndarray,
@@ -344,6 +363,10 @@ class Observations:
         (n,) bool.
     extent_px : numpy.ndarray
         (n,) the larger side of each region's box, pixels.
+    edge_px : numpy.ndarray
+        (n,) the larger side of each region's box across the image edges it touches (0 for
+        a box inside the image): there the object may extend beyond the image, and the
+        centroid of what shows is not the object's.
     scores : numpy.ndarray
         (n,) each region's score.
     indices : numpy.ndarray
@@ -357,6 +380,7 @@ class Observations:
     high: np.ndarray
     over_surface: np.ndarray
     extent_px: np.ndarray
+    edge_px: np.ndarray
     scores: np.ndarray
     indices: np.ndarray
 
@@ -382,31 +406,36 @@ def observe(
     each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
-    kept, low, high, surface, extent, scores, pixels = [], [], [], [], [], [], []
+    kept, ranges, extent, edge, scores, pixels = [], [], [], [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
-        bound = surface_bound(frame.surface_range(region.box), surface_quantile)
+        ranges.append(frame.surface_range(region.box))
         kept.append(index)
-        low.append(min_range)
-        high.append(max_range if bound is None else max(min(bound, max_range), min_range))
-        surface.append(bound is not None)
-        _, _, w, h = region.box
+        x, y, w, h = region.box
         extent.append(max(w, h))
+        across_x = w if x <= 0 or x + w >= camera.width else 0
+        across_y = h if y <= 0 or y + h >= camera.height else 0
+        edge.append(max(across_x, across_y))
         scores.append(region.score)
         pixels.append(region.centroid)
+    bound = surface_bounds(ranges, surface_quantile)
+    surface = ~np.isnan(bound)
+    # A region before a surface nearer than min_range keeps a range interval of one point.
+    high = np.where(surface, np.maximum(np.minimum(bound, max_range), min_range), max_range)
     pixel_array = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     directions = camera_rays(camera, pixel_array[:, 0], pixel_array[:, 1]) @ pose[:3, :3].T
     return Observations(
         origin=pose[:3, 3].copy(),
         directions=directions.reshape(-1, 3),
         pixels=pixel_array,
-        low=np.asarray(low, dtype=np.float64),
-        high=np.asarray(high, dtype=np.float64),
-        over_surface=np.asarray(surface, dtype=bool),
+        low=np.full(len(kept), float(min_range)),
+        high=high.astype(np.float64),
+        over_surface=surface,
         extent_px=np.asarray(extent, dtype=np.float64),
+        edge_px=np.asarray(edge, dtype=np.float64),
         scores=np.asarray(scores, dtype=np.float64),
         indices=np.asarray(kept, dtype=np.int64),
     )

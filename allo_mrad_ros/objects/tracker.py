@@ -53,6 +53,14 @@ from allo_mrad_ros.objects.triangulation import RayBatch, Triangulation, triangu
 State = Literal["tentative", "confirmed", "ended"]
 # Cost of a gated-out pair in the assignment (never chosen over a gated-in one).
 _FORBIDDEN = 1e12
+# A ray seen against space bounds the triangulation's range by this multiple of max_range
+# only: rays that keep one direction (the Moon, glare) meet at infinity, and an object held
+# at max_range would drift off their next region (a new id every few frames). max_range
+# still decides confirmation (range_resolved).
+_SPACE_FAR = 1e3
+# Columns of a track's ray table (_Track.rays): origin 0:3, direction 3:6, then these.
+_VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
+_COLUMNS = 11
 
 
 @dataclass(frozen=True)
@@ -113,39 +121,32 @@ class _Track:
     """An object's state: a ring of its newest rays and what was derived from them."""
 
     __slots__ = (
-        "angular_variance",
         "consistent",
         "count",
         "covariance",
-        "directions",
-        "extent",
         "first_stamp",
         "head",
-        "high",
         "hits",
         "id",
         "last_hit",
-        "low",
         "misses",
-        "origins",
         "position",
+        "rays",
         "resolved",
         "size",
-        "stamps",
         "state",
         "window",
+        "window_hits",
+        "window_score",
     )
 
     def __init__(self, track_id: int, capacity: int, window: int, stamp: float) -> None:
         self.id = track_id
         self.state: State = "tentative"
-        self.origins = np.zeros((capacity, 3))
-        self.directions = np.zeros((capacity, 3))
-        self.angular_variance = np.zeros(capacity)
-        self.stamps = np.zeros(capacity)
-        self.low = np.ones(capacity)
-        self.high = np.ones(capacity)
-        self.extent = np.zeros(capacity)
+        # One row per ray: origin (3), direction (3), angular variance, stamp, low, high,
+        # extent (columns _ORIGIN.._EXTENT), so that a batch stacks one array per object.
+        self.rays = np.zeros((capacity, _COLUMNS))
+        self.rays[:, _LOW] = self.rays[:, _HIGH] = 1.0
         self.count = 0
         self.head = 0  # where the next ray goes
         self.position = np.zeros(3)
@@ -155,26 +156,40 @@ class _Track:
         self.consistent = True
         # Per in-view frame: hit or miss, and the region's score (0 for a miss).
         self.window: deque[tuple[bool, float]] = deque(maxlen=window)
+        self.window_hits = 0  # the window's hits and scores summed (kept with it)
+        self.window_score = 0.0
         self.misses = 0
         self.hits = 0
         self.first_stamp = stamp
         self.last_hit = stamp
 
+    def push(self, hit: bool, score: float) -> None:
+        """One more in-view frame in the window: hit or miss, and the region's score."""
+        window = self.window
+        if len(window) == window.maxlen:
+            old_hit, old_score = window[0]
+            self.window_hits -= old_hit
+            self.window_score -= old_score
+        window.append((hit, score))
+        self.window_hits += hit
+        self.window_score += score
+
     def add_ray(self, observations: Observations, j: int, variance: float, stamp: float) -> None:
         i = self.head
-        self.origins[i] = observations.origin
-        self.directions[i] = observations.directions[j]
-        self.angular_variance[i] = variance
-        self.stamps[i] = stamp
-        self.low[i] = observations.low[j]
-        self.high[i] = observations.high[j]
-        self.extent[i] = observations.extent_px[j]
-        self.head = (i + 1) % len(self.stamps)
-        self.count = min(self.count + 1, len(self.stamps))
+        row = self.rays[i]
+        row[0:3] = observations.origin
+        row[3:6] = observations.directions[j]
+        row[_VARIANCE] = variance
+        row[_STAMP] = stamp
+        row[_LOW] = observations.low[j]
+        row[_HIGH] = observations.high[j]
+        row[_EXTENT] = observations.extent_px[j]
+        self.head = (i + 1) % len(self.rays)
+        self.count = min(self.count + 1, len(self.rays))
 
     @property
     def newest(self) -> int:
-        return (self.head - 1) % len(self.stamps)
+        return (self.head - 1) % len(self.rays)
 
 
 class ObjectTracker:
@@ -294,7 +309,7 @@ class ObjectTracker:
         for row, j in matches:
             track = tracks[row]
             track.add_ray(observations, j, variance[j], stamp)
-            track.window.append((True, float(observations.scores[j])))
+            track.push(True, float(observations.scores[j]))
             track.misses = 0
             track.hits += 1
             track.last_hit = stamp
@@ -303,7 +318,7 @@ class ObjectTracker:
         matched_rows = {row for row, _ in matches}
         for row, track in enumerate(tracks):
             if row not in matched_rows and in_view[row]:
-                track.window.append((False, 0.0))
+                track.push(False, 0.0)
                 track.misses += 1
         taken = {j for _, j in matches}
         for j in range(len(observations)):
@@ -312,7 +327,7 @@ class ObjectTracker:
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1
             track.add_ray(observations, j, variance[j], stamp)
-            track.window.append((True, float(observations.scores[j])))
+            track.push(True, float(observations.scores[j]))
             track.hits = 1
             matched_region[track.id] = int(observations.indices[j])
             tracks.append(track)
@@ -329,7 +344,7 @@ class ObjectTracker:
                 track.state = "ended"
             elif (
                 track.state == "tentative"
-                and sum(hit for hit, _ in track.window) >= params.confirm_hits
+                and track.window_hits >= params.confirm_hits
                 and track.resolved
                 and track.consistent
             ):
@@ -354,7 +369,9 @@ class ObjectTracker:
         """Each observation's angular variance: centroid noise over the focal length."""
         params = self.params
         pixels = (
-            params.pixel_sigma**2 + (params.extent_sigma_fraction * observations.extent_px) ** 2
+            params.pixel_sigma**2
+            + (params.extent_sigma_fraction * observations.extent_px) ** 2
+            + (params.edge_sigma_fraction * observations.edge_px) ** 2
         )
         return pixels / self._focal**2
 
@@ -412,8 +429,10 @@ class ObjectTracker:
         pixel_variance = self._ray_variance(observations) * self._focal**2
         du = observations.pixels[None, :, 0] - u[:, None]
         dv = observations.pixels[None, :, 1] - v[:, None]
-        s00 = projected[:, None, 0, 0] + pixel_variance[None, :]
-        s11 = projected[:, None, 1, 1] + pixel_variance[None, :]
+        # The camera position's noise moves the projection by position_sigma / z radians.
+        position_px2 = (params.position_sigma * self._focal / safe_z) ** 2
+        s00 = projected[:, None, 0, 0] + position_px2[:, None] + pixel_variance[None, :]
+        s11 = projected[:, None, 1, 1] + position_px2[:, None] + pixel_variance[None, :]
         s01 = projected[:, None, 0, 1]
         determinant = s00 * s11 - s01 * s01
         distance2 = (du * du * s11 - 2.0 * du * dv * s01 + dv * dv * s00) / determinant
@@ -442,25 +461,28 @@ class ObjectTracker:
         params = self.params
         capacity = params.max_rays
         batch = len(tracks)
-        stamps = np.array([t.stamps for t in tracks])
+        packed = np.array([t.rays for t in tracks])
+        stamps = packed[..., _STAMP]
         filled = np.arange(capacity)[None, :] < np.array([t.count for t in tracks])[:, None]
         anchor = np.array([t.newest for t in tracks])
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True
+        high = packed[..., _HIGH]
         rays = RayBatch(
-            origins=np.array([t.origins for t in tracks]),
-            directions=np.array([t.directions for t in tracks]),
-            angular_variance=np.where(valid, np.array([t.angular_variance for t in tracks]), 1.0),
-            extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2,
-            low=np.array([t.low for t in tracks]),
-            high=np.array([t.high for t in tracks]),
+            origins=packed[..., 0:3],
+            directions=packed[..., 3:6],
+            angular_variance=np.where(valid, packed[..., _VARIANCE], 1.0),
+            extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2
+            + params.position_sigma**2,
+            low=packed[..., _LOW],
+            high=np.where(high >= params.max_range, params.max_range * _SPACE_FAR, high),
             valid=valid,
             anchor=anchor,
         )
         solution = triangulate(rays)
         resolved, consistent = self._range_checks(solution, rays)
-        extent = np.array([t.extent for t in tracks]) / self._focal
+        extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
         for i, track in enumerate(tracks):
             track.position = solution.position[i]
@@ -483,10 +505,9 @@ class ObjectTracker:
             resolved = rho - k * rho_sigma > 1.0 / params.max_range
         high = rays.high[np.arange(len(rays.anchor)), rays.anchor]
         # Where the rays leave the range undetermined, they do not say it is behind.
-        sigma = solution.free_range_sigma
-        determined = np.isfinite(sigma)
-        nearest = solution.free_range - k * np.where(determined, sigma, 0.0)
-        behind = determined & (nearest > high + params.occlusion_margin)
+        determined = np.isfinite(rho_sigma)
+        farthest = rho + k * np.where(determined, rho_sigma, 0.0)
+        behind = determined & (farthest < 1.0 / (high + params.occlusion_margin))
         return resolved, ~behind
 
     def _within_capacity(
@@ -516,7 +537,7 @@ class ObjectTracker:
             position=track.position,
             covariance=track.covariance,
             size=track.size,
-            score=min(1.0, sum(score for _, score in track.window) / window),
+            score=min(1.0, max(track.window_score, 0.0) / window),
             range_resolved=track.resolved,
             in_view=in_view,
             region=region,

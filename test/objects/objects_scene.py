@@ -61,6 +61,9 @@ SCENE_PARAMS = {
     "gate_sigma": 4.0,
     "parallax_sigma": 3.0,
     "min_region_score": 0.0,
+    # Noise-free camera positions, regions inside the image.
+    "position_sigma": 0.0,
+    "edge_sigma_fraction": 0.0,
 }
 
 

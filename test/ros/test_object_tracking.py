@@ -51,7 +51,7 @@ def confirm(tracking: ObjectTracking, start: float = 0.0) -> int:
     "change",
     [
         {"camera": CameraIntrinsics(640, 480, 520.0, 520.0, 319.5, 239.5)},
-        {"params": PARAMS.replace(gate_sigma=5.0)},
+        {"params": PARAMS.replace(gate_sigma=PARAMS.gate_sigma + 1.0)},
         {"skip": True},
     ],
     ids=["camera", "parameters", "untracked frames"],

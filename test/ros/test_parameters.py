@@ -44,8 +44,8 @@ def test_overrides_reach_the_detector(node):
         ("objects.pixel_sigma", 0.0, "objects.pixel_sigma must be in (0, 1000]"),
         ("objects.confirm_hits", 0, "objects.confirm_hits"),
         ("objects.confirm_window", 2000, "objects.confirm_window"),
-        # Valid alone, not with the default confirm_window (5): the tracker's own rule.
-        ("objects.confirm_hits", 6, "confirm_hits (6) must not exceed confirm_window (5)"),
+        # Valid alone, not with the default confirm_window (8): the tracker's own rule.
+        ("objects.confirm_hits", 9, "confirm_hits (9) must not exceed confirm_window (8)"),
         (
             "objects.max_range",
             0.2,
