@@ -88,7 +88,7 @@ def test_oracle_grey_is_opencvs():
 
 
 def test_identical_images_give_no_evidence():
-    query, reference = _scene(np.random.default_rng(11))
+    _query, reference = _scene(np.random.default_rng(11))
     assert not colour_evidence(reference, reference, 2, 1, 16.0).any()
     assert not dark_evidence(reference, reference, 2, 1, 16.0).any()
 
