@@ -6,12 +6,19 @@ prints per setting the pooled P.AP, P.AUROC, P.FPR95 and I.AUROC, then the share
 pixels above the threshold where the setting's pooled false-positive rate is 5 %:
 
 * per anomaly type;
-* per kind of pixel: *dark* (query luma at most :data:`DARK_LUMA`) or not, over lit station
-  (the reference, nearest-resized to the query, has a luma above 8 there) or over space;
-  an object as dark as space in front of space is invisible to any reference comparison, and
-  its row says so by being near the rate of normal pixels (5 %);
+* per kind of pixel: *dark* (query luma at most :data:`DARK_LUMA`) or not, over station
+  (the reference, nearest-resized to the query, has a luma above :data:`SPACE_LUMA` there) or
+  over space; and the dark pixels over space that are *black*, as dark as space (luma at
+  most :data:`SPACE_LUMA`): an object as dark as space in front of space is invisible to any
+  reference comparison, and its row says so by being near the rate of normal pixels (5 %);
 * small objects (frames whose anomaly holds at most :data:`SMALL_PIXELS` pixels at the
   query's resolution) against the rest.
+
+With ``--objects`` ROOT is an objects sequence (``allo-synth generate --preset objects``)
+and it prints instead, per setting, the detection coverage of ``benchmarks.objects`` (object-
+frames whose instance pixels the detection mask touches, and half covers, per placement) and
+the share of frames without a showing object that the detector flags; detections are cached
+under ``--cache`` per setting.
 
 Frames are streamed (only the anomaly pixels' scores and every
 :data:`NEGATIVE_STRIDE`-th normal pixel's are kept), so a 1080p split fits in memory;
@@ -34,10 +41,13 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector import METHODS
+from allo_mrad_ros.evaluation.objects import detection_coverage
 from allo_mrad_ros.metrics import MetricsAccumulator
+from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.render import ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import read_sequence
 from allo_mrad_ros.view import View
+from benchmarks.objects import detections
 from benchmarks.stations import BENCH_SPLITS
 from benchmarks.stations_bench import MASK_ANOMALY, parse_setting
 
@@ -55,21 +65,52 @@ NEGATIVE_STRIDE = 64
 
 
 def _kinds(image: np.ndarray, reference: np.ndarray, positive: np.ndarray) -> np.ndarray:
-    # 0 dark over station, 1 dark over space, 2 other over station, 3 other over space.
+    # 0 dark over station, 1 dark over space, 2 other over station, 3 other over space,
+    # 4 as dark as space over space (also counted in 1).
     height, width = image.shape[:2]
     near = cv2.resize(reference, (width, height), interpolation=cv2.INTER_NEAREST)
     ref_luma = cv2.cvtColor(near, cv2.COLOR_RGB2GRAY)[positive]
     luma = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)[positive]
-    return (luma > DARK_LUMA).astype(np.int8) * 2 + (ref_luma <= SPACE_LUMA)
+    return (luma > DARK_LUMA).astype(np.int8) * 2 + (ref_luma <= SPACE_LUMA), (
+        luma <= SPACE_LUMA
+    ) & (ref_luma <= SPACE_LUMA)
 
 
-KIND_NAMES = ("dark over station", "dark over space", "other over station", "other over space")
+KIND_NAMES = (
+    "dark over station",
+    "dark over space",
+    "other over station",
+    "other over space",
+    "black (as dark as space) over space",
+)
 
 
 def _sequences(root: Path, sequence: bool, split: str) -> list[tuple[str, Path, str | None]]:
     if sequence:
         return [(root.name, root, split)]
     return [(name, root / split / name, None) for name in BENCH_SPLITS[split]]
+
+
+def objects_coverage(root: Path, split: str, settings: list, cache: Path, jobs: int) -> dict:
+    """Per setting: detection coverage per placement and the normal frames flagged."""
+    sequence = read_sequence(root, check_images=False)
+    report = {}
+    for s in settings:
+        config = PipelineConfig(params=s.params, methods=("MRAD",))
+        run = detections(root, cache, split, config, jobs)
+
+        def instances(index: int) -> np.ndarray | None:
+            return sequence.load_instances(sequence.frames[index])
+
+        normal = [f for f in run.frames if not f.showing]
+        report[s.name] = {
+            "coverage": detection_coverage(run, instances),
+            "normal_frames": len(normal),
+            "normal_flagged": sum(f.frame_flagged for f in normal),
+            "detect_ms_median": round(float(np.median([f.detect_ms for f in run.frames])), 2),
+        }
+        print(f"{s.name}: {json.dumps(report[s.name])}", flush=True)
+    return report
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,8 +123,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, default=0, help="N evenly spaced frames")
     parser.add_argument("--reference-scale", type=float, default=RenderSettings().reference_scale)
     parser.add_argument("--out", type=Path, help="JSON report")
+    parser.add_argument("--objects", action="store_true", help="ROOT is an objects sequence")
+    parser.add_argument("--cache", type=Path, default=Path("data/local_cues_objects_cache"))
+    parser.add_argument("--jobs", type=int, default=1)
     args = parser.parse_args(argv)
     settings = [parse_setting(text) for text in args.settings.split(",")]
+    if args.objects:
+        report = objects_coverage(args.root, args.split, settings, args.cache, args.jobs)
+        if args.out is not None:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(report, indent=2))
+        return 0
     pooled = {s.name: MetricsAccumulator() for s in settings}
     negatives: dict[str, list[np.ndarray]] = {s.name: [] for s in settings}
     positives: dict[str, list[np.ndarray]] = {s.name: [] for s in settings}
@@ -102,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
                 image, truth = seq.load_image(frame), seq.load_mask(frame)
                 reference = provider.render(View.of_frame(frame))
                 positive = truth == MASK_ANOMALY
-                kinds = _kinds(image, reference, positive)
+                kinds, black = _kinds(image, reference, positive)
+                kinds = np.where(black, 4, kinds)
                 small = 0 < np.count_nonzero(positive) <= SMALL_PIXELS
                 labels.append((frame.anomaly or "?", kinds, small))
                 for s in settings:
@@ -111,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
                     score = result.score
                     pooled[s.name].update(score, result.image_score, truth)
                     positives[s.name].append(score[positive])
-                    negatives[s.name].append(score[~positive][::NEGATIVE_STRIDE])
+                    # A copy: a view would keep the whole frame's map alive.
+                    negatives[s.name].append(score[~positive][::NEGATIVE_STRIDE].copy())
         finally:
             provider.close()
     report: dict = {"frames": len(labels), "settings": {}}
@@ -119,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         metrics = pooled[s.name].compute()
         threshold = float(np.quantile(np.concatenate(negatives[s.name]), 0.95))
         by_type: dict[str, list[int]] = {}
-        by_kind = np.zeros((4, 2), np.int64)
+        by_kind = np.zeros((5, 2), np.int64)
         by_size = {"small": [0, 0], "larger": [0, 0]}
         for (anomaly, kinds, small), scores in zip(labels, positives[s.name], strict=True):
             if scores.size == 0:
@@ -128,8 +180,9 @@ def main(argv: list[str] | None = None) -> int:
             counts = by_type.setdefault(anomaly, [0, 0])
             counts[0] += int(hit.sum())
             counts[1] += hit.size
-            for kind in range(4):
-                chosen = kinds == kind
+            for kind in range(5):
+                # The black pixels over space are dark over space too.
+                chosen = (kinds == kind) | ((kinds == 4) & (kind == 1))
                 by_kind[kind] += (int(hit[chosen].sum()), int(chosen.sum()))
             size = by_size["small" if small else "larger"]
             size[0] += int(hit.sum())
