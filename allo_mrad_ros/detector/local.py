@@ -184,11 +184,9 @@ def colour_evidence(
         for identical images, where the query lies within its envelope).
     """
     height, width = query.shape[:2]
+    near = reference_at(reference, (height, width), cache)
     low, high = derived(
-        cache,
-        reference,
-        ("envelope", height, width, radius),
-        lambda: _envelope(reference_at(reference, (height, width), cache), radius),
+        cache, reference, ("envelope", height, width, radius), lambda: _envelope(near, radius)
     )
     values = eight_bit(query)
     # Saturating uint8 arithmetic: only one of the two is non-zero per channel.
@@ -246,8 +244,10 @@ def dark_evidence(
     """
     height, width = query.shape[:2]
 
+    near = reference_at(reference, (height, width), cache)
+
     def darkest() -> np.ndarray:
-        grey = cv2.cvtColor(reference_at(reference, (height, width), cache), cv2.COLOR_RGB2GRAY)
+        grey = cv2.cvtColor(near, cv2.COLOR_RGB2GRAY)
         return grey if radius == 0 else cv2.erode(grey, _window(radius))
 
     lowest = derived(cache, reference, ("darkest", height, width, radius), darkest)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from mrad_oracle import colour_evidence_naive, dark_evidence_naive, grey_naive
 
-from allo_mrad_ros.detector import MradParams, detect
+from allo_mrad_ros.detector import MradParams, detect, profile
 from allo_mrad_ros.detector.local import (
     colour_evidence,
     combine,
@@ -165,7 +165,15 @@ def _separation(result, target):
 @pytest.mark.parametrize("cue", ["local_weight", "dark_weight"])
 def test_cues_rank_a_dark_object_in_a_busy_cell_higher(cue):
     query, reference, disc, _ = _busy_cell_scene(12)
-    base = MradParams(process_scale=1.0, grid=4, colour_transfer="none", score_sigma=0.0)
+    # Radius 1: at the default's 3 the cable's grey lies within the window (the shadow strip).
+    base = MradParams(
+        process_scale=1.0,
+        grid=4,
+        colour_transfer="none",
+        score_sigma=0.0,
+        local_weight=0.0,
+        local_radius=1,
+    )
     off = detect(query, reference, base)
     on = detect(query, reference, base.replace(**{cue: 1.0}))
     assert "local" in on.timings_ms and "local" not in off.timings_ms
@@ -174,7 +182,15 @@ def test_cues_rank_a_dark_object_in_a_busy_cell_higher(cue):
 
 def test_colour_cue_ranks_a_thin_cable_higher():
     query, reference, _, cable = _busy_cell_scene(13)
-    base = MradParams(process_scale=1.0, grid=4, colour_transfer="none", score_sigma=0.0)
+    # Radius 1: at the default's 3 the cable's grey lies within the window (the shadow strip).
+    base = MradParams(
+        process_scale=1.0,
+        grid=4,
+        colour_transfer="none",
+        score_sigma=0.0,
+        local_weight=0.0,
+        local_radius=1,
+    )
     off = detect(query, reference, base)
     on = detect(query, reference, base.replace(local_weight=1.0))
     assert _separation(on, cable) > _separation(off, cable) + 0.3
@@ -182,9 +198,10 @@ def test_colour_cue_ranks_a_thin_cable_higher():
 
 def test_weights_zero_leave_the_detection_unchanged():
     query, reference, _, _ = _busy_cell_scene(14)
-    params = MradParams(process_scale=0.5)
+    params = MradParams(process_scale=0.5, local_weight=0.0)
     a = detect(query, reference, params)
-    b = detect(query, reference, params.replace(local_weight=0.0, dark_weight=0.0, local_radius=3))
+    b = detect(query, reference, params.replace(dark_weight=0.0, local_radius=1))
+    assert "local" not in a.timings_ms
     np.testing.assert_array_equal(a.score, b.score)
     np.testing.assert_array_equal(a.mask, b.mask)
 
@@ -222,3 +239,10 @@ def test_parameters_accept_their_ranges():
         assert MradParams(dark_weight=value).dark_weight == value
     for radius in range(5):
         assert MradParams(local_radius=radius).local_radius == radius
+
+
+def test_the_colour_cue_is_on_by_default_and_the_paper_has_none():
+    params = MradParams()
+    assert (params.local_weight, params.local_radius, params.dark_weight) == (1.0, 3, 0.0)
+    for name in ("paper", "baseline", "previous"):
+        assert profile(name).local_weight == 0.0 and profile(name).dark_weight == 0.0
