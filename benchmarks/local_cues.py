@@ -42,7 +42,7 @@ import numpy as np
 
 from allo_mrad_ros.detector import METHODS
 from allo_mrad_ros.evaluation.objects import detection_coverage
-from allo_mrad_ros.metrics import MetricsAccumulator
+from allo_mrad_ros.metrics import MetricsAccumulator, bootstrap_ap_difference, frame_counts
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.render import ReferenceProvider, RenderSettings
 from allo_mrad_ros.sequence import read_sequence
@@ -123,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, default=0, help="N evenly spaced frames")
     parser.add_argument("--reference-scale", type=float, default=RenderSettings().reference_scale)
     parser.add_argument("--out", type=Path, help="JSON report")
+    parser.add_argument(
+        "--compare", default="", help="A,B: paired frame bootstrap of P.AP(B) - P.AP(A)"
+    )
     parser.add_argument("--objects", action="store_true", help="ROOT is an objects sequence")
     parser.add_argument("--cache", type=Path, default=Path("data/local_cues_objects_cache"))
     parser.add_argument("--jobs", type=int, default=1)
@@ -139,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     positives: dict[str, list[np.ndarray]] = {s.name: [] for s in settings}
     labels: list[tuple[str, np.ndarray, bool]] = []
     times: dict[str, list[float]] = {s.name: [] for s in settings}
+    tables: dict[str, list[np.ndarray]] = {s.name: [] for s in settings}
     for _station, folder, split in _sequences(args.root, args.sequence, args.split):
         seq = read_sequence(folder)
         frames = [f for f in seq.frames if split is None or f.split == split]
@@ -161,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
                     times[s.name].append(result.timings_ms["total"])
                     score = result.score
                     pooled[s.name].update(score, result.image_score, truth)
+                    tables[s.name].append(frame_counts(score, truth))
                     positives[s.name].append(score[positive])
                     # A copy: a view would keep the whole frame's map alive.
                     negatives[s.name].append(score[~positive][::NEGATIVE_STRIDE].copy())
@@ -206,6 +211,15 @@ def main(argv: list[str] | None = None) -> int:
                 k: {"recall": share(*v), "pixels": v[1]} for k, v in by_size.items()
             },
         }
+    a_name, _, b_name = args.compare.partition(",")
+    if a_name in tables and b_name in tables:
+        diffs = 100 * bootstrap_ap_difference(
+            np.stack(tables[a_name]), np.stack(tables[b_name]), 1000
+        )
+        low, high = (round(float(v), 1) for v in np.percentile(diffs, [2.5, 97.5]))
+        point = report["settings"][b_name]["p_ap"] - report["settings"][a_name]["p_ap"]
+        report["compare"] = {"a": a_name, "b": b_name, "difference": round(point, 1)}
+        report["compare"]["ci95"] = [low, high]
     print(f"{report['frames']} frames")
     for name, row in report["settings"].items():
         print(
@@ -215,6 +229,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  recall at 5 % FPR by type: {row['recall_by_type']}")
         print(f"  by kind: {row['recall_by_kind']}")
         print(f"  by size: {row['recall_by_size']}")
+    if "compare" in report:
+        c = report["compare"]
+        print(f"P.AP {c['b']} - {c['a']}: {c['difference']:+.1f} points, 95 % CI {c['ci95']}")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(report, indent=2))
