@@ -41,9 +41,9 @@ The evidence is ``max(0, rho - median)``, the median being the cell's (lower) me
 ``rho`` over its lit pixels, so a cell darker than its reference throughout (the query's own
 shading) gives none.
 
-:func:`combine` merges the cues with the cross score: a pixel takes the evidence where it
-exceeds the positive part of the cross score, and keeps its cross score elsewhere, so pixels
-without local evidence keep their order (the negative band of the ranking map included).
+:func:`combine` merges the cues with the cross score: a pixel with evidence (always positive)
+takes the larger of the two, a pixel without keeps its cross score, so pixels without local
+evidence keep their order (the negative band of the ranking map included).
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ NOISE_SIGMAS = 3.0
 """Robust standard deviations of a cell's departures that noise and texture may reach."""
 
 DARK_FLOOR = 8.0
-"""Luminance (8-bit levels) added to both sides of the dark cue's ratio: below it a
-difference is mostly noise."""
+"""Luminance (8-bit levels) added to the dark cue's denominator, so a dim surface's share is
+not inflated by its noise."""
 
 SPACE_LEVEL = 8.0
 """A reference luma at most this (8-bit levels) is space: darkness there is no evidence."""
