@@ -181,3 +181,105 @@ def structure_score_naive(
             level = max(0.0, centre + noise_sigmas * 1.4826 * np.median(np.abs(cell - centre)))
             out[rows[i] : rows[i + 1], cols[j] : cols[j + 1]] = np.maximum(cell - level, 0.0)
     return out
+
+
+def _lower_median(values: list[float]) -> float:
+    ordered = sorted(values)
+    return ordered[(len(ordered) - 1) // 2] if ordered else 0.0
+
+
+def _window_pixels(image: np.ndarray, row: int, col: int, radius: int) -> np.ndarray:
+    # The square of side 2 radius + 1 around (row, col), clipped at the image's border.
+    return image[
+        max(0, row - radius) : row + radius + 1, max(0, col - radius) : col + radius + 1
+    ].reshape(-1, image.shape[2] if image.ndim == 3 else 1)
+
+
+def colour_evidence_naive(
+    query: np.ndarray,
+    reference: np.ndarray,
+    grid: int,
+    radius: int,
+    abs_floor: float = 16.0,
+    noise_sigmas: float = 3.0,
+) -> np.ndarray:
+    """The local colour cue per pixel in float64, for uint8 images of the same size.
+
+    Per pixel: the per-channel min and max of the reference within the clipped square of
+    side ``2 radius + 1``; ``d`` the largest per-channel excess of the query beyond them.
+    Per cell: ``sigma = max(sqrt(abs_floor), 1.4826 * lower median of d)``; the evidence is
+    ``(d / sigma)^2`` where ``d > noise_sigmas * sigma``, else 0.
+    """
+    q, r = query.astype(np.float64), reference.astype(np.float64)
+    height, width = q.shape[:2]
+    distance = np.zeros((height, width))
+    for row in range(height):
+        for col in range(width):
+            near = _window_pixels(r, row, col, radius)
+            low, high = near.min(axis=0), near.max(axis=0)
+            excess = [
+                max(0.0, q[row, col, c] - high[c]) + max(0.0, low[c] - q[row, col, c])
+                for c in range(3)
+            ]
+            distance[row, col] = max(excess)
+    rows, cols = edges(height, grid), edges(width, grid)
+    out = np.zeros((height, width))
+    for i in range(grid):
+        for j in range(grid):
+            cell = distance[rows[i] : rows[i + 1], cols[j] : cols[j + 1]]
+            sigma = max(np.sqrt(abs_floor), 1.4826 * _lower_median(list(cell.ravel())))
+            for (a, b), d in np.ndenumerate(cell):
+                if d > noise_sigmas * sigma:
+                    out[rows[i] + a, cols[j] + b] = (d / sigma) ** 2
+    return out
+
+
+def grey_naive(image: np.ndarray) -> np.ndarray:
+    """The integer BT.601 grey of a uint8 RGB image, as OpenCV rounds it: ``(9798 R + 19235 G
+    + 3735 B + 16384) >> 15`` (0.299, 0.587, 0.114 in 15 fixed-point bits)."""
+    out = np.zeros(image.shape[:2], np.int64)
+    for (row, col), _ in np.ndenumerate(out):
+        red, green, blue = (int(v) for v in image[row, col])
+        out[row, col] = (9798 * red + 19235 * green + 3735 * blue + 16384) >> 15
+    return out
+
+
+def dark_evidence_naive(
+    query: np.ndarray,
+    reference: np.ndarray,
+    grid: int,
+    radius: int,
+    abs_floor: float = 16.0,
+    dark_floor: float = 8.0,
+    space_level: float = 8.0,
+    noise_sigmas: float = 3.0,
+) -> np.ndarray:
+    """The local dark cue per pixel in float64, for uint8 images of the same size.
+
+    ``low`` the smallest reference grey within the clipped square; a pixel is lit when
+    ``low > space_level``; ``share = rint(255 (low - q) / (low + dark_floor))`` where
+    ``low - q > noise_sigmas * sqrt(abs_floor)``, else 0. Per cell, the lower median ``m``
+    of the lit pixels' shares (0 for none); the evidence is ``(share - m) / 255`` at lit
+    pixels where positive, else 0.
+    """
+    q, r = grey_naive(query).astype(np.float64), grey_naive(reference).astype(np.float64)
+    height, width = q.shape
+    share = np.zeros((height, width))
+    lit = np.zeros((height, width), bool)
+    for row in range(height):
+        for col in range(width):
+            low = _window_pixels(r[..., None], row, col, radius).min()
+            lit[row, col] = low > space_level
+            hidden = low - q[row, col]
+            if hidden > noise_sigmas * np.sqrt(abs_floor):
+                share[row, col] = np.rint(255.0 * hidden / (low + dark_floor))
+    rows, cols = edges(height, grid), edges(width, grid)
+    out = np.zeros((height, width))
+    for i in range(grid):
+        for j in range(grid):
+            block = (slice(rows[i], rows[i + 1]), slice(cols[j], cols[j + 1]))
+            median = _lower_median(list(share[block][lit[block]]))
+            for (a, b), value in np.ndenumerate(share[block]):
+                if lit[block][a, b] and value > median:
+                    out[rows[i] + a, cols[j] + b] = (value - median) / 255.0
+    return out

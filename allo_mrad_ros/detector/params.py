@@ -230,6 +230,31 @@ class MradParams:
         0,
         100,
     )
+    local_weight: float = parameter(
+        1.0,
+        "weight of the local colour cue (each pixel's departure, in robust noise scales of its "
+        "cell, beyond the colours the reference shows within local_radius pixels; squared, "
+        "in cross-score units), which replaces the cross score where it is larger; 0 = off",
+        0,
+        100,
+    )
+    dark_weight: float = parameter(
+        0.0,
+        "weight of the local dark cue (the share of the darkest lit reference luma within "
+        "local_radius that the query lacks, beyond its cell's median; none where the "
+        "reference shows space), in score_ref units, which replaces the cross score where it "
+        "is larger; 0 = off (measured: it did not pay)",
+        0,
+        100,
+    )
+    local_radius: int = parameter(
+        3,
+        "half side, in pixels at the processing resolution, of the reference neighbourhood the "
+        "local cues compare each query pixel with (tolerates reference edges moved by a pose "
+        "error)",
+        0,
+        4,
+    )
 
     def __post_init__(self) -> None:
         # Stored as plain int, float, bool and str, so a numpy scalar given here does not
@@ -377,6 +402,7 @@ _PAPER_OPTIMUM = MradParams(
     growth="tolerance",
     image_score="area",
     colour_transfer="none",
+    local_weight=0.0,
 )
 
 PROFILES: dict[str, MradParams] = {

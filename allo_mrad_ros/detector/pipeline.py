@@ -29,6 +29,7 @@ from allo_mrad_ros.detector.images import (
     check_image,
     nearest_upscale,
 )
+from allo_mrad_ros.detector.local import colour_evidence, combine, dark_evidence
 from allo_mrad_ros.detector.params import MradParams
 from allo_mrad_ros.detector.photometric import fit_cell_affine
 from allo_mrad_ros.detector.postprocess import (
@@ -218,6 +219,10 @@ def detect(
             cue = structure_score(work, reference, params.grid)
             cue *= np.float32(params.structure_weight * params.score_ref)
             raw, map_raw = raw + cue, [m + cue for m in map_raw]
+    if params.local_weight > 0.0 or params.dark_weight > 0.0:
+        with timer.stage("local"):
+            evidence = local_evidence(work, reference, params, cache)
+            raw, map_raw = combine(raw, evidence), [combine(m, evidence) for m in map_raw]
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(
             scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
@@ -307,6 +312,47 @@ def transfer_colours(
     if params.glare_level < 256.0:
         query = clip_glare(query, reference, params.glare_level)
     return query, reference
+
+
+def local_evidence(
+    query: np.ndarray,
+    reference: np.ndarray,
+    params: MradParams,
+    cache: ReferenceCache | None = None,
+) -> np.ndarray:
+    """The local cues of ``params`` (``local_weight``, ``dark_weight``) in raw-score units,
+    the larger where both are on and ``-inf`` where neither has evidence: what
+    :func:`~allo_mrad_ros.detector.local.combine` merges with the cross score. ``query`` is
+    the processed query after the colour transfer.
+    """
+    cues = []
+    if params.local_weight > 0.0:
+        cues.append(
+            colour_evidence(
+                query,
+                reference,
+                params.grid,
+                params.local_radius,
+                params.abs_floor,
+                cache,
+                weight=params.local_weight,
+                empty=-np.inf,
+            )
+        )
+    if params.dark_weight > 0.0:
+        cues.append(
+            dark_evidence(
+                query,
+                reference,
+                params.grid,
+                params.local_radius,
+                params.abs_floor,
+                cache,
+                weight=params.dark_weight * params.score_ref,
+                empty=-np.inf,
+            )
+        )
+    return cues[0] if len(cues) == 1 else cv2.max(cues[0], cues[1])
 
 
 def _pixel_score(

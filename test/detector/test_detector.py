@@ -12,6 +12,7 @@ from allo_mrad_ros.example_scene import example_pair
 STAGES = [
     "colour_transfer",
     "cross_score",
+    "local",
     "scale_threshold",
     "noise_removal",
     "blur",
