@@ -1,0 +1,235 @@
+"""The frame decision per sequence: normal frames flagged and anomalous frames found, before
+(the mask's area, ``frame_rule: area``) and after (``frame_rule: contrast``).
+
+Every frame of each named sequence split is detected once with the given parameters and its
+ranking map, mask and query are cached (:mod:`benchmarks.decision_cache`); the decision is
+then taken from the cache by the detector's own functions
+(:func:`allo_mrad_ros.detector.decision.frame_decision`), which is exact because the decision
+changes neither the mask nor the maps.
+
+With ``--choose-on`` it also chooses the ``contrast`` rule's operating point on those
+(validation) sequences: for every setting of a small grid (``frame_top_fraction``,
+``frame_background``, ``frame_floor``), the threshold ``frame_contrast`` is the lowest that
+flags at most ``--target`` of the normal frames of *each* of them (rounded up to 0.1), and the
+setting that finds the most anomalous frames on the worst of them wins (then the mean).
+
+    python -m benchmarks.decision data/bench:test data/objects:test \\
+        --choose-on data/bench_val:val data/bench:val data/objects:val
+
+Sequences are ``PATH`` (every frame) or ``PATH:SPLIT``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from allo_mrad_ros.detector import MradParams
+from allo_mrad_ros.detector.decision import frame_decision, frame_evidence, image_score
+from allo_mrad_ros.detector.images import nearest_upscale
+from allo_mrad_ros.detector.params import add_params_options, params_from
+from allo_mrad_ros.evaluation.sources import open_sequence
+from allo_mrad_ros.metrics import roc_auc
+from benchmarks import finish
+from benchmarks.decision_cache import CachedFrame, SequenceSplit, cached_frames
+
+GRID = {
+    "frame_top_fraction": (1e-3, 3e-3),
+    "frame_background": (0.9, 0.95, 0.99, 0.995),
+    "frame_floor": (1.0, 2.0, 3.0, 5.0),
+}
+"""The settings ``--choose-on`` compares."""
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One sequence's frames under one rule: the flags and the rule's anomaly scores."""
+
+    truth: np.ndarray
+    flagged: np.ndarray
+    scores: np.ndarray
+
+    @property
+    def false_alarms(self) -> float:
+        """Normal frames flagged, as a fraction of the normal frames (NaN: none)."""
+        normal = ~self.truth
+        return float(self.flagged[normal].mean()) if normal.any() else math.nan
+
+    @property
+    def found(self) -> float:
+        """Anomalous frames flagged, as a fraction of the anomalous frames (NaN: none)."""
+        return float(self.flagged[self.truth].mean()) if self.truth.any() else math.nan
+
+    @property
+    def auroc(self) -> float:
+        """I.AUROC of the anomaly scores (NaN without both classes)."""
+        if self.truth.all() or not self.truth.any():
+            return math.nan
+        return roc_auc(self.scores, self.truth)
+
+
+def decide_all(frames: list[CachedFrame], shape: tuple[int, int], params: MradParams) -> Outcome:
+    """Every cached frame decided with ``params`` (the query's size is ``shape``)."""
+    flags, scores = [], []
+    for frame in frames:
+        mask = frame.mask.astype(np.uint8) * 255
+        full = mask if mask.shape == shape else nearest_upscale(mask, shape)
+        decision = frame_decision(full, frame.score, mask, frame.query, params)
+        flags.append(decision.anomalous)
+        scores.append(decision.anomaly_score)
+    truth = np.array([f.anomalous for f in frames], dtype=bool)
+    return Outcome(truth, np.array(flags, dtype=bool), np.array(scores, dtype=np.float64))
+
+
+def lowest_threshold(normal: list[np.ndarray], target: float) -> float:
+    """The lowest threshold (rounded up to 0.1) that flags (``>``) at most ``target`` of the
+    normal frames of each sequence; ``normal`` holds each sequence's normal statistics."""
+    candidates = np.unique(np.concatenate([[0.0], *normal]))
+    for value in candidates:
+        threshold = math.ceil(value * 10.0 - 1e-9) / 10.0
+        if all((stats > threshold).mean() <= target for stats in normal if stats.size):
+            return max(threshold, 0.1)
+    return float(math.ceil(candidates[-1] * 10.0) / 10.0 + 0.1)
+
+
+def choose(
+    chosen_on: dict[str, list[CachedFrame]], params: MradParams, target: float
+) -> list[dict]:
+    """Every grid setting with its threshold and recall on ``chosen_on``, best first."""
+    rows = []
+    for fraction, quantile in itertools.product(
+        GRID["frame_top_fraction"], GRID["frame_background"]
+    ):
+        setting = params.replace(frame_top_fraction=fraction, frame_background=quantile)
+        evidence = {
+            name: [frame_evidence(f.score, f.mask, f.query, setting) for f in frames]
+            for name, frames in chosen_on.items()
+        }
+        for floor in GRID["frame_floor"]:
+            stats = {
+                name: np.array([e.contrast(floor) for e in values])
+                for name, values in evidence.items()
+            }
+            truth = {
+                name: np.array([f.anomalous for f in frames], dtype=bool)
+                for name, frames in chosen_on.items()
+            }
+            threshold = lowest_threshold([stats[n][~truth[n]] for n in stats], target)
+            found = {
+                n: float((stats[n][truth[n]] > threshold).mean()) for n in stats if truth[n].any()
+            }
+            rows.append(
+                {
+                    "frame_top_fraction": fraction,
+                    "frame_background": quantile,
+                    "frame_floor": floor,
+                    "frame_contrast": threshold,
+                    "found": found,
+                    "worst": min(found.values()),
+                    "mean": float(np.mean(list(found.values()))),
+                }
+            )
+    rows.sort(key=lambda r: (-r["worst"], -r["mean"]))
+    return rows
+
+
+def percent(value: float) -> str:
+    """A fraction as a percentage with one decimal (``-`` for NaN)."""
+    return "-" if math.isnan(value) else f"{100 * value:.1f}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("sequences", nargs="*", type=SequenceSplit.parse, metavar="SEQ")
+    parser.add_argument("--choose-on", nargs="*", default=[], type=SequenceSplit.parse)
+    parser.add_argument("--target", type=float, default=0.05, help="normal frames flagged")
+    parser.add_argument("--limit", type=int, default=None, help="frames per sequence")
+    parser.add_argument("--cache", type=Path, default=Path("data/decision_cache"))
+    parser.add_argument("--out", type=Path, default=Path("reports/decision.json"))
+    add_params_options(parser)
+    args = parser.parse_args(argv)
+    params = params_from(args.profile, args.set)
+    items = list(dict.fromkeys([*args.choose_on, *args.sequences]))
+    if not items:
+        parser.error("name at least one sequence")
+    frames = {}
+    shapes = {}
+    for item in items:
+        frames[item.label] = cached_frames(args.cache, item, limit=args.limit, params=params)
+        camera = open_sequence(item.path).camera
+        shapes[item.label] = (camera.height, camera.width)
+    report: dict = {"params": params.to_dict(), "target": args.target}
+    if args.choose_on:
+        grid = choose({i.label: frames[i.label] for i in args.choose_on}, params, args.target)
+        report["grid"] = grid
+        names = [i.label for i in args.choose_on]
+        print(
+            f"operating points chosen on {', '.join(names)}: normal frames flagged <= "
+            f"{100 * args.target:g} % on each; anomalous frames found in % (best first)"
+        )
+        print(
+            f"{'top':>7} {'bg q':>6} {'floor':>6} {'contrast':>9} "
+            + "".join(f"{n[:18]:>20}" for n in names)
+        )
+        for row in grid[:10]:
+            print(
+                f"{row['frame_top_fraction']:>7g} {row['frame_background']:>6g} "
+                f"{row['frame_floor']:>6g} {row['frame_contrast']:>9.1f} "
+                + "".join(f"{percent(row['found'][n]):>20}" for n in names)
+            )
+        print()
+    before = params.replace(frame_rule="area")
+    after = params.replace(frame_rule="contrast")
+    print(
+        f"frame decision per sequence at the operating point (frame_contrast "
+        f"{after.frame_contrast:g}, frame_top_fraction {after.frame_top_fraction:g}, "
+        f"frame_background {after.frame_background:g}, frame_floor {after.frame_floor:g}; "
+        f"before: area_threshold {before.area_threshold:g}), in %"
+    )
+    print(
+        f"{'sequence':<24}{'normal':>7}{'anom.':>6}"
+        f"{'flagged before':>16}{'after':>7}{'found before':>14}{'after':>7}"
+        f"{'I.AUROC image score':>21}{'anomaly score':>15}"
+    )
+    report["sequences"] = {}
+    for item in items:
+        name = item.label
+        old = decide_all(frames[name], shapes[name], before)
+        new = decide_all(frames[name], shapes[name], after)
+        image_scores = np.array([_image_score(f, params) for f in frames[name]])
+        image = Outcome(new.truth, new.flagged, image_scores)
+        print(
+            f"{name:<24}{int((~new.truth).sum()):>7}{int(new.truth.sum()):>6}"
+            f"{percent(old.false_alarms):>16}{percent(new.false_alarms):>7}"
+            f"{percent(old.found):>14}{percent(new.found):>7}"
+            f"{percent(image.auroc):>21}{percent(new.auroc):>15}"
+        )
+        report["sequences"][name] = {
+            "normal": int((~new.truth).sum()),
+            "anomalous": int(new.truth.sum()),
+            "flagged_before": old.false_alarms,
+            "flagged_after": new.false_alarms,
+            "found_before": old.found,
+            "found_after": new.found,
+            "i_auroc_image_score": image.auroc,
+            "i_auroc_anomaly_score": new.auroc,
+            "i_auroc_area_score": old.auroc,
+        }
+    return finish(args.out, report)
+
+
+def _image_score(frame: CachedFrame, params: MradParams) -> float:
+    """The frame's image score (what ``detect`` reports) from the cached map."""
+    area = int(frame.mask.sum())  # the area image score ranks alike at either resolution
+    return image_score(frame.score, area, params)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
