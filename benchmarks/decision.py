@@ -28,6 +28,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from allo_mrad_ros.detector import MradParams
@@ -139,6 +140,92 @@ def choose(
     return rows
 
 
+def alternatives(frame: CachedFrame, params: MradParams) -> dict[str, float]:
+    """Other frame statistics a threshold could be set on, from one cached frame: the mask's
+    area, its largest region, the image score, the strongest region's raw peak (alone, and
+    over the frame's 99.9th raw percentile outside the mask), and the contrast of ``params``."""
+    mask = frame.mask.astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    background = frame.raw[mask == 0]
+    level = float(np.quantile(background, 0.999)) if background.size else 0.0
+    peaks = [float(frame.raw[labels == i].max()) for i in range(1, count)]
+    largest = float(stats[1:, cv2.CC_STAT_AREA].max()) if count > 1 else 0.0
+    contrast = frame_evidence(frame.score, frame.mask, frame.query, params)
+    return {
+        "mask area": float(mask.mean()),
+        "largest region": largest / mask.size,
+        "image score (map top 0.1 %)": image_score(frame.score, int(mask.sum()), params),
+        "region raw peak": max(peaks, default=0.0),
+        "region raw peak / raw p99.9": max(peaks, default=0.0) / max(level, 1.0),
+        "contrast (these settings)": contrast.contrast(params.frame_floor),
+    }
+
+
+def compare(
+    frames: dict[str, list[CachedFrame]], chosen_on: list[str], params: MradParams, target: float
+) -> dict:
+    """Each alternative statistic with its threshold chosen on ``chosen_on`` as the contrast's
+    is, and its normal frames flagged and anomalous frames found per sequence."""
+    stats = {name: [alternatives(f, params) for f in group] for name, group in frames.items()}
+    truth = {
+        name: np.array([f.anomalous for f in group], dtype=bool) for name, group in frames.items()
+    }
+    table = {}
+    for rule in next(iter(stats.values()))[0]:
+        values = {name: np.array([row[rule] for row in rows]) for name, rows in stats.items()}
+        normal = [values[n][~truth[n]] for n in chosen_on]
+        threshold = _lowest(normal, target)
+        table[rule] = {"threshold": threshold, "sequences": {}}
+        for name in frames:
+            outcome = Outcome(truth[name], values[name] > threshold, values[name])
+            table[rule]["sequences"][name] = {
+                "flagged": outcome.false_alarms,
+                "found": outcome.found,
+                "i_auroc": outcome.auroc,
+            }
+    return table
+
+
+def _lowest(normal: list[np.ndarray], target: float) -> float:
+    """The lowest threshold among the normal values that flags (``>``) at most ``target`` of
+    each sequence's normal frames (not rounded: the statistics have their own units)."""
+    for value in np.unique(np.concatenate([[0.0], *normal])):
+        if all((stats > value).mean() <= target for stats in normal if stats.size):
+            return float(value)
+    return float(np.concatenate(normal).max())
+
+
+def plot(sequences: dict[str, dict], path: Path, title: str) -> None:
+    """Bars per sequence: normal frames flagged and anomalous frames found, before and after."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(sequences)
+    x = np.arange(len(names))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharex=True)
+    panels = (("flagged", "normal frames flagged (%)"), ("found", "anomalous frames found (%)"))
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        for offset, when, colour in ((-0.2, "before", "tab:gray"), (0.2, "after", "tab:blue")):
+            values = [100 * sequences[n][f"{key}_{when}"] for n in names]
+            rule = "area" if when == "before" else "contrast"
+            ax.bar(x + offset, values, 0.4, color=colour, label=f"{when} ({rule} rule)")
+        if key == "flagged":
+            ax.axhline(5.0, color="tab:red", lw=1, ls="--", label="5 %")
+        else:
+            ax.axhline(90.0, color="tab:red", lw=1, ls="--", label="90 %")
+        ax.set_ylabel(label)
+        ax.set_xticks(x, names, rotation=35, ha="right", fontsize=8)
+        ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"written: {path}")
+
+
 def percent(value: float) -> str:
     """A fraction as a percentage with one decimal (``-`` for NaN)."""
     return "-" if math.isnan(value) else f"{100 * value:.1f}"
@@ -150,9 +237,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("sequences", nargs="*", type=SequenceSplit.parse, metavar="SEQ")
     parser.add_argument("--choose-on", nargs="*", default=[], type=SequenceSplit.parse)
     parser.add_argument("--target", type=float, default=0.05, help="normal frames flagged")
+    parser.add_argument(
+        "--alternatives",
+        action="store_true",
+        help="also other frame statistics, thresholds chosen on --choose-on",
+    )
     parser.add_argument("--limit", type=int, default=None, help="frames per sequence")
     parser.add_argument("--cache", type=Path, default=Path("data/decision_cache"))
     parser.add_argument("--out", type=Path, default=Path("reports/decision.json"))
+    parser.add_argument("--figure", type=Path, default=None, help="bar chart (PNG)")
     add_params_options(parser)
     args = parser.parse_args(argv)
     params = params_from(args.profile, args.set)
@@ -184,6 +277,22 @@ def main(argv: list[str] | None = None) -> int:
                 f"{row['frame_floor']:>6g} {row['frame_contrast']:>9.1f} "
                 + "".join(f"{percent(row['found'][n]):>20}" for n in names)
             )
+        print()
+    if args.alternatives and args.choose_on:
+        table = compare(frames, [i.label for i in args.choose_on], params, args.target)
+        report["alternatives"] = table
+        names = list(frames)
+        print(
+            "other frame statistics, each threshold chosen as the contrast's is; normal frames "
+            "flagged / anomalous frames found, in %"
+        )
+        print(f"{'statistic':<30}" + "".join(f"{n[:19]:>20}" for n in names))
+        for rule, row in table.items():
+            cells = [
+                "{} / {}".format(*(percent(row["sequences"][n][k]) for k in ("flagged", "found")))
+                for n in names
+            ]
+            print(f"{rule:<30}" + "".join(f"{c:>20}" for c in cells))
         print()
     before = params.replace(frame_rule="area")
     after = params.replace(frame_rule="contrast")
@@ -222,6 +331,12 @@ def main(argv: list[str] | None = None) -> int:
             "i_auroc_anomaly_score": new.auroc,
             "i_auroc_area_score": old.auroc,
         }
+    if args.figure is not None:
+        title = (
+            f"frame decision per sequence; contrast rule chosen on "
+            f"{', '.join(i.label for i in args.choose_on) or 'the given parameters'}"
+        )
+        plot(report["sequences"], args.figure, title)
     return finish(args.out, report)
 
 
