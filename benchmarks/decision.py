@@ -41,7 +41,7 @@ from benchmarks import finish
 from benchmarks.decision_cache import CachedFrame, SequenceSplit, cached_frames
 
 GRID = {
-    "frame_top_fraction": (1e-3, 3e-3),
+    "frame_top_fraction": (1e-3, 3e-3, 1e-2),
     "frame_background": (0.9, 0.95, 0.99, 0.995),
     "frame_floor": (1.0, 2.0, 3.0, 5.0),
 }
@@ -333,8 +333,8 @@ def main(argv: list[str] | None = None) -> int:
         }
     if args.figure is not None:
         title = (
-            f"frame decision per sequence; contrast rule chosen on "
-            f"{', '.join(i.label for i in args.choose_on) or 'the given parameters'}"
+            f"frame decision per sequence: area rule (before) and contrast rule (after) at "
+            f"frame_contrast {after.frame_contrast:g}"
         )
         plot(report["sequences"], args.figure, title)
     return finish(args.out, report)

@@ -54,11 +54,24 @@ class SequenceSplit:
     path: Path
     split: str | None
     perturbation: str | None = None
+    limit: int | None = None
 
     @classmethod
     def parse(cls, text: str) -> SequenceSplit:
         """``data/bench:test`` -> (data/bench, test); ``data/demo/sequence`` -> all frames;
-        ``data/bench_val:val@agx`` -> the val split with AgX-like queries."""
+        ``data/bench_val:val@agx`` -> the val split with AgX-like queries; a suffix ``#N``
+        keeps N frames, evenly spread (``data/bench_val:val@agx#110``)."""
+        text, hash_sign, count = text.partition("#")
+        limit = None
+        if hash_sign:
+            if not count.isdigit() or int(count) < 1:
+                raise argparse.ArgumentTypeError(f"#{count}: a frame count must be >= 1")
+            limit = int(count)
+        item = cls._parse(text)
+        return cls(item.path, item.split, item.perturbation, limit)
+
+    @classmethod
+    def _parse(cls, text: str) -> SequenceSplit:
         text, at, perturbation = text.partition("@")
         if at and perturbation not in PERTURBED:
             raise argparse.ArgumentTypeError(
@@ -74,7 +87,8 @@ class SequenceSplit:
         """A short name for tables: the folder's name, the split and the query change."""
         name = self.path.name if self.path.name != "sequence" else self.path.parent.name
         name = f"{name}:{self.split}" if self.split else name
-        return f"{name}@{self.perturbation}" if self.perturbation else name
+        name = f"{name}@{self.perturbation}" if self.perturbation else name
+        return f"{name}#{self.limit}" if self.limit is not None else name
 
 
 @dataclass(frozen=True)
@@ -114,7 +128,8 @@ def cache_dir(root: Path, item: SequenceSplit, limit: int | None, params: MradPa
         sort_keys=True,
     )
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
-    return root / f"{item.label.replace(':', '-').replace('@', '-')}-{digest}"
+    stem = item.label.partition("#")[0].replace(":", "-").replace("@", "-")
+    return root / f"{stem}-{digest}"
 
 
 def save_frame(path: Path, name: str, kind: str, anomalous: bool, result: DetectionResult) -> None:
@@ -150,9 +165,10 @@ def load_frame(path: Path) -> CachedFrame:
 def cached_frames(
     root: Path, item: SequenceSplit, *, limit: int | None, params: MradParams
 ) -> list[CachedFrame]:
-    """Every frame of ``item`` (at most ``limit``, evenly spread), detected once with
-    ``params`` (the reference rendered from each frame's pose with the sequence's model) and
-    read back from the cache."""
+    """Every frame of ``item`` (at most its own limit, else ``limit``, evenly spread),
+    detected once with ``params`` (the reference rendered from each frame's pose with the
+    sequence's model) and read back from the cache."""
+    limit = item.limit if item.limit is not None else limit
     folder = cache_dir(root, item, limit, params)
     folder.mkdir(parents=True, exist_ok=True)
     source = open_sequence(item.path)

@@ -237,7 +237,7 @@ class MradParams:
         "area must exceed area_threshold (the paper's)",
     )
     frame_top_fraction: float = parameter(
-        3e-3,
+        1e-3,
         "fraction of the processed pixels the contrast rule's evidence averages (the top of "
         "the ranking map)",
         0,
@@ -245,7 +245,7 @@ class MradParams:
         low_open=True,
     )
     frame_background: float = parameter(
-        0.99,
+        0.95,
         "quantile of the ranking map over the station pixels outside the mask that is the "
         "frame's background level (contrast rule)",
         0,
@@ -260,7 +260,7 @@ class MradParams:
         low_open=True,
     )
     frame_contrast: float = parameter(
-        4.5,
+        16.4,
         "evidence over background level above which the contrast rule calls a frame "
         "anomalous (its anomaly score is then above 0.5)",
         0,

@@ -19,12 +19,20 @@ from benchmarks.decision_cache import CachedFrame, SequenceSplit, load_frame, sa
         ("data/bench:test", "data/bench", "test", None, "bench:test"),
         ("data/demo/sequence", "data/demo/sequence", None, None, "demo"),
         ("data/bench_val:val@agx", "data/bench_val", "val", "agx", "bench_val:val@agx"),
+        ("data/objects:val@ramp#240", "data/objects", "val", "ramp", "objects:val@ramp#240"),
     ],
 )
 def test_sequence_names(text, path, split, change, label):
     item = SequenceSplit.parse(text)
     assert (item.path, item.split, item.perturbation) == (Path(path), split, change)
     assert item.label == label
+    assert item.limit == (240 if "#" in text else None)
+
+
+@pytest.mark.parametrize("text", ["data/bench:test#0", "data/bench:test#many"])
+def test_a_bad_frame_count_is_refused(text):
+    with pytest.raises(argparse.ArgumentTypeError, match="frame count"):
+        SequenceSplit.parse(text)
 
 
 def test_an_unknown_query_change_is_refused_by_name():
