@@ -135,13 +135,16 @@ def frame_evidence(
     count = max(1, round(params.frame_top_fraction * flat.size))
     evidence = float(_largest(flat, count).mean(dtype=np.float64))
     level = STATION_LEVEL if query.dtype == np.uint8 else STATION_LEVEL / 255.0
-    # The brightest channel over the level: any channel, as max over the last axis.
-    background = query.max(axis=2) > level
-    if cv2.countNonZero(mask.astype(np.uint8, copy=False)):
+    # The brightest channel over the level. OpenCV's per-element max of the split channels:
+    # NumPy's max over the last axis of a uint8 image is some thirty times slower.
+    red, green, blue = cv2.split(np.ascontiguousarray(query))
+    background = cv2.compare(cv2.max(cv2.max(red, green), blue), level, cv2.CMP_GT)
+    foreground = (mask != 0).astype(np.uint8)
+    if cv2.countNonZero(foreground):
         side = 2 * MASK_MARGIN + 1
-        near = cv2.dilate((mask != 0).astype(np.uint8), np.ones((side, side), np.uint8))
-        background &= near == 0
-    values = score[background]
+        near = cv2.dilate(foreground, np.ones((side, side), np.uint8))
+        background[near != 0] = 0
+    values = score[background != 0]
     if values.size < MIN_BACKGROUND:
         return FrameEvidence(evidence, 0.0)
     return FrameEvidence(evidence, _quantile(values, params.frame_background))
