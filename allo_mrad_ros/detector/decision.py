@@ -3,7 +3,7 @@
 Two decision rules (``MradParams.frame_rule``):
 
 - ``contrast`` (the default): the frame's evidence, the mean of the top ``frame_top_fraction``
-  of the ranking map, over the frame's own background level, the ``frame_background``
+  of a score map (``frame_map``), over the frame's own background level, the ``frame_background``
   quantile of the same map over the station pixels outside the mask (never below
   ``frame_floor``). The frame is anomalous when this contrast exceeds ``frame_contrast``. A
   frame whose whole map is lifted (another renderer's shading, glare, a tone curve) needs
@@ -24,12 +24,14 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.params import MradParams
+from allo_mrad_ros.detector.postprocess import continuous_scores
 
 DECISION_FIELDS = (
     "area_threshold",
     "image_score",
     "image_top_fraction",
     "frame_rule",
+    "frame_map",
     "frame_top_fraction",
     "frame_background",
     "frame_floor",
@@ -150,9 +152,20 @@ def frame_evidence(
     return FrameEvidence(evidence, _quantile(values, params.frame_background))
 
 
+def decision_map(score: np.ndarray, raw: np.ndarray, params: MradParams) -> np.ndarray:
+    """The map the ``contrast`` rule reads (``params.frame_map``): ``ranking``, the pixel
+    ranking map ``score``; ``mask``, the raw score of the mask's photometric model (``raw``)
+    put on the ranking map's 0..255 scale by the same increasing function
+    (:func:`~allo_mrad_ros.detector.postprocess.continuous_scores`), unsmoothed."""
+    if params.frame_map == "ranking":
+        return score
+    return continuous_scores(raw, params.score_scaling, params.score_ref)
+
+
 def frame_decision(
     full_mask: np.ndarray,
     score: np.ndarray,
+    raw: np.ndarray,
     mask: np.ndarray,
     query: np.ndarray,
     params: MradParams,
@@ -163,9 +176,10 @@ def frame_decision(
     ----------
     full_mask : numpy.ndarray
         The mask at the query's resolution (its area is counted).
-    score, mask, query : numpy.ndarray
-        The ranking map, the mask and the query at the processing resolution (see
-        :func:`frame_evidence`; read by the ``contrast`` rule only).
+    score, raw, mask, query : numpy.ndarray
+        The ranking map, the mask's raw score, the mask and the query at the processing
+        resolution (see :func:`decision_map` and :func:`frame_evidence`; read by the
+        ``contrast`` rule only).
     params : MradParams
         ``frame_rule`` and its parameters; ``area_threshold`` for ``area``.
 
@@ -178,7 +192,8 @@ def frame_decision(
         statistic = area / full_mask.size
         threshold = params.area_threshold
     else:
-        statistic = frame_evidence(score, mask, query, params).contrast(params.frame_floor)
+        evidence = frame_evidence(decision_map(score, raw, params), mask, query, params)
+        statistic = evidence.contrast(params.frame_floor)
         threshold = params.frame_contrast
     return FrameDecision(
         anomalous=statistic > threshold,

@@ -232,22 +232,27 @@ class MradParams:
     )
     frame_rule: Literal["contrast", "area"] = parameter(
         "contrast",
-        "the frame decision: contrast, the mean of the top frame_top_fraction of the ranking "
-        "map over the frame's background level must exceed frame_contrast; area, the mask's "
-        "area must exceed area_threshold (the paper's)",
+        "the frame decision: contrast, the mean of the top frame_top_fraction of a score map "
+        "(frame_map) over the frame's background level must exceed frame_contrast; area, the "
+        "mask's area must exceed area_threshold (the paper's)",
+    )
+    frame_map: Literal["mask", "ranking"] = parameter(
+        "mask",
+        "the map the contrast rule reads: mask, the score of the mask's photometric model on "
+        "the ranking map's 0..255 scale; ranking, the pixel ranking map",
     )
     frame_top_fraction: float = parameter(
-        1e-3,
+        3e-3,
         "fraction of the processed pixels the contrast rule's evidence averages (the top of "
-        "the ranking map)",
+        "its map)",
         0,
         1,
         low_open=True,
     )
     frame_background: float = parameter(
-        0.95,
-        "quantile of the ranking map over the station pixels outside the mask that is the "
-        "frame's background level (contrast rule)",
+        0.995,
+        "quantile of the contrast rule's map over the station pixels outside the mask that is "
+        "the frame's background level",
         0,
         1,
     )
@@ -260,7 +265,7 @@ class MradParams:
         low_open=True,
     )
     frame_contrast: float = parameter(
-        16.4,
+        5.5,
         "evidence over background level above which the contrast rule calls a frame "
         "anomalous (its anomaly score is then above 0.5)",
         0,

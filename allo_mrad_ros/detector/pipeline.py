@@ -403,7 +403,7 @@ def _decided(
     with timer.stage("decision"):
         # The full-resolution score is made only when read (DetectionResult.score).
         full_mask = _restore_resolution(mask, full_shape)
-        decision = frame_decision(full_mask, score, mask, work_query, params)
+        decision = frame_decision(full_mask, score, raw, mask, work_query, params)
         area = decision.area
         frame_score = image_score(score, area, params)
     return DetectionResult(

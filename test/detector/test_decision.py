@@ -93,16 +93,23 @@ def test_tied_scores_give_the_oracle_quantile():
     assert found == pytest.approx(contrast_by_hand(score, mask, query, params), rel=1e-6)
 
 
+def raw_for(value, score_ref=1000.0):
+    """The raw score that the continuous map puts at ``value`` (>= 1)."""
+    return score_ref * (value - 1.0) / (255.0 - value)
+
+
 def lit_frame(level, *, patch, rows=6, cols=5, shape=(270, 480)):
-    """A station frame whose map sits at ``level`` everywhere, with a ``rows`` x ``cols``
-    region of ``patch`` (the mask holds the region), and its mask at the query's 4 x size."""
+    """A station frame whose maps (the ranking map, and the mask's raw score on its scale)
+    sit at ``level`` everywhere, with a ``rows`` x ``cols`` region of ``patch`` (the mask
+    holds the region), and its mask at the query's 4 x size."""
     score = np.full(shape, level, np.float32)
     query = np.full((*shape, 3), 120, np.uint8)
     mask = np.zeros(shape, np.uint8)
     score[100 : 100 + rows, 200 : 200 + cols] = patch
     mask[100 : 100 + rows, 200 : 200 + cols] = 255
+    raw = raw_for(score.astype(np.float64)).astype(np.float32)
     full = np.repeat(np.repeat(mask, 4, axis=0), 4, axis=1)
-    return full, score, mask, query
+    return full, score, raw, mask, query
 
 
 def patch_for(contrast, params, pixels, level=1.0, shape=(270, 480)):
@@ -129,10 +136,12 @@ def test_a_lifted_map_needs_proportionally_stronger_evidence():
 
 
 def test_a_small_region_that_stands_out_is_found_whatever_its_area():
-    # 30 map pixels (480 image pixels, 0.02 % of the image, under area_threshold): the area
+    # 60 map pixels (960 image pixels, 0.05 % of the image, under area_threshold): the area
     # rule misses it, the contrast rule finds it when it stands out enough.
     params = MradParams()
-    frame = lit_frame(1.0, patch=patch_for(2.0 * params.frame_contrast, params, 30))
+    patch = patch_for(2.0 * params.frame_contrast, params, 60)
+    assert patch < 250.0  # a value the map can hold
+    frame = lit_frame(1.0, patch=patch, rows=10, cols=6)
     decision = frame_decision(*frame, params)
     assert decision.area < params.area_threshold * 1080 * 1920
     assert decision.anomalous and decision.anomaly_score > 0.5
