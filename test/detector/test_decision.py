@@ -6,6 +6,7 @@ import pytest
 
 from allo_mrad_ros.detector import detect, profile
 from allo_mrad_ros.detector.decision import (
+    DECISION_FIELDS,
     MIN_BACKGROUND,
     FrameEvidence,
     anomaly_score,
@@ -226,3 +227,31 @@ def test_the_paper_profiles_decide_by_area():
 def test_invalid_decision_parameters_are_refused_by_name(name, value):
     with pytest.raises(ParamsError, match=name):
         MradParams(**{name: value})
+
+
+DECISION_CHANGES = {
+    "area_threshold": 0.01,
+    "image_score": "area",
+    "image_top_fraction": 0.01,
+    "frame_rule": "area",
+    "frame_map": "ranking",
+    "frame_top_fraction": 0.01,
+    "frame_background": 0.5,
+    "frame_floor": 1.0,
+    "frame_contrast": 100.0,
+}
+
+
+def test_the_decision_fields_are_the_parameters_listed():
+    assert set(DECISION_CHANGES) == set(DECISION_FIELDS)
+
+
+@pytest.mark.parametrize("name", sorted(DECISION_CHANGES))
+def test_no_decision_field_changes_the_mask_or_the_maps(pair, name):
+    # What lets a benchmark detect once and decide many times (benchmarks/decision_cache.py).
+    base = detect(pair.query, pair.reference, MradParams())
+    changed = detect(pair.query, pair.reference, MradParams(**{name: DECISION_CHANGES[name]}))
+    np.testing.assert_array_equal(base.mask, changed.mask)
+    np.testing.assert_array_equal(base.work_score, changed.work_score)
+    np.testing.assert_array_equal(base.raw_score, changed.raw_score)
+    assert base.regions == changed.regions
