@@ -8,7 +8,8 @@ Pipeline stages, each in one place:
 4. seeds -- :mod:`.regions` (``find_seeds``)
 5. region growing and the regions as records -- :mod:`.regions` (``grow_hysteresis``,
    ``grow_regions``, ``extract_regions``: :class:`Region`)
-6. decision and image score -- :mod:`.decision` (``decide``, ``image_score``)
+6. decision, anomaly score and image score -- :mod:`.decision` (``frame_decision``,
+   ``image_score``)
 
 :mod:`.pipeline` composes them in :func:`detect`; stage 0, the colour transfer, is
 :mod:`.colour_transfer`.

@@ -131,8 +131,8 @@ class MradParams:
     )
     area_threshold: float = parameter(
         0.001,
-        "fraction of the image the mask must exceed for the frame to be anomalous (0.001: "
-        "ALLO's smallest anomaly)",
+        "with frame_rule area, fraction of the image the mask must exceed for the frame to "
+        "be anomalous (0.001: ALLO's smallest anomaly)",
         0,
         1,
         high_open=True,
@@ -184,7 +184,7 @@ class MradParams:
         "map_top",
         "the frame's anomaly score, what image metrics rank: map_top, the mean of the top "
         "image_top_fraction of the score map; area, the mask's area (the paper's); the "
-        "anomalous flag always comes from the mask's area",
+        "anomalous flag comes from frame_rule",
     )
     image_top_fraction: float = parameter(
         1e-3,
@@ -254,6 +254,48 @@ class MradParams:
         "error)",
         0,
         4,
+    )
+    frame_rule: Literal["contrast", "area"] = parameter(
+        "contrast",
+        "the frame decision: contrast, the mean of the top frame_top_fraction of a score map "
+        "(frame_map) over the frame's background level must exceed frame_contrast; area, the "
+        "mask's area must exceed area_threshold (the paper's)",
+    )
+    frame_map: Literal["mask", "ranking"] = parameter(
+        "mask",
+        "the map the contrast rule reads: mask, the score of the mask's photometric model on "
+        "the ranking map's 0..255 scale; ranking, the pixel ranking map",
+    )
+    frame_top_fraction: float = parameter(
+        3e-3,
+        "fraction of the processed pixels the contrast rule's evidence averages (the top of "
+        "its map)",
+        0,
+        1,
+        low_open=True,
+    )
+    frame_background: float = parameter(
+        0.995,
+        "quantile of the contrast rule's map over the station pixels outside the mask that is "
+        "the frame's background level",
+        0,
+        1,
+    )
+    frame_floor: float = parameter(
+        3.0,
+        "lowest background level of the contrast rule (0..255 scale): a clean frame's "
+        "evidence is compared with this",
+        0,
+        SCORE_RANGE,
+        low_open=True,
+    )
+    frame_contrast: float = parameter(
+        5.5,
+        "evidence over background level above which the contrast rule calls a frame "
+        "anomalous (its anomaly score is then above 0.5)",
+        0,
+        1e6,
+        low_open=True,
     )
 
     def __post_init__(self) -> None:
@@ -403,6 +445,7 @@ _PAPER_OPTIMUM = MradParams(
     image_score="area",
     colour_transfer="none",
     local_weight=0.0,
+    frame_rule="area",
 )
 
 PROFILES: dict[str, MradParams] = {

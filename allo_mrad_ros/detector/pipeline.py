@@ -22,7 +22,7 @@ from allo_mrad_ros.detector.colour_transfer import (
     clip_glare,
     fit_colour_transfer,
 )
-from allo_mrad_ros.detector.decision import decide, image_score
+from allo_mrad_ros.detector.decision import frame_decision, image_score
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -68,7 +68,9 @@ class DetectionResult:
     area : int
         Number of anomalous pixels in ``mask``.
     anomalous : bool
-        ``area`` exceeds the area threshold.
+        The frame decision (:attr:`MradParams.frame_rule`): by default, the top of the
+        ranking map stands out from the frame's own background level by more than
+        ``frame_contrast``; with ``frame_rule="area"``, ``area`` exceeds the area threshold.
     image_score : float
         The frame's anomaly score that image-level metrics rank (see
         :attr:`MradParams.image_score`).
@@ -87,6 +89,9 @@ class DetectionResult:
         transfer (area-averaged); None when not kept.
     work_mask : numpy.ndarray or None
         ``mask`` at the processing resolution, before its upscaling; None when not kept.
+    anomaly_score : float
+        In [0, 1], the frame decision's score: above 0.5 exactly when ``anomalous`` (see
+        :func:`~allo_mrad_ros.detector.decision.frame_decision`).
     """
 
     work_score: np.ndarray
@@ -100,6 +105,7 @@ class DetectionResult:
     masked_score: bool = False
     work_query: np.ndarray | None = None
     work_mask: np.ndarray | None = None
+    anomaly_score: float = 0.0
 
     @cached_property
     def score(self) -> np.ndarray:
@@ -443,20 +449,22 @@ def _decided(
     with timer.stage("decision"):
         # The full-resolution score is made only when read (DetectionResult.score).
         full_mask = _restore_resolution(mask, full_shape)
-        area, anomalous = decide(full_mask, params.area_threshold)
+        decision = frame_decision(full_mask, score, raw, mask, work_query, params)
+        area = decision.area
         frame_score = image_score(score, area, params)
     return DetectionResult(
         work_score=score,
         raw_score=raw,
         mask=full_mask,
         area=area,
-        anomalous=anomalous,
+        anomalous=decision.anomalous,
         image_score=frame_score,
         regions=regions,
         timings_ms=timer.finish(),
         masked_score=masked_score,
         work_query=work_query,
         work_mask=mask,
+        anomaly_score=decision.anomaly_score,
     )
 
 

@@ -117,9 +117,12 @@ def result_status(
     regions: Sequence[Region],
     image_score: float,
     hardware_id: str = "",
+    *,
+    anomaly_score: float | None = None,
 ) -> DiagnosticStatus:
-    """The frame's result as a status: WARN when anomalous; area, image score and the
-    regions' boxes (image pixels) as values. ``hardware_id`` empty: the package's default."""
+    """The frame's result as a status: WARN when anomalous; area, image score, the frame
+    decision's anomaly score in [0, 1] (when given) and the regions' boxes (image pixels) as
+    values. ``hardware_id`` empty: the package's default."""
     status = DiagnosticStatus(
         name=f"{node_name}: result",
         hardware_id=hardware_id or interface.HARDWARE_ID,
@@ -131,6 +134,7 @@ def result_status(
         "area_px": str(int(area)),
         "area_fraction": f"{area / max(pixels, 1):.6f}",
         "image_score": f"{image_score:.3f}",
+        **({} if anomaly_score is None else {"anomaly_score": f"{anomaly_score:.4f}"}),
         "regions": str(len(regions)),
         "boxes_xywh": ";".join("{},{},{},{}".format(*region.box) for region in regions),
     }
@@ -286,6 +290,7 @@ class Outputs:
                 result.regions,
                 result.image_score,
                 config.hardware_id or getattr(header, "frame_id", ""),
+                anomaly_score=result.anomaly_score,
             )
             self.result.publish(DiagnosticArray(header=header, status=[status]))
         if config.publish_reference:

@@ -99,6 +99,7 @@ def frame() -> ProcessedFrame:
         anomalous=True,
         image_score=40.0,
         regions=extract_regions(work_mask, work_score, (90, 160), 8),
+        anomaly_score=0.75,
     )
     return ProcessedFrame(reference=np.zeros((45, 80, 3), np.uint8), results={"MRAD": result})
 
@@ -225,6 +226,7 @@ def test_every_subscribed_output_is_published_with_the_image_header(outputs):
         "area_px": "204",
         "area_fraction": f"{204 / (90 * 160):.6f}",
         "image_score": "40.000",
+        "anomaly_score": "0.7500",
         "regions": "2",
         "boxes_xywh": "30,10,20,10;100,60,2,2",
     }
