@@ -231,7 +231,7 @@ class MradParams:
         100,
     )
     local_weight: float = parameter(
-        1.0,
+        0.0,
         "weight of the local colour cue (each pixel's departure, in robust noise scales of its "
         "cell, beyond the colours the reference shows within local_radius pixels; squared, "
         "in cross-score units), which replaces the cross score where it is larger; 0 = off",

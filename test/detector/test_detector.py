@@ -12,7 +12,6 @@ from allo_mrad_ros.example_scene import example_pair
 STAGES = [
     "colour_transfer",
     "cross_score",
-    "local",
     "scale_threshold",
     "noise_removal",
     "blur",
@@ -57,7 +56,9 @@ def test_pasted_object_is_found_and_clean_frame_is_not(pair):
     assert iou(found.mask > 0, pair.object_mask > 0) >= 0.5
     clean = detect(pair.clean_query, reference)
     assert not clean.anomalous
-    assert list(found.timings_ms) == STAGES
+    assert list(found.timings_ms) == STAGES  # the local cues are off by default
+    with_cue = detect(pair.query, reference, MradParams(local_weight=1.0))
+    assert list(with_cue.timings_ms) == [*STAGES[:2], "local", *STAGES[2:]]
 
 
 def test_full_hd_example_meets_iou():

@@ -241,8 +241,8 @@ def test_parameters_accept_their_ranges():
         assert MradParams(local_radius=radius).local_radius == radius
 
 
-def test_the_colour_cue_is_on_by_default_and_the_paper_has_none():
+def test_the_local_cues_are_off_by_default_and_in_the_paper():
     params = MradParams()
-    assert (params.local_weight, params.local_radius, params.dark_weight) == (1.0, 3, 0.0)
+    assert (params.local_weight, params.local_radius, params.dark_weight) == (0.0, 3, 0.0)
     for name in ("paper", "baseline", "previous"):
         assert profile(name).local_weight == 0.0 and profile(name).dark_weight == 0.0
