@@ -331,33 +331,24 @@ def local_evidence(
     :func:`~allo_mrad_ros.detector.local.combine` merges with the cross score. ``query`` is
     the processed query after the colour transfer.
     """
-    cues = []
-    if params.local_weight > 0.0:
-        cues.append(
-            colour_evidence(
-                query,
-                reference,
-                params.grid,
-                params.local_radius,
-                params.abs_floor,
-                cache,
-                weight=params.local_weight,
-                empty=-np.inf,
-            )
+    weighted = (
+        (colour_evidence, params.local_weight),
+        (dark_evidence, params.dark_weight * params.score_ref),
+    )
+    cues = [
+        evidence(
+            query,
+            reference,
+            params.grid,
+            params.local_radius,
+            params.abs_floor,
+            cache,
+            weight=weight,
+            empty=-np.inf,
         )
-    if params.dark_weight > 0.0:
-        cues.append(
-            dark_evidence(
-                query,
-                reference,
-                params.grid,
-                params.local_radius,
-                params.abs_floor,
-                cache,
-                weight=params.dark_weight * params.score_ref,
-                empty=-np.inf,
-            )
-        )
+        for evidence, weight in weighted
+        if weight > 0.0
+    ]
     return cues[0] if len(cues) == 1 else cv2.max(cues[0], cues[1])
 
 

@@ -27,13 +27,14 @@ _LOG = logging.getLogger(__name__)
 
 _GLB_MAGIC = b"glTF"
 _JSON_CHUNK = 0x4E4F534A
-_TEXTURE_SLOTS = (
+TEXTURE_SLOTS = (
     "baseColorTexture",
     "metallicRoughnessTexture",
     "normalTexture",
     "occlusionTexture",
     "emissiveTexture",
 )
+"""The glTF material slots that hold a texture, in the specification's order."""
 HONOURED_EXTENSIONS: dict[str, str] = {
     "KHR_materials_emissive_strength": "multiplies the emissive factor",
     "KHR_draco_mesh_compression": "decoded by trimesh (needs DracoPy)",
@@ -119,7 +120,7 @@ def _params(material: dict) -> MaterialParams:
 def _slots(material: dict) -> dict[str, dict]:
     pbr = material.get("pbrMetallicRoughness") or {}
     found = {}
-    for slot in _TEXTURE_SLOTS:
+    for slot in TEXTURE_SLOTS:
         info = pbr.get(slot) if slot in ("baseColorTexture", "metallicRoughnessTexture") else None
         info = info if info is not None else material.get(slot)
         if isinstance(info, dict):
@@ -174,7 +175,7 @@ def _matches(signature: tuple, material: PBRMaterial) -> bool:
     name, mode, slots, colour, metallic, roughness = signature
     if material.name != name or (material.alphaMode or "OPAQUE") != mode:
         return False
-    if frozenset(s for s in _TEXTURE_SLOTS if getattr(material, s, None) is not None) != slots:
+    if frozenset(s for s in TEXTURE_SLOTS if getattr(material, s, None) is not None) != slots:
         return False
     # trimesh stores the base colour as 8-bit: compare within one level.
     kept = material.baseColorFactor
@@ -235,4 +236,4 @@ def slots_of(material: PBRMaterial | None) -> Iterable[str]:
     """The texture slots ``material`` fills."""
     if material is None:
         return ()
-    return tuple(s for s in _TEXTURE_SLOTS if getattr(material, s, None) is not None)
+    return tuple(s for s in TEXTURE_SLOTS if getattr(material, s, None) is not None)

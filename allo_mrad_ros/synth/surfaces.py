@@ -21,19 +21,13 @@ import trimesh
 from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
+from allo_mrad_ros.render.gltf_materials import TEXTURE_SLOTS
 from allo_mrad_ros.synth.realism_config import RealismConfig
 from allo_mrad_ros.synth.validation import SynthError
 
 TEXTURE_SIZE = 256
 """Texels along one side of a texture tile."""
 _SEAM_WIDTH = 0.012  # of a tile: about 2.5 cm at the 2 m default
-_TEXTURE_SLOTS = (
-    "baseColorTexture",
-    "metallicRoughnessTexture",
-    "normalTexture",
-    "occlusionTexture",
-    "emissiveTexture",
-)
 
 
 def procedural_texture(
@@ -199,7 +193,7 @@ def as_built_station(
             continue  # vertex-coloured or plain parts keep their look
         colour, roughness = nominal[material.name]
         colour = colour * _log_gain(rng, realism.part_variation)
-        if any(getattr(material, slot, None) is not None for slot in _TEXTURE_SLOTS):
+        if any(getattr(material, slot, None) is not None for slot in TEXTURE_SLOTS):
             # A textured part of a real CAD export keeps its own textures and UVs: the
             # model's artwork (and its metallic-roughness, normal, occlusion and emissive
             # maps) is what the station looks like; only its colour factor varies.
