@@ -102,12 +102,15 @@ class GainField:
         height, width = shape
         if self.coefficients.size == 0:
             return np.zeros(shape, np.float32)
-        # Separable: the field of a polynomial in x, y is a sum of outer products.
-        ys = _normalised(np.arange(height), height)
-        xs = _normalised(np.arange(width), width)
-        field = np.zeros(shape, np.float64)
+        # Separable: sum c_ij x**i y**j = Y @ C @ X.T, Y and X the powers of each row's y
+        # and each column's x, C[j, i] = c_ij: one small matrix product.
+        powers = np.arange(self.degree + 1)
+        ys = _normalised(np.arange(height), height)[:, None] ** powers
+        xs = _normalised(np.arange(width), width)[:, None] ** powers
+        table = np.zeros((self.degree + 1, self.degree + 1))
         for column, (i, j) in enumerate(_powers(self.degree)):
-            field += self.coefficients[column] * np.outer(ys**j, xs**i)
+            table[j, i] = self.coefficients[column]
+        field = ys @ table @ xs.T
         low = max(self.bounds[0], -MAX_LOG_GAIN)
         high = min(self.bounds[1], MAX_LOG_GAIN)
         return np.clip(field, low, high).astype(np.float32)
@@ -148,6 +151,11 @@ def _eight_bit(image: np.ndarray) -> np.ndarray:
     return cv2.convertScaleAbs(np.maximum(to_float32(image), 0.0))
 
 
+def _brightest(image: np.ndarray) -> np.ndarray:
+    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
+    return np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+
+
 def _luma(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32) @ _LUMA.astype(np.float32)
 
@@ -158,9 +166,10 @@ def usable_pixels(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
     size = 3 + 2 * EDGE_MARGIN
     kernel = np.ones((size, size), np.uint8)
     spread = cv2.subtract(cv2.dilate(reference, kernel), cv2.erode(reference, kernel))
-    edge = spread.max(axis=2) > EDGE_LEVELS
-    station = reference.max(axis=2) > SPACE_LEVEL
-    clipped = (query.max(axis=2) >= CLIPPED_LEVEL) | (reference.max(axis=2) >= CLIPPED_LEVEL)
+    edge = _brightest(spread) > EDGE_LEVELS
+    brightest = _brightest(reference)
+    station = brightest > SPACE_LEVEL
+    clipped = (_brightest(query) >= CLIPPED_LEVEL) | (brightest >= CLIPPED_LEVEL)
     dark = (_luma(query) <= DARK_LEVEL) | (_luma(reference) <= DARK_LEVEL)
     return station & ~edge & ~clipped & ~dark
 
@@ -233,9 +242,16 @@ def robust_fit(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def _weighted_lstsq(design: np.ndarray, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    root = np.sqrt(weights)
-    solution, *_ = np.linalg.lstsq(design * root[:, None], target * root, rcond=None)
-    return solution
+    # The normal equations: at most 10 columns of monomials of coordinates in [-1, 1] are
+    # well conditioned, and a k x k solve is far cheaper than an SVD of n x k (lstsq).
+    weighted = design.T * weights
+    normal = weighted @ design
+    try:
+        return np.linalg.solve(normal, weighted @ target)
+    except np.linalg.LinAlgError:
+        # Samples on a line (a thin strip of station) leave a direction undetermined.
+        solution, *_ = np.linalg.lstsq(normal, weighted @ target, rcond=None)
+        return solution
 
 
 def apply_gain_field(query: np.ndarray, reference: np.ndarray, degree: int) -> np.ndarray:
