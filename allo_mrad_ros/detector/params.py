@@ -222,6 +222,14 @@ class MradParams:
         128,
         256,
     )
+    gain_field_degree: int = parameter(
+        0,
+        "degree of the smooth multiplicative gain field (log luma ratio of query to reference, "
+        "a 2-D polynomial fitted per frame by robust least squares over station pixels away "
+        "from reference edges) the query is divided by after the colour transfer; 0 = off",
+        0,
+        3,
+    )
     structure_weight: float = parameter(
         0.0,
         "weight of the structure cue (edges the query has and its reference cell lacks, "

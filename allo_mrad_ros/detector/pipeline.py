@@ -23,6 +23,7 @@ from allo_mrad_ros.detector.colour_transfer import (
     fit_colour_transfer,
 )
 from allo_mrad_ros.detector.decision import frame_decision, image_score
+from allo_mrad_ros.detector.gain_field import apply_gain_field
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -202,6 +203,9 @@ def detect(
     if params.colour_transfer != "none":
         with timer.stage("colour_transfer"):
             work, reference = transfer_colours(work, reference, params, cache, backend)
+    if params.gain_field_degree > 0:
+        with timer.stage("gain_field"):
+            work = apply_gain_field(work, reference, params.gain_field_degree)
     # The ranking map may use another photometric model than the mask; both come from
     # one pass that shares the cell statistics.
     models = [params.photometric]
