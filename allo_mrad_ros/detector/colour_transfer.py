@@ -33,7 +33,11 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_edges
-from allo_mrad_ros.detector.images import area_downscale, to_float32
+from allo_mrad_ros.detector.images import (
+    area_downscale,
+    eight_bit,
+    station_surface,
+)
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 from allo_mrad_ros.errors import InvalidInput
 
@@ -52,8 +56,6 @@ _WIDTHS = (256, 64, 32, 16, 8, 4)
 # A reference pixel is "at an edge" where its 3 x 3 (grown by the margin) neighbourhood spans
 # more than this many 8-bit levels in some channel.
 _EDGE_LEVELS = 48.0
-# A reference pixel at most this bright on every channel is space, not station surface.
-_SPACE_LEVEL = 8.0
 # Pixels around clipped query pixels that count as glare too.
 _GLARE_MARGIN = 2
 MAX_PAIRS = 8192
@@ -225,7 +227,7 @@ def _enclosing_bins(finest: int, width: int) -> np.ndarray:
 
 def apply_to_reference(reference: np.ndarray, transfer: ColourTransfer) -> np.ndarray:
     """The reference in the query's colours: ``reference + offset(reference)``, uint8."""
-    pixels = _eight_bit(reference)
+    pixels = eight_bit(reference)
     return _to_uint8(pixels.astype(np.float32) + transfer.offsets(pixels))
 
 
@@ -235,9 +237,9 @@ def clip_glare(query: np.ndarray, reference: np.ndarray, level: float) -> np.nda
     For the ``reference`` direction, where the reference already carries the query's
     colours. Returns a uint8 image of the query's size.
     """
-    values = _eight_bit(query)
-    pixels = _resized(_eight_bit(reference), values.shape[:2])
-    glare = _glare(values, level) & _station_surface(pixels)
+    values = eight_bit(query)
+    pixels = _resized(eight_bit(reference), values.shape[:2])
+    glare = _glare(values, level) & station_surface(pixels)
     out = values.copy()
     out[glare] = pixels[glare]
     return out
@@ -284,7 +286,7 @@ def apply_to_query(
         uint8 image of the query's size.
     """
     height, width = query.shape[:2]
-    small = _eight_bit(reference)
+    small = eight_bit(reference)
     # The prediction r + offset(r) depends on the reference pixel alone: made at the
     # reference's size, then resized with it.
     bins = derived(
@@ -298,7 +300,7 @@ def apply_to_query(
         cache, small, ("nearest", height, width), lambda: _resized(small, (height, width))
     )
     predicted = _resized(predicted, (height, width))
-    values = _eight_bit(query)
+    values = eight_bit(query)
     departure = cv2.subtract(values.astype(np.float32), predicted)
     if gain is not None:
         departure = cv2.divide(departure, _per_pixel(gain, height, width))
@@ -308,7 +310,7 @@ def apply_to_query(
         glare = _glare(values, glare_level, departure)
         if glare.any():
             glare &= derived(
-                cache, small, ("surface", height, width), lambda: _station_surface(pixels)
+                cache, small, ("surface", height, width), lambda: station_surface(pixels)
             )
             out[glare] = pixels[glare]
     return out
@@ -349,15 +351,8 @@ def _glare(query: np.ndarray, level: float, departure: np.ndarray | None = None)
     return glare
 
 
-def _station_surface(reference: np.ndarray) -> np.ndarray:
-    """Where the reference shows station, not space: a channel above :data:`_SPACE_LEVEL`."""
-    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
-    brightest = np.maximum(np.maximum(reference[..., 0], reference[..., 1]), reference[..., 2])
-    return brightest > _SPACE_LEVEL
-
-
 def _paired(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    query, reference = _eight_bit(query), _eight_bit(reference)
+    query, reference = eight_bit(query), eight_bit(reference)
     hq, wq = query.shape[:2]
     hr, wr = reference.shape[:2]
     if hq * wq > hr * wr:
@@ -365,13 +360,6 @@ def _paired(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.nd
     elif hr * wr > hq * wq:
         reference = area_downscale(reference, (wq, hq))
     return query, reference
-
-
-def _eight_bit(image: np.ndarray) -> np.ndarray:
-    # uint8 on the 8-bit scale whatever the input dtype (check_image's conventions).
-    if image.dtype == np.uint8:
-        return image
-    return _to_uint8(to_float32(image))
 
 
 def _to_uint8(pixels: np.ndarray) -> np.ndarray:

@@ -26,10 +26,17 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.images import area_downscale, to_float32
+from allo_mrad_ros.detector.images import (
+    SPACE_LEVEL,
+    area_downscale,
+    brightest_channel,
+    eight_bit,
+    station_surface,
+)
 from allo_mrad_ros.errors import InvalidInput
 
 __all__ = [
+    "SPACE_LEVEL",
     "GainField",
     "GainFieldError",
     "apply_gain_field",
@@ -38,8 +45,6 @@ __all__ = [
 ]
 
 MAX_DEGREE = 3
-SPACE_LEVEL = 8.0
-"""A reference pixel at most this bright on every channel is space, not station."""
 CLIPPED_LEVEL = 250.0
 """A query or reference pixel with a channel at or above this level is clipped."""
 DARK_LEVEL = 4.0
@@ -144,18 +149,6 @@ def _check_degree(degree: object) -> int:
     return int(degree)
 
 
-def _eight_bit(image: np.ndarray) -> np.ndarray:
-    # A validated image of any accepted dtype on whole 8-bit levels.
-    if image.dtype == np.uint8:
-        return image
-    return cv2.convertScaleAbs(np.maximum(to_float32(image), 0.0))
-
-
-def _brightest(image: np.ndarray) -> np.ndarray:
-    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
-    return np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
-
-
 def _luma(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32) @ _LUMA.astype(np.float32)
 
@@ -166,10 +159,11 @@ def usable_pixels(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
     size = 3 + 2 * EDGE_MARGIN
     kernel = np.ones((size, size), np.uint8)
     spread = cv2.subtract(cv2.dilate(reference, kernel), cv2.erode(reference, kernel))
-    edge = _brightest(spread) > EDGE_LEVELS
-    brightest = _brightest(reference)
-    station = brightest > SPACE_LEVEL
-    clipped = (_brightest(query) >= CLIPPED_LEVEL) | (brightest >= CLIPPED_LEVEL)
+    edge = brightest_channel(spread) > EDGE_LEVELS
+    station = station_surface(reference)
+    clipped = (brightest_channel(query) >= CLIPPED_LEVEL) | (
+        brightest_channel(reference) >= CLIPPED_LEVEL
+    )
     dark = (_luma(query) <= DARK_LEVEL) | (_luma(reference) <= DARK_LEVEL)
     return station & ~edge & ~clipped & ~dark
 
@@ -270,7 +264,7 @@ def apply_gain_field(query: np.ndarray, reference: np.ndarray, degree: int) -> n
     degree = _check_degree(degree)
     if degree == 0:
         return query
-    query, reference = _eight_bit(query), _eight_bit(reference)
+    query, reference = eight_bit(query), eight_bit(reference)
     height, width = query.shape[:2]
     hr, wr = reference.shape[:2]
     if hr * wr < height * width:

@@ -79,6 +79,28 @@ def to_float32(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image * scale, dtype=np.float32)
 
 
+SPACE_LEVEL = 8.0
+"""Brightest channel (8-bit scale) at or below which a reference pixel shows space."""
+
+
+def eight_bit(image: np.ndarray) -> np.ndarray:
+    """A validated image as uint8 on the 8-bit scale (rounded half to even, saturated)."""
+    if image.dtype == np.uint8:
+        return image
+    return cv2.convertScaleAbs(np.maximum(to_float32(image), 0.0, dtype=np.float32))
+
+
+def brightest_channel(image: np.ndarray) -> np.ndarray:
+    """H x W: each pixel's brightest channel."""
+    # Elementwise over channels: NumPy's reductions over a length-3 axis are slow.
+    return np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+
+
+def station_surface(reference: np.ndarray) -> np.ndarray:
+    """H x W bool: where the reference (8-bit scale) shows station, not space."""
+    return brightest_channel(reference) > SPACE_LEVEL
+
+
 def check_aspect(query: np.ndarray, reference: np.ndarray) -> None:
     """Require the reference to have the query's aspect ratio within one reference pixel.
 

@@ -54,7 +54,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_index_map
-from allo_mrad_ros.detector.images import to_float32
+from allo_mrad_ros.detector.images import SPACE_LEVEL, eight_bit
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 
 __all__ = [
@@ -74,9 +74,6 @@ DARK_FLOOR = 8.0
 """Luminance (8-bit levels) added to the dark cue's denominator, so a dim surface's share is
 not inflated by its noise."""
 
-SPACE_LEVEL = 8.0
-"""A reference luma at most this (8-bit levels) is space: darkness there is no evidence."""
-
 _MAD_SCALE = 1.4826  # a normal distribution's SD over its median absolute deviation
 _LEVELS = 256
 
@@ -95,13 +92,6 @@ def reference_at(
         ("nearest", *shape),
         lambda: _resized(eight_bit(reference), shape),
     )
-
-
-def eight_bit(image: np.ndarray) -> np.ndarray:
-    """A validated image as uint8 on the 8-bit scale (rounded, saturated)."""
-    if image.dtype == np.uint8:
-        return image
-    return cv2.convertScaleAbs(np.maximum(to_float32(image), 0.0))
 
 
 def _resized(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
