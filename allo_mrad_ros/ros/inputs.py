@@ -328,6 +328,7 @@ class NodeInputs:
                 self._sun_strength,
                 self._bodies,
                 problem,
+                waiting_for_camera_info=problem is not None and self._intrinsics is None,
             )
 
     def size_refusal(self, msg: Image | CompressedImage) -> MessageError | None:

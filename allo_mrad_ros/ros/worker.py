@@ -112,6 +112,9 @@ class Snapshot:
     bodies: tuple
     # Why the frame's camera is unknown (no camera_info of its stamp), else None.
     camera_problem: MessageError | None = None
+    # No camera_info has arrived yet: a start-up state (the two topics are matched apart by
+    # discovery), counted and told once, not an input error.
+    waiting_for_camera_info: bool = False
 
 
 @dataclass(frozen=True)
@@ -218,6 +221,7 @@ class ProcessingWorker:
         self._max_input_age_s = max_input_age_s
         self._objects_wanted = objects_wanted
         self._size_refusal = size_refusal
+        self._told_waiting_for_camera_info = False
         # Fed by whichever thread detects (one), in the order frames were rendered.
         self._tracking = ObjectTracking()
         hold = os.environ.get(HOLD_AT)
@@ -417,6 +421,16 @@ class ProcessingWorker:
         stage_start = time.perf_counter()
         msg = arrival.msg
         report = self._diagnostics.report
+        if state.waiting_for_camera_info:
+            self._diagnostics.count("frames_before_first_camera_info")
+            if not self._told_waiting_for_camera_info:
+                self._told_waiting_for_camera_info = True
+                self._logger.info(
+                    f"waiting for the first camera_info on {interface.CAMERA_INFO_TOPIC}: "
+                    "frames before it are skipped (counted in /diagnostics as "
+                    "frames_before_first_camera_info)"
+                )
+            return None
         if state.camera_problem is not None:
             report(state.camera_problem)
             return None

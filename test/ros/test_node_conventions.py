@@ -196,6 +196,8 @@ def test_an_image_is_paired_with_the_camera_info_of_its_stamp_and_frame_mismatch
         small = messages.fill_camera_info(CameraInfo(), CAMERA.scaled(0.5), "cam_optical_frame")
         large = messages.fill_camera_info(CameraInfo(), CAMERA, "other_frame")
         small.header.stamp.sec, large.header.stamp.sec = 10, 11
+        before = node._inputs.snapshot(_image(9 * 10**9, "cam_optical_frame"))
+        assert before.intrinsics is None and before.waiting_for_camera_info  # start-up
         node._inputs.on_camera_info(small)
         node._inputs.on_camera_info(large)  # the latest, but not the first image's
         state = node._inputs.snapshot(_image(10 * 10**9 + 500_000, "cam_optical_frame"))
@@ -211,6 +213,7 @@ def test_an_image_is_paired_with_the_camera_info_of_its_stamp_and_frame_mismatch
         assert unpaired.intrinsics is None and "no valid camera_info" in str(
             unpaired.camera_problem
         )
+        assert not unpaired.waiting_for_camera_info  # camera_infos came, none of its stamp
     finally:
         node.destroy_node()
 

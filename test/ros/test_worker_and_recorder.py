@@ -116,6 +116,38 @@ def test_the_worker_survives_an_unexpected_exception_and_reports_it(monkeypatch,
         worker.stop()
 
 
+class Told(Counting):
+    def __init__(self):
+        super().__init__()
+        self.counted: list[str] = []
+        self.lines: list[tuple[str, str]] = []
+
+    def count(self, name, *args):
+        self.counted.append(name)
+
+    def __getattr__(self, level):
+        return lambda text, *a, **k: self.lines.append((level, text))
+
+
+@pytest.mark.parametrize("pipelined", [True, False])
+def test_frames_before_the_first_camera_info_are_counted_and_told_once_not_reported(pipelined):
+    told = Told()
+    problem = MessageError("camera_info", "no valid camera_info")
+    waiting = Snapshot(None, None, np.ones(3), 1.0, (), problem, waiting_for_camera_info=True)
+    slot = LatestSlot()
+    worker = ProcessingWorker(slot, lambda _msg=None: waiting, None, None, told, told, pipelined)
+    msg = fill_image(Image(), None, np.zeros((6, 8, 3), np.uint8), "rgb8")
+    try:
+        for frame in range(1, 4):
+            slot.put((msg, 0.0))
+            assert _wait(lambda n=frame: told.counted.count("frames_before_first_camera_info") == n)
+    finally:
+        worker.stop()
+    assert told.reports == []  # a start-up state, not an input error
+    infos = [text for level, text in told.lines if "first camera_info" in text]
+    assert len(infos) == 1 and all(level == "info" for level, text in told.lines if text in infos)
+
+
 def _wait(condition, timeout=30.0):
     event = threading.Event()
     end = worker_module.time.monotonic() + timeout
