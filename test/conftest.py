@@ -10,6 +10,8 @@ import os
 import re
 from pathlib import Path
 
+from hypothesis import HealthCheck, settings
+
 from allo_mrad_ros.ros.node_process import use_loopback_profile
 
 REPO = Path(__file__).resolve().parent.parent
@@ -21,6 +23,18 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 # A domain of its own per test run, so parallel runs on one machine do not hear each other.
 os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+
+# Property tests: `make test` draws the same few examples on every run (a CI run must not
+# fail by chance); `make fuzz` (ALLO_FUZZ=1) draws many new ones each time.
+_UNTIMED = {
+    "deadline": None,
+    "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large],
+}
+settings.register_profile(
+    "fuzz", max_examples=int(os.environ.get("ALLO_FUZZ_EXAMPLES", "300")), **_UNTIMED
+)
+settings.register_profile("quick", max_examples=20, derandomize=True, **_UNTIMED)
+settings.load_profile("fuzz" if os.environ.get("ALLO_FUZZ") else "quick")
 
 # `make test-distro` runs the suite in a venv shaped like a ROS distro's Python without a ROS
 # install (no rclpy): modules that need rclpy at import are left out there, not failed.

@@ -1,28 +1,12 @@
 """Bad-input fuzzing: the verdict of every generated case is counted and printed at the end.
 
-``make fuzz`` runs many examples per property (``ALLO_FUZZ=1``); ``make test`` a few.
+``make fuzz`` runs many examples per property (``ALLO_FUZZ=1``); ``make test`` a few (the
+Hypothesis profiles are set in ``test/conftest.py``).
 """
 
-import os
 from collections import Counter
 
-from hypothesis import HealthCheck, settings
-
 VERDICTS: Counter[tuple[str, str]] = Counter()
-
-settings.register_profile(
-    "fuzz",
-    max_examples=int(os.environ.get("ALLO_FUZZ_EXAMPLES", "300")),
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
-settings.register_profile(
-    "quick",
-    max_examples=20,
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
-settings.load_profile("fuzz" if os.environ.get("ALLO_FUZZ") else "quick")
 
 
 def pytest_terminal_summary(terminalreporter):

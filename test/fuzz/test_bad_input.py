@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import VERDICTS
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from allo_mrad_ros.camera import CameraIntrinsics
@@ -180,6 +180,7 @@ def sequence_template(tmp_path_factory) -> Path:
     return root
 
 
+NUL_STAND_IN = "\ue000"
 CELLS = st.one_of(
     st.sampled_from(
         [
@@ -199,13 +200,16 @@ CELLS = st.one_of(
             " 1",
             "2",
             "-0",
+            "1\x002",
         ]
     ),
-    st.text(max_size=6),
+    st.text(max_size=6).filter(lambda text: NUL_STAND_IN not in text),
 )
 
 
 @given(row=st.integers(0, 1), column=st.integers(0, 40), value=CELLS)
+@example(row=0, column=0, value="\x00")
+@example(row=1, column=3, value="1\x002")
 def test_sequence_rows(sequence_template, tmp_path_factory, row, column, value):
     import shutil
 
@@ -216,9 +220,12 @@ def test_sequence_rows(sequence_template, tmp_path_factory, row, column, value):
         rows = list(csv.reader(stream))
     header, body = rows[0], rows[1:]
     column %= len(header)
-    body[row][column] = value
+    # The csv module cannot write a NUL byte on every Python: the cell is written with a
+    # stand-in character and the NUL put back, so the reader still meets it.
+    body[row][column] = value.replace("\x00", NUL_STAND_IN)
     with table.open("w", newline="") as stream:
         csv.writer(stream).writerows([header, *body])
+    table.write_bytes(table.read_bytes().replace(NUL_STAND_IN.encode(), b"\x00"))
 
     def read():
         sequence = read_sequence(root, check_images=True)

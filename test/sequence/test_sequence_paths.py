@@ -86,6 +86,20 @@ def test_an_image_path_that_leaves_the_sequence_is_refused(tmp_path, path):
     assert path in str(info.value) and FRAMES_FILE in str(info.value)
 
 
+@pytest.mark.parametrize("column", ["image", "mask"])
+def test_a_path_with_a_nul_character_is_refused_with_its_row_and_column(tmp_path, column):
+    root = _sequence(tmp_path / "seq")
+    header, rows = _rows(root)
+    rows[1][column] = "test/Camera1/images/x@.png"
+    _save(root, header, rows)
+    table = root / FRAMES_FILE
+    table.write_bytes(table.read_bytes().replace(b"x@.png", b"x\x00.png"))  # csv cannot
+    with pytest.raises(SequenceError) as info:
+        read_sequence(root, check_images=True)
+    assert (info.value.row, info.value.column) == (2, column)
+    assert "NUL" in str(info.value) and FRAMES_FILE in str(info.value)
+
+
 def test_a_path_with_dots_that_stays_inside_is_accepted(tmp_path):
     root = _sequence(tmp_path / "seq")
     header, rows = _rows(root)
