@@ -6,7 +6,7 @@ Hypothesis profiles are set in ``test/conftest.py``).
 
 from collections import Counter
 
-VERDICTS: Counter[tuple[str, str]] = Counter()
+from fuzz_verdicts import VERDICTS
 
 
 def pytest_terminal_summary(terminalreporter):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import VERDICTS
+from fuzz_verdicts import VERDICTS
 from hypothesis import example, given
 from hypothesis import strategies as st
 
