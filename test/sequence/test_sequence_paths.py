@@ -87,7 +87,7 @@ def test_an_image_path_that_leaves_the_sequence_is_refused(tmp_path, path):
 
 
 @pytest.mark.parametrize("column", ["image", "mask"])
-def test_a_path_with_a_nul_character_is_refused_with_its_row_and_column(tmp_path, column):
+def test_a_path_with_a_nul_character_is_refused_with_its_line(tmp_path, column):
     root = _sequence(tmp_path / "seq")
     header, rows = _rows(root)
     rows[1][column] = "test/Camera1/images/x@.png"
@@ -96,7 +96,7 @@ def test_a_path_with_a_nul_character_is_refused_with_its_row_and_column(tmp_path
     table.write_bytes(table.read_bytes().replace(b"x@.png", b"x\x00.png"))  # csv cannot
     with pytest.raises(SequenceError) as info:
         read_sequence(root, check_images=True)
-    assert (info.value.row, info.value.column) == (2, column)
+    assert info.value.line == 3  # the header, then data rows 1 and 2
     assert "NUL" in str(info.value) and FRAMES_FILE in str(info.value)
 
 
