@@ -124,6 +124,15 @@ class ObjectParams:
         0.0,
         100.0,
     )
+    residual_quantile: float = parameter(
+        0.999,
+        "an object is confirmed only when its rays' squared residuals about its estimate, "
+        "each over its variance, lie within this quantile of the chi-square distribution "
+        "(2 n - 3 degrees of freedom for n rays); 1 drops the test",
+        0.0,
+        1.0,
+        low_open=True,
+    )
     max_rays: int = parameter(32, "the newest rays kept per object for its triangulation", 2, 4096)
     history_s: float = parameter(30.0, "rays older than this are dropped", 0.0, 1e6, low_open=True)
     tentative_timeout_s: float = parameter(

@@ -37,6 +37,7 @@ from typing import Literal
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.regions import Region
@@ -121,6 +122,7 @@ class _Track:
     """An object's state: a ring of its newest rays and what was derived from them."""
 
     __slots__ = (
+        "coherent",
         "consistent",
         "count",
         "covariance",
@@ -154,6 +156,7 @@ class _Track:
         self.size = 0.0
         self.resolved = False
         self.consistent = True
+        self.coherent = True
         # Per in-view frame: hit or miss, and the region's score (0 for a miss).
         self.window: deque[tuple[bool, float]] = deque(maxlen=window)
         self.window_hits = 0  # the window's hits and scores summed (kept with it)
@@ -216,6 +219,13 @@ class ObjectTracker:
         self.params = params
         self.camera = camera
         self._focal = math.sqrt(camera.fx * camera.fy)
+        # The chi-square quantile of the rays' residuals, by degrees of freedom (inf: no test).
+        degrees = np.arange(2 * params.max_rays)
+        self._chi2_limit = (
+            np.full(len(degrees), np.inf)
+            if params.residual_quantile >= 1.0
+            else chi2.ppf(params.residual_quantile, np.maximum(degrees, 1))
+        )
         self._tracks: list[_Track] = []
         self._next_id = 1
         self._last_stamp: float | None = None
@@ -347,6 +357,7 @@ class ObjectTracker:
                 and track.window_hits >= params.confirm_hits
                 and track.resolved
                 and track.consistent
+                and track.coherent
             ):
                 track.state = "confirmed"
             if track.state == "ended":
@@ -365,15 +376,17 @@ class ObjectTracker:
         return tuple(sorted(records + ended, key=lambda o: o.id))
 
     # ------------------------------------------------------------------ steps
-    def _ray_variance(self, observations: Observations) -> np.ndarray:
-        """Each observation's angular variance: centroid noise over the focal length."""
+    def _pixel_variances(self, observations: Observations) -> np.ndarray:
+        """(n, 2) each observation's centroid variance along the image's x and y, pixels^2:
+        the image edge's share only along the axis across the edge it touches."""
         params = self.params
-        pixels = (
-            params.pixel_sigma**2
-            + (params.extent_sigma_fraction * observations.extent_px) ** 2
-            + (params.edge_sigma_fraction * observations.edge_px) ** 2
-        )
-        return pixels / self._focal**2
+        base = params.pixel_sigma**2 + (params.extent_sigma_fraction * observations.extent_px) ** 2
+        return base[:, None] + (params.edge_sigma_fraction * observations.edge_px) ** 2
+
+    def _ray_variance(self, observations: Observations) -> np.ndarray:
+        """Each observation's angular variance for the triangulation (one value per ray: the
+        larger of its centroid's variances over the focal length)."""
+        return self._pixel_variances(observations).max(axis=1) / self._focal**2
 
     def _associate(
         self,
@@ -426,13 +439,16 @@ class ObjectTracker:
         if len(observations) == 0:
             return in_view, []
 
-        pixel_variance = self._ray_variance(observations) * self._focal**2
+        # A region cut by the image edge is uncertain across that edge only: along it, its
+        # centroid is as good as any (an isotropic spread let an edge region match objects
+        # anywhere along the edge).
+        pixel_variance = self._pixel_variances(observations)
         du = observations.pixels[None, :, 0] - u[:, None]
         dv = observations.pixels[None, :, 1] - v[:, None]
         # The camera position's noise moves the projection by position_sigma / z radians.
         position_px2 = (params.position_sigma * self._focal / safe_z) ** 2
-        s00 = projected[:, None, 0, 0] + position_px2[:, None] + pixel_variance[None, :]
-        s11 = projected[:, None, 1, 1] + position_px2[:, None] + pixel_variance[None, :]
+        s00 = projected[:, None, 0, 0] + position_px2[:, None] + pixel_variance[None, :, 0]
+        s11 = projected[:, None, 1, 1] + position_px2[:, None] + pixel_variance[None, :, 1]
         s01 = projected[:, None, 0, 1]
         determinant = s00 * s11 - s01 * s01
         distance2 = (du * du * s11 - 2.0 * du * dv * s01 + dv * dv * s00) / determinant
@@ -482,6 +498,7 @@ class ObjectTracker:
         )
         solution = triangulate(rays)
         resolved, consistent = self._range_checks(solution, rays)
+        coherent = self._coherent(solution, rays, np.where(valid, stamps, -np.inf))
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
         for i, track in enumerate(tracks):
@@ -490,12 +507,42 @@ class ObjectTracker:
             track.size = float(sizes[i])
             track.resolved = bool(resolved[i])
             track.consistent = bool(consistent[i])
+            track.coherent = bool(coherent[i])
+
+    def _coherent(self, solution: Triangulation, rays: RayBatch, stamps: np.ndarray) -> np.ndarray:
+        """Whether each object's newest rays pass through its estimate as one point's would:
+        the sum of their squared angular residuals, each over its variance (the
+        triangulation's weights), within the ``residual_quantile`` of a chi-square of
+        ``2 n`` degrees of freedom for the newest ``n`` rays (at most ``confirm_window``;
+        ``2 n - 3`` when they are all its rays). Regions of different things joined into one
+        object (glare that changes shape, a blob's parts) fail it. Only the newest rays
+        count: the drift allowed to older ones (``drift_speed``) would absorb their
+        scatter. ``stamps`` are the rays' (-inf for padding)."""
+        offset = solution.position[:, None, :] - rays.origins
+        along = solution.ranges
+        across2 = np.maximum(np.einsum("brj,brj->br", offset, offset) - along**2, 0.0)
+        front = rays.valid & (along > 0)
+        safe = np.where(front, along, 1.0)
+        variance = rays.angular_variance + rays.extra_variance / safe**2
+        terms = np.where(front, across2 / safe**2 / variance, 0.0)
+        # A ray the estimate lies behind is as far from it as a ray can be.
+        terms = np.where(rays.valid & ~front, np.inf, terms)
+        window = min(self.params.confirm_window, stamps.shape[1])
+        newest = np.sort(stamps, axis=1)[:, -window][:, None]
+        recent = rays.valid & (stamps >= newest)
+        count = recent.sum(axis=1)
+        dof = 2 * count - np.where(count == rays.valid.sum(axis=1), 3, 0)
+        terms = np.where(recent, terms, 0.0)
+        limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
+        return (dof < 1) | (terms.sum(axis=1) <= limit)
 
     def _range_checks(
         self, solution: Triangulation, rays: RayBatch
     ) -> tuple[np.ndarray, np.ndarray]:
         """Whether parallax alone places each object nearer than ``max_range``, and whether
-        it does not place it behind the surface (beyond the anchor's interval)."""
+        it places it within the anchor's interval: neither behind the surface nor nearer
+        than ``min_range`` (rays that keep their place in the image while the camera turns,
+        as a lens flare does, meet at the camera)."""
         params = self.params
         k = params.parallax_sigma
         rho, rho_sigma = solution.free_inverse_range()
@@ -508,7 +555,11 @@ class ObjectTracker:
         determined = np.isfinite(rho_sigma)
         farthest = rho + k * np.where(determined, rho_sigma, 0.0)
         behind = determined & (farthest < 1.0 / (high + params.occlusion_margin))
-        return resolved, ~behind
+        # Nothing may be nearer than min_range: while the rays' own estimate is, it is not
+        # confirmed (no margin of standard deviations, or a thing near the camera, with a
+        # wide spread while few rays have seen it, would be confirmed before they agree).
+        too_near = determined & (rho > 1.0 / params.min_range)
+        return resolved, ~(behind | too_near)
 
     def _within_capacity(
         self, live: list[_Track], ended: list[TrackedObject], stamp: float
