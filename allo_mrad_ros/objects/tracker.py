@@ -479,7 +479,8 @@ class ObjectTracker:
         batch = len(tracks)
         packed = np.array([t.rays for t in tracks])
         stamps = packed[..., _STAMP]
-        filled = np.arange(capacity)[None, :] < np.array([t.count for t in tracks])[:, None]
+        counts = np.array([t.count for t in tracks])
+        filled = np.arange(capacity)[None, :] < counts[:, None]
         anchor = np.array([t.newest for t in tracks])
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
@@ -498,7 +499,14 @@ class ObjectTracker:
         )
         solution = triangulate(rays)
         resolved, consistent = self._range_checks(solution, rays)
-        coherent = self._coherent(solution, rays, np.where(valid, stamps, -np.inf))
+        # The newest confirm_window rays: the ring's places before its head (the anchor).
+        window = min(params.confirm_window, capacity)
+        back = np.arange(window)
+        newest = np.zeros_like(valid)
+        newest[np.arange(batch)[:, None], (anchor[:, None] - back) % capacity] = (
+            back[None, :] < counts[:, None]
+        )
+        coherent = self._coherent(solution, rays, newest & valid)
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
         for i, track in enumerate(tracks):
@@ -509,7 +517,7 @@ class ObjectTracker:
             track.consistent = bool(consistent[i])
             track.coherent = bool(coherent[i])
 
-    def _coherent(self, solution: Triangulation, rays: RayBatch, stamps: np.ndarray) -> np.ndarray:
+    def _coherent(self, solution: Triangulation, rays: RayBatch, recent: np.ndarray) -> np.ndarray:
         """Whether each object's newest rays pass through its estimate as one point's would:
         the sum of their squared angular residuals, each over its variance (the
         triangulation's weights), within the ``residual_quantile`` of a chi-square of
@@ -517,7 +525,7 @@ class ObjectTracker:
         ``2 n - 3`` when they are all its rays). Regions of different things joined into one
         object (glare that changes shape, a blob's parts) fail it. Only the newest rays
         count: the drift allowed to older ones (``drift_speed``) would absorb their
-        scatter. ``stamps`` are the rays' (-inf for padding)."""
+        scatter. ``recent`` marks each object's newest valid rays."""
         offset = solution.position[:, None, :] - rays.origins
         along = solution.ranges
         across2 = np.maximum(np.einsum("brj,brj->br", offset, offset) - along**2, 0.0)
@@ -527,9 +535,6 @@ class ObjectTracker:
         terms = np.where(front, across2 / safe**2 / variance, 0.0)
         # A ray the estimate lies behind is as far from it as a ray can be.
         terms = np.where(rays.valid & ~front, np.inf, terms)
-        window = min(self.params.confirm_window, stamps.shape[1])
-        newest = np.sort(stamps, axis=1)[:, -window][:, None]
-        recent = rays.valid & (stamps >= newest)
         count = recent.sum(axis=1)
         dof = 2 * count - np.where(count == rays.valid.sum(axis=1), 3, 0)
         terms = np.where(recent, terms, 0.0)
