@@ -312,10 +312,15 @@ class ObjectTracker:
         self._last_stamp = stamp
 
         tracks = self._tracks
-        in_view, matches = self._associate(tracks, observations, pose, depth, reference, stamp)
+        # The centroids' variances along x and y (the association's) and their larger, as an
+        # angle (the triangulation's).
+        pixel_variance = self._pixel_variances(observations)
+        in_view, matches = self._associate(
+            tracks, observations, pixel_variance, pose, depth, reference, stamp
+        )
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
-        variance = self._ray_variance(observations)
+        variance = pixel_variance.max(axis=1) / self._focal**2
         for row, j in matches:
             track = tracks[row]
             track.add_ray(observations, j, variance[j], stamp)
@@ -383,21 +388,18 @@ class ObjectTracker:
         base = params.pixel_sigma**2 + (params.extent_sigma_fraction * observations.extent_px) ** 2
         return base[:, None] + (params.edge_sigma_fraction * observations.edge_px) ** 2
 
-    def _ray_variance(self, observations: Observations) -> np.ndarray:
-        """Each observation's angular variance for the triangulation (one value per ray: the
-        larger of its centroid's variances over the focal length)."""
-        return self._pixel_variances(observations).max(axis=1) / self._focal**2
-
     def _associate(
         self,
         tracks: list[_Track],
         observations: Observations,
+        pixel_variance: np.ndarray,
         pose: np.ndarray,
         depth: np.ndarray,
         reference: CameraIntrinsics,
         stamp: float,
     ) -> tuple[np.ndarray, list[tuple[int, int]]]:
-        """Which objects are in view, and the (object row, observation) pairs matched."""
+        """Which objects are in view, and the (object row, observation) pairs matched
+        (``pixel_variance``: :meth:`_pixel_variances` of the observations)."""
         params = self.params
         count = len(tracks)
         if count == 0:
@@ -442,7 +444,6 @@ class ObjectTracker:
         # A region cut by the image edge is uncertain across that edge only: along it, its
         # centroid is as good as any (an isotropic spread let an edge region match objects
         # anywhere along the edge).
-        pixel_variance = self._pixel_variances(observations)
         du = observations.pixels[None, :, 0] - u[:, None]
         dv = observations.pixels[None, :, 1] - v[:, None]
         # The camera position's noise moves the projection by position_sigma / z radians.
@@ -499,14 +500,15 @@ class ObjectTracker:
         )
         solution = triangulate(rays)
         resolved, consistent = self._range_checks(solution, rays)
-        # The newest confirm_window rays: the ring's places before its head (the anchor).
-        window = min(params.confirm_window, capacity)
-        back = np.arange(window)
-        newest = np.zeros_like(valid)
-        newest[np.arange(batch)[:, None], (anchor[:, None] - back) % capacity] = (
-            back[None, :] < counts[:, None]
+        # The residual test gates confirmation only: run where the rest would confirm.
+        coherent = np.ones(batch, dtype=bool)
+        candidates = np.flatnonzero(
+            [t.state == "tentative" and t.window_hits >= params.confirm_hits for t in tracks]
+            & resolved
+            & consistent
         )
-        coherent = self._coherent(solution, rays, newest & valid)
+        if len(candidates):
+            coherent[candidates] = self._coherent(solution, rays, counts, candidates)
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
         for i, track in enumerate(tracks):
@@ -517,7 +519,9 @@ class ObjectTracker:
             track.consistent = bool(consistent[i])
             track.coherent = bool(coherent[i])
 
-    def _coherent(self, solution: Triangulation, rays: RayBatch, recent: np.ndarray) -> np.ndarray:
+    def _coherent(
+        self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray
+    ) -> np.ndarray:
         """Whether each object's newest rays pass through its estimate as one point's would:
         the sum of their squared angular residuals, each over its variance (the
         triangulation's weights), within the ``residual_quantile`` of a chi-square of
@@ -525,19 +529,24 @@ class ObjectTracker:
         ``2 n - 3`` when they are all its rays). Regions of different things joined into one
         object (glare that changes shape, a blob's parts) fail it. Only the newest rays
         count: the drift allowed to older ones (``drift_speed``) would absorb their
-        scatter. ``recent`` marks each object's newest valid rays."""
-        offset = solution.position[:, None, :] - rays.origins
-        along = solution.ranges
+        scatter. ``counts`` are the rays each object's ring holds; only the objects ``which``
+        (indices into the batch) are tested."""
+        # The newest rays: the ring's places before its head (the anchor), gathered.
+        capacity = rays.valid.shape[1]
+        back = np.arange(min(self.params.confirm_window, capacity))
+        rows = which[:, None]
+        places = (rays.anchor[which, None] - back) % capacity
+        recent = (back < counts[rows]) & rays.valid[rows, places]
+        offset = solution.position[rows] - rays.origins[rows, places]
+        along = solution.ranges[rows, places]
         across2 = np.maximum(np.einsum("brj,brj->br", offset, offset) - along**2, 0.0)
-        front = rays.valid & (along > 0)
+        front = along > 0
         safe = np.where(front, along, 1.0)
-        variance = rays.angular_variance + rays.extra_variance / safe**2
-        terms = np.where(front, across2 / safe**2 / variance, 0.0)
+        variance = rays.angular_variance[rows, places] * safe**2 + rays.extra_variance[rows, places]
         # A ray the estimate lies behind is as far from it as a ray can be.
-        terms = np.where(rays.valid & ~front, np.inf, terms)
+        terms = np.where(recent, np.where(front, across2 / variance, np.inf), 0.0)
         count = recent.sum(axis=1)
-        dof = 2 * count - np.where(count == rays.valid.sum(axis=1), 3, 0)
-        terms = np.where(recent, terms, 0.0)
+        dof = 2 * count - np.where(count == rays.valid[which].sum(axis=1), 3, 0)
         limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
         return (dof < 1) | (terms.sum(axis=1) <= limit)
 
