@@ -31,6 +31,7 @@ import pickle
 import statistics
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -267,27 +268,29 @@ def diagnosis_table(rows: list[ObjectDiagnosis]) -> str:
     return "\n".join(lines)
 
 
-def diagnose(data: Path, cache: Path, params: ObjectParams, jobs: int) -> list[ObjectDiagnosis]:
-    """:func:`diagnose_objects` on the val split, with the detections of the bench."""
-    run = detections(data, cache, "val", PipelineConfig(methods=("MRAD",)), jobs)
+def diagnose(
+    data: Path, cache: Path, params: ObjectParams, config: PipelineConfig, jobs: int
+) -> list[ObjectDiagnosis]:
+    """:func:`diagnose_objects` on the val split, with the detections of ``config``."""
+    run = detections(data, cache, "val", config, jobs)
     sequence = read_sequence(data, check_images=False)
     rows = diagnose_objects(run, params, lambda i: sequence.load_instances(sequence.frames[i]))
     print(diagnosis_table(rows))
     return rows
 
 
-def parse_params(items: list[str]) -> ObjectParams:
-    """``ObjectParams`` with ``name=value`` changes (numbers)."""
+def parse_changes(items: list[str]) -> dict[str, float]:
+    """``name=value`` items (numbers) as a dict."""
     changes: dict[str, float] = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
-            raise SystemExit(f"--param {item!r}: expected name=value")
+            raise SystemExit(f"{item!r}: expected name=value")
         try:
             changes[name] = float(value)
         except ValueError:
-            raise SystemExit(f"--param {item!r}: {value!r} is not a number") from None
-    return ObjectParams().replace(**changes)
+            raise SystemExit(f"{item!r}: {value!r} is not a number") from None
+    return changes
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -305,13 +308,25 @@ def main(argv: list[str] | None = None) -> None:
         help="follow each val object through detection, tracking and matching; no grid",
     )
     parser.add_argument(
-        "--param", action="append", default=[], help="with --diagnose: name=value (repeated)"
+        "--param",
+        action="append",
+        default=[],
+        help="with --diagnose: a tracker parameter, name=value (repeated)",
+    )
+    parser.add_argument(
+        "--detector",
+        action="append",
+        default=[],
+        help="with --diagnose: a detector parameter (MradParams), name=value (repeated)",
     )
     args = parser.parse_args(argv)
 
     ensure_data(args.data, args.width, args.height, args.seed)
     if args.diagnose:
-        diagnose(args.data, args.cache, parse_params(args.param), args.jobs)
+        params = ObjectParams().replace(**parse_changes(args.param))
+        base = PipelineConfig(methods=("MRAD",))
+        detector = replace(base.params, **parse_changes(args.detector))
+        diagnose(args.data, args.cache, params, replace(base, params=detector), args.jobs)
         return
     config = PipelineConfig(methods=("MRAD",))
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
