@@ -9,7 +9,7 @@
    by the sequence and the settings), so a second run only tracks.
 3. Chooses the tracker's parameters on the val split only: a small grid over the parameters
    that matter (confirmation N of M, association gate, least region score, parallax, the
-   nearest range, the centroid's and the camera position's noise, the image edge), ranked
+   nearest range, the image edge, the size gate and the residual test), ranked
    by the issue's targets met, then by the F1 of recall and precision, then by the error.
 4. Tracks the test split with the chosen parameters and the shipped defaults, times the
    tracker alone (``benchmarks.tracker``: 20 regions, 50 objects) and writes
@@ -53,6 +53,7 @@ from benchmarks import tracker as tracker_bench
 GRID: dict[str, tuple[Any, ...]] = {
     "confirm": ((3, 5), (5, 8)),
     "gate_sigma": (3.0, 5.0),
+    "size_ratio_max": (2.0, 4.0),
     "min_region_score": (0.0, 0.2, 0.5),
     "parallax_sigma": (3.0, 4.0),
     "min_range": (0.3, 1.5),
@@ -64,6 +65,7 @@ GRID_FIELDS = (
     "confirm_hits",
     "confirm_window",
     "gate_sigma",
+    "size_ratio_max",
     "min_region_score",
     "parallax_sigma",
     "min_range",

@@ -89,7 +89,7 @@ class ObjectParams:
         1e3,
     )
     gate_sigma: float = parameter(
-        5.0,
+        3.0,
         "association gate: largest Mahalanobis distance of a region's centroid from an "
         "object's projection",
         0.0,
@@ -97,7 +97,7 @@ class ObjectParams:
         low_open=True,
     )
     size_ratio_max: float = parameter(
-        4.0,
+        2.0,
         "association gate: largest ratio between a region's extent and an object's projected "
         "extent (either way)",
         1.0,
@@ -111,10 +111,10 @@ class ObjectParams:
         10.0,
     )
     confirm_hits: int = parameter(
-        5, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
+        3, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
     )
     confirm_window: int = parameter(
-        8, "M: the in-view frames the confirmation counts hits over", 1, 1000
+        5, "M: the in-view frames the confirmation counts hits over", 1, 1000
     )
     end_misses: int = parameter(5, "K: consecutive in-view misses that end an object", 1, 100000)
     parallax_sigma: float = parameter(
