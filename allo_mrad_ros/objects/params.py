@@ -126,9 +126,9 @@ class ObjectParams:
     )
     residual_quantile: float = parameter(
         0.999,
-        "an object is confirmed only when its rays' squared residuals about its estimate, "
-        "each over its variance, lie within this quantile of the chi-square distribution "
-        "(2 n - 3 degrees of freedom for n rays); 1 drops the test",
+        "an object is confirmed only when the squared residuals of its newest rays (at most "
+        "confirm_window) about its estimate, each over its variance, lie within this quantile "
+        "of the chi-square distribution (2 per ray); 1 drops the test",
         0.0,
         1.0,
         low_open=True,
