@@ -8,8 +8,8 @@
    (:func:`allo_mrad_ros.evaluation.objects.detect_frames`), cached under ``--cache`` (keyed
    by the sequence and the settings), so a second run only tracks.
 3. Chooses the tracker's parameters on the val split only: a small grid over the parameters
-   that matter (confirmation N of M, association gate, least region score, parallax, the
-   nearest range, the image edge, the size gate and the residual test), ranked
+   that matter (confirmation N of M, the region scores that start and continue an object,
+   the association and size gates, parallax, the image edge and the residual test), ranked
    by the issue's targets met, then by the F1 of recall and precision, then by the error.
 4. Tracks the test split with the chosen parameters and the shipped defaults, times the
    tracker alone (``benchmarks.tracker``: 20 regions, 50 objects) and writes
@@ -52,23 +52,25 @@ from benchmarks import tracker as tracker_bench
 # The grid searched on val (the rest of ObjectParams stays at its defaults).
 GRID: dict[str, tuple[Any, ...]] = {
     "confirm": ((3, 5), (5, 8)),
+    # (min_region_score, hit_region_score): the score a region needs to start an object,
+    # and to continue one.
+    "scores": ((0.5, 0.5), (0.5, 0.2), (0.5, 0.0), (0.2, 0.2), (0.0, 0.0)),
     "gate_sigma": (3.0, 5.0),
     "size_ratio_max": (2.0, 4.0),
-    "min_region_score": (0.0, 0.2, 0.5),
     "parallax_sigma": (3.0, 4.0),
-    "min_range": (0.3, 1.5),
     "edge_sigma_fraction": (0.5, 2.0),
     "residual_quantile": (0.999, 1.0),
 }
-# The grid's fields (``confirm`` sets confirm_hits and confirm_window).
+# The grid's fields (``confirm`` sets confirm_hits and confirm_window, ``scores``
+# min_region_score and hit_region_score).
 GRID_FIELDS = (
     "confirm_hits",
     "confirm_window",
+    "min_region_score",
+    "hit_region_score",
     "gate_sigma",
     "size_ratio_max",
-    "min_region_score",
     "parallax_sigma",
-    "min_range",
     "edge_sigma_fraction",
     "residual_quantile",
 )
@@ -109,9 +111,17 @@ def rank_key(report: dict[str, Any]) -> tuple[float, ...]:
 def grid_params(base: ObjectParams) -> list[ObjectParams]:
     """Every combination of :data:`GRID` on ``base``."""
     combos = []
-    for (hits, window), *rest in itertools.product(*GRID.values()):
-        changes = dict(zip(list(GRID)[1:], rest, strict=True))
-        combos.append(base.replace(confirm_hits=hits, confirm_window=window, **changes))
+    for (hits, window), (start, hit), *rest in itertools.product(*GRID.values()):
+        changes = dict(zip(list(GRID)[2:], rest, strict=True))
+        combos.append(
+            base.replace(
+                confirm_hits=hits,
+                confirm_window=window,
+                min_region_score=start,
+                hit_region_score=hit,
+                **changes,
+            )
+        )
     return combos
 
 

@@ -141,6 +141,14 @@ class ObjectParams:
     min_region_score: float = parameter(
         0.5, "regions scoring below this are ignored (Region.score, 0..1)", 0.0, 1.0
     )
+    hit_region_score: float = parameter(
+        0.5,
+        "a region scoring below min_region_score but at least this continues an object its "
+        "gate takes (a hit) and starts none (Region.score, 0..1; at or above "
+        "min_region_score: no such regions)",
+        0.0,
+        1.0,
+    )
     max_objects: int = parameter(
         256, "most objects kept; beyond, the stalest tentative objects end", 1, 100000
     )

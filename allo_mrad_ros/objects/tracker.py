@@ -303,7 +303,7 @@ class ObjectTracker:
             min_range=params.min_range,
             max_range=params.max_range,
             surface_quantile=params.surface_quantile,
-            min_score=params.min_region_score,
+            min_score=min(params.min_region_score, params.hit_region_score),
         )
         ended: list[TrackedObject] = []
         if self._last_stamp is not None and stamp < self._last_stamp:
@@ -337,7 +337,9 @@ class ObjectTracker:
                 track.misses += 1
         taken = {j for _, j in matches}
         for j in range(len(observations)):
-            if j in taken:
+            # Only a region scoring min_region_score starts an object; a fainter one (down to
+            # hit_region_score) only continues one.
+            if j in taken or observations.scores[j] < params.min_region_score:
                 continue
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1

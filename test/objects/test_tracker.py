@@ -495,3 +495,36 @@ def test_regions_of_different_things_joined_into_one_object_are_not_confirmed():
 
     assert set(states(0.999)) == {"tentative"}
     assert states(1.0)[-1] == "confirmed"
+
+
+def test_a_faint_region_continues_an_object_and_starts_none():
+    # Hysteresis on the regions' scores: a region of 0.9 starts an object; then its regions
+    # score 0.3, below min_region_score (0.5) but at least hit_region_score (0.2): they are
+    # its hits, and it is confirmed. A faint region far from any object starts nothing.
+    # With hit_region_score at min_region_score the faint regions are ignored.
+    def run(hit_score):
+        params = scene_params(
+            confirm_hits=3, confirm_window=5, min_region_score=0.5, hit_region_score=hit_score
+        )
+        tracker = ObjectTracker(params, CAMERA)
+        states, ids = [], set()
+        for k in range(20):
+            t = k / FPS
+            pose = sweep(t)
+            u, v, _ = project(POINT, pose)
+            score = 0.9 if k == 0 else 0.3
+            regions = [region_at(u, v, score=score), region_at(u + 150.0, v, score=0.3)]
+            objects = tracker.update(regions, pose, SPACE, t)
+            ids |= {o.id for o in objects}
+            states.append(objects[0].state if objects else None)
+        return states, ids
+
+    states, ids = run(0.2)
+    assert ids == {1} and states[-1] == "confirmed"
+    states, ids = run(0.5)
+    assert ids == {1} and "confirmed" not in states
+
+
+def test_the_region_scores_are_checked():
+    with pytest.raises(ObjectsError, match="hit_region_score"):
+        ObjectParams(hit_region_score=1.5)
