@@ -14,13 +14,15 @@ depth and the frame's stamp. It
    a region's centroid and an object's projection, gated by ``gate_sigma`` and by the ratio
    of the region's extent to the object's projected extent;
 4. adds each matched region's ray to its object and starts a tentative object from each
-   unmatched region (one view: the range interval);
+   unmatched region scoring ``min_region_score`` (one view: the range interval; a fainter
+   one, down to ``hit_region_score``, only continues an object);
 5. re-triangulates the objects that got a ray (:mod:`.triangulation`);
 6. confirms a tentative object after ``confirm_hits`` hits in its last ``confirm_window``
-   in-view frames, once parallax places it nearer than ``max_range`` and not behind the
-   surface; ends an object after ``end_misses`` consecutive in-view misses (a hidden or
-   out-of-view object is not missed), and a tentative one not hit for
-   ``tentative_timeout_s``.
+   in-view frames, once parallax places it nearer than ``max_range``, neither behind the
+   surface nor nearer than ``min_range``, and while its newest rays pass through it as one
+   point's would (``residual_quantile``); ends an object after ``end_misses`` consecutive
+   in-view misses (a hidden or out-of-view object is not missed), and a tentative one not
+   hit for ``tentative_timeout_s``.
 
 Something that keeps one direction in the station frame while the camera moves (the Moon, a
 star, glare locked to the Sun) has no parallax: its range stays undetermined and it is never
@@ -220,7 +222,7 @@ class ObjectTracker:
         self.camera = camera
         self._focal = math.sqrt(camera.fx * camera.fy)
         # The chi-square quantile of the rays' residuals, by degrees of freedom (inf: no test).
-        degrees = np.arange(2 * params.max_rays)
+        degrees = np.arange(2 * params.max_rays + 1)
         self._chi2_limit = (
             np.full(len(degrees), np.inf)
             if params.residual_quantile >= 1.0
