@@ -8,12 +8,17 @@
    (:func:`allo_mrad_ros.evaluation.objects.detect_frames`), cached under ``--cache`` (keyed
    by the sequence and the settings), so a second run only tracks.
 3. Chooses the tracker's parameters on the val split only: a small grid over the parameters
-   that matter (confirmation N of M, association gate, least region score, parallax, the
-   nearest range, the centroid's and the camera position's noise, the image edge), ranked
+   that matter (confirmation N of M, the region scores that start and continue an object,
+   the association and size gates, parallax, the image edge and the residual test), ranked
    by the issue's targets met, then by the F1 of recall and precision, then by the error.
 4. Tracks the test split with the chosen parameters and the shipped defaults, times the
    tracker alone (``benchmarks.tracker``: 20 regions, 50 objects) and writes
    ``reports/bench_objects.json``.
+
+``--diagnose`` instead follows every ground-truth object of the val split through the
+detection, association, confirmation and matching with the shipped defaults (or the
+parameters given with ``--param name=value``) and prints where each was lost
+(:func:`allo_mrad_ros.evaluation.objects.diagnose_objects`).
 """
 
 from __future__ import annotations
@@ -26,14 +31,17 @@ import pickle
 import statistics
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from allo_mrad_ros.evaluation.object_metrics import HEADLINE_METRICS
 from allo_mrad_ros.evaluation.objects import (
+    ObjectDiagnosis,
     ObjectRun,
     detect_frames,
     detection_coverage,
+    diagnose_objects,
     score_run,
 )
 from allo_mrad_ros.objects import ObjectParams
@@ -44,25 +52,27 @@ from benchmarks import tracker as tracker_bench
 # The grid searched on val (the rest of ObjectParams stays at its defaults).
 GRID: dict[str, tuple[Any, ...]] = {
     "confirm": ((3, 5), (5, 8)),
+    # (min_region_score, hit_region_score): the score a region needs to start an object,
+    # and to continue one.
+    "scores": ((0.5, 0.5), (0.5, 0.2), (0.5, 0.0), (0.2, 0.2), (0.0, 0.0)),
     "gate_sigma": (3.0, 5.0),
-    "min_region_score": (0.3, 0.5),
+    "size_ratio_max": (2.0, 4.0),
     "parallax_sigma": (3.0, 4.0),
-    "min_range": (0.3, 1.5),
-    "pixel_sigma": (2.0, 4.0),
-    "position_sigma": (0.02, 0.04),
     "edge_sigma_fraction": (0.5, 2.0),
+    "residual_quantile": (0.999, 1.0),
 }
-# The grid's fields (``confirm`` sets confirm_hits and confirm_window).
+# The grid's fields (``confirm`` sets confirm_hits and confirm_window, ``scores``
+# min_region_score and hit_region_score).
 GRID_FIELDS = (
     "confirm_hits",
     "confirm_window",
-    "gate_sigma",
     "min_region_score",
+    "hit_region_score",
+    "gate_sigma",
+    "size_ratio_max",
     "parallax_sigma",
-    "min_range",
-    "pixel_sigma",
-    "position_sigma",
     "edge_sigma_fraction",
+    "residual_quantile",
 )
 # The issue's targets: name -> (key, bound, kind).
 TARGETS = {
@@ -101,9 +111,17 @@ def rank_key(report: dict[str, Any]) -> tuple[float, ...]:
 def grid_params(base: ObjectParams) -> list[ObjectParams]:
     """Every combination of :data:`GRID` on ``base``."""
     combos = []
-    for (hits, window), *rest in itertools.product(*GRID.values()):
-        changes = dict(zip(list(GRID)[1:], rest, strict=True))
-        combos.append(base.replace(confirm_hits=hits, confirm_window=window, **changes))
+    for (hits, window), (start, hit), *rest in itertools.product(*GRID.values()):
+        changes = dict(zip(list(GRID)[2:], rest, strict=True))
+        combos.append(
+            base.replace(
+                confirm_hits=hits,
+                confirm_window=window,
+                min_region_score=start,
+                hit_region_score=hit,
+                **changes,
+            )
+        )
     return combos
 
 
@@ -228,6 +246,65 @@ def coverage_table(coverage: dict[str, dict[str, dict[str, int]]]) -> str:
     return "\n".join(rows)
 
 
+def diagnosis_table(rows: list[ObjectDiagnosis]) -> str:
+    """Per object, where it was lost (:class:`ObjectDiagnosis`), as Markdown, with the
+    count of each cause among the objects in view long enough to count for recall."""
+    lines = [
+        "| object | type | placement | frames showing | with a region | taken | regions "
+        "| tracks | main track | confirmed tracks | distance m | match m | cause |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for row in rows:
+        cells = (
+            f"{row.id}{'' if row.eligible else ' (< 1 s)'}",
+            row.type,
+            row.placement,
+            row.frames_showing,
+            row.frames_touched,
+            row.frames_tracked,
+            row.regions,
+            row.tracks,
+            row.main_track_regions,
+            row.confirmed_tracks,
+            _fmt(row.distance_m),
+            _fmt(row.tolerance_m),
+            row.cause,
+        )
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    causes: dict[str, int] = {}
+    for row in rows:
+        if row.eligible:
+            causes[row.cause] = causes.get(row.cause, 0) + 1
+    counted = ", ".join(f"{k} {v}" for k, v in causes.items())
+    lines += ["", f"causes (objects in view >= 1 s): {counted}"]
+    return "\n".join(lines)
+
+
+def diagnose(
+    data: Path, cache: Path, params: ObjectParams, config: PipelineConfig, jobs: int
+) -> list[ObjectDiagnosis]:
+    """:func:`diagnose_objects` on the val split, with the detections of ``config``."""
+    run = detections(data, cache, "val", config, jobs)
+    sequence = read_sequence(data, check_images=False)
+    rows = diagnose_objects(run, params, lambda i: sequence.load_instances(sequence.frames[i]))
+    print(diagnosis_table(rows))
+    return rows
+
+
+def parse_changes(items: list[str]) -> dict[str, float]:
+    """``name=value`` items (numbers) as a dict."""
+    changes: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"{item!r}: expected name=value")
+        try:
+            changes[name] = float(value)
+        except ValueError:
+            raise SystemExit(f"{item!r}: {value!r} is not a number") from None
+    return changes
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Objects in the station frame, val and test.")
     parser.add_argument("--data", type=Path, default=Path("data/objects"))
@@ -237,9 +314,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cache", type=Path, default=Path("data/bench_objects_cache"))
     parser.add_argument("--jobs", type=int, default=1, help="detection worker processes")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_objects.json"))
+    parser.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="follow each val object through detection, tracking and matching; no grid",
+    )
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        help="with --diagnose: a tracker parameter, name=value (repeated)",
+    )
+    parser.add_argument(
+        "--detector",
+        action="append",
+        default=[],
+        help="with --diagnose: a detector parameter (MradParams), name=value (repeated)",
+    )
     args = parser.parse_args(argv)
 
     ensure_data(args.data, args.width, args.height, args.seed)
+    if args.diagnose:
+        params = ObjectParams().replace(**parse_changes(args.param))
+        base = PipelineConfig(methods=("MRAD",))
+        detector = replace(base.params, **parse_changes(args.detector))
+        diagnose(args.data, args.cache, params, replace(base, params=detector), args.jobs)
+        return
     config = PipelineConfig(methods=("MRAD",))
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
     coverage = coverage_of(args.data, runs)

@@ -39,6 +39,8 @@ from allo_mrad_ros.evaluation.object_metrics import (
     FrameTruth,
     MatchRules,
     ObjectMetrics,
+    assign,
+    frame_period_s,
     object_metrics,
 )
 from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
@@ -48,7 +50,7 @@ from allo_mrad_ros.evaluation.sources import (
     SequenceSource,
     open_sequence,
 )
-from allo_mrad_ros.objects import ObjectParams, ObjectTracker
+from allo_mrad_ros.objects import ObjectParams, ObjectTracker, TrackedObject
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.sequence import GroundTruthObject
 
@@ -275,8 +277,14 @@ def _masks(run: ObjectRun) -> Iterator[np.ndarray]:
         yield mask.reshape(camera.height, camera.width)
 
 
-def track(run: ObjectRun, params: ObjectParams) -> tuple[list[list[ConfirmedSample]], list[float]]:
-    """Feed ``run``'s frames to a tracker, reset at each new trajectory.
+def track(
+    run: ObjectRun,
+    params: ObjectParams,
+    *,
+    records: list[tuple[TrackedObject, ...]] | None = None,
+) -> tuple[list[list[ConfirmedSample]], list[float]]:
+    """Feed ``run``'s frames to a tracker, reset at each new trajectory (``records``, when
+    given, receives every frame's objects as the tracker returned them).
 
     Returns
     -------
@@ -298,6 +306,8 @@ def track(run: ObjectRun, params: ObjectParams) -> tuple[list[list[ConfirmedSamp
             frame.regions, frame.pose, frame.depth, frame.stamp_ns * 1e-9, mask=mask
         )
         timings.append(1e3 * (time.perf_counter() - start))
+        if records is not None:
+            records.append(objects)
         confirmed.append(
             [
                 ConfirmedSample(o.id, o.position, o.in_view)
@@ -367,6 +377,178 @@ def detection_coverage(
                 row["object_frames"] += 1
                 row["touched"] += covered > 0
                 row["half_covered"] += 2 * covered >= total
+    return out
+
+
+@dataclass(frozen=True)
+class ObjectDiagnosis:
+    """Why one ground-truth object was recalled or missed (:func:`diagnose_objects`).
+
+    Attributes
+    ----------
+    id, type, placement, trajectory
+        The object and the trajectory it shows in.
+    frames_showing : int
+        Frames with its instance pixels.
+    eligible : bool
+        In view long enough to count for recall.
+    frames_touched : int
+        Frames where a region (any score) covers some of its instance pixels: pixels under
+        the detection mask inside the region's box.
+    frames_tracked : int
+        Of those, frames where such a region scores at least ``min_region_score`` (the
+        tracker takes it).
+    regions : int
+        Such regions given to the tracker, all frames.
+    tracks : int
+        Distinct tracks those regions went to (1: one id; more: new tracks were spawned).
+    main_track_regions : int
+        The regions of the track that got most of them.
+    confirmed_tracks : int
+        Of those tracks, how many were ever confirmed.
+    matched : bool
+        Matched one-to-one in the evaluation.
+    distance_m, tolerance_m : float or None
+        The nearest of its confirmed tracks (last confirmed estimate) from the object at that
+        stamp, and the match distance there (``max(floor, fraction * range)``).
+    cause : str
+        The first stage that lost it: ``no region``, ``regions score low``, ``not
+        confirmed``, ``beyond match distance``, ``lost in assignment``, or ``matched``.
+    """
+
+    id: int
+    type: str
+    placement: str
+    trajectory: str
+    frames_showing: int
+    eligible: bool
+    frames_touched: int
+    frames_tracked: int
+    regions: int
+    tracks: int
+    main_track_regions: int
+    confirmed_tracks: int
+    matched: bool
+    distance_m: float | None
+    tolerance_m: float | None
+    cause: str
+
+
+def _object_regions(frame: ObjectFrame, labels: np.ndarray, width: int) -> dict[int, list[int]]:
+    """Per showing object, the regions of ``frame`` covering some of its instance pixels
+    under the detection mask (inside the region's box)."""
+    flat = labels.reshape(-1)
+    under = frame.mask_pixels[flat[frame.mask_pixels] > 0]
+    out: dict[int, list[int]] = {}
+    if under.size == 0:
+        return out
+    ids = flat[under]
+    ys, xs = np.divmod(under, width)
+    for index, region in enumerate(frame.regions):
+        x, y, w, h = region.box
+        inside = (xs >= x) & (xs < x + w) & (ys >= y) & (ys < y + h)
+        for object_id in np.unique(ids[inside]):
+            out.setdefault(int(object_id), []).append(index)
+    return out
+
+
+def diagnose_objects(
+    run: ObjectRun,
+    params: ObjectParams,
+    instances: Callable[[int], np.ndarray | None],
+    rules: MatchRules | None = None,
+) -> list[ObjectDiagnosis]:
+    """Follow each ground-truth object of ``run`` through detection, association,
+    confirmation and matching, and say where it was lost.
+
+    ``instances`` gives a frame's instance mask by its input index (as for
+    :func:`detection_coverage`). The tracker runs as in :func:`score_run`.
+    """
+    rules = rules or MatchRules()
+    records: list[tuple[TrackedObject, ...]] = []
+    track(run, params, records=records)
+    by_id = {o.id: o for o in run.objects}
+    width = run.camera.width
+    out: list[ObjectDiagnosis] = []
+    trajectories: dict[str, list[int]] = {}
+    for i, frame in enumerate(run.frames):
+        trajectories.setdefault(frame.trajectory, []).append(i)
+    for trajectory, indices in trajectories.items():
+        period = frame_period_s([run.frames[i].stamp_ns for i in indices])
+        shown: dict[int, int] = {}
+        touched: dict[int, int] = {}
+        tracked: dict[int, int] = {}
+        track_regions: dict[int, dict[int, int]] = {}
+        last: dict[int, tuple[int, np.ndarray]] = {}
+        for i in indices:
+            frame = run.frames[i]
+            region_track = {o.region: o.id for o in records[i] if o.region is not None}
+            for o in records[i]:
+                if o.state == "confirmed":
+                    last[o.id] = (i, np.asarray(o.position, dtype=np.float64))
+            for object_id in frame.showing:
+                shown[object_id] = shown.get(object_id, 0) + 1
+            labels = instances(frame.index) if frame.showing else None
+            if labels is None:
+                continue
+            for object_id, regions in _object_regions(frame, labels, width).items():
+                touched[object_id] = touched.get(object_id, 0) + 1
+                taken = [region_track[r] for r in regions if r in region_track]
+                tracked[object_id] = tracked.get(object_id, 0) + bool(taken)
+                counts = track_regions.setdefault(object_id, {})
+                for track_id in taken:
+                    counts[track_id] = counts.get(track_id, 0) + 1
+        # The evaluation's one-to-one match (object_metrics), on the last estimates.
+        confirmed_ids = sorted(last)
+        true_ids = sorted(shown)
+        distance = np.zeros((len(confirmed_ids), len(true_ids)))
+        tolerance = np.zeros_like(distance)
+        for r, track_id in enumerate(confirmed_ids):
+            i, estimate = last[track_id]
+            stamp, camera = run.frames[i].stamp_ns, run.frames[i].pose[:3, 3]
+            for c, object_id in enumerate(true_ids):
+                truth = by_id[object_id].position_at(stamp)
+                distance[r, c] = float(np.linalg.norm(estimate - truth))
+                true_range = float(np.linalg.norm(truth - camera))
+                tolerance[r, c] = max(rules.match_floor_m, rules.match_fraction * true_range)
+        matched = {true_ids[c] for _, c in assign(distance, tolerance)}
+        for c, object_id in enumerate(true_ids):
+            item = by_id[object_id]
+            counts = track_regions.get(object_id, {})
+            confirmed_rows = [r for r, t in enumerate(confirmed_ids) if t in counts]
+            near = min(confirmed_rows, key=lambda r: distance[r, c], default=None)
+            if object_id in matched:
+                cause = "matched"
+            elif not touched.get(object_id):
+                cause = "no region"
+            elif not counts:
+                cause = "regions score low"
+            elif near is None:
+                cause = "not confirmed"
+            elif distance[near, c] > tolerance[near, c]:
+                cause = "beyond match distance"
+            else:
+                cause = "lost in assignment"
+            out.append(
+                ObjectDiagnosis(
+                    id=object_id,
+                    type=item.type,
+                    placement=str(item.extra.get("placement") or "-"),
+                    trajectory=trajectory,
+                    frames_showing=shown[object_id],
+                    eligible=shown[object_id] * period >= rules.min_view_s - 1e-9,
+                    frames_touched=touched.get(object_id, 0),
+                    frames_tracked=tracked.get(object_id, 0),
+                    regions=sum(counts.values()),
+                    tracks=len(counts),
+                    main_track_regions=max(counts.values(), default=0),
+                    confirmed_tracks=len(confirmed_rows),
+                    matched=object_id in matched,
+                    distance_m=None if near is None else float(distance[near, c]),
+                    tolerance_m=None if near is None else float(tolerance[near, c]),
+                    cause=cause,
+                )
+            )
     return out
 
 

@@ -89,7 +89,7 @@ class ObjectParams:
         1e3,
     )
     gate_sigma: float = parameter(
-        5.0,
+        3.0,
         "association gate: largest Mahalanobis distance of a region's centroid from an "
         "object's projection",
         0.0,
@@ -97,7 +97,7 @@ class ObjectParams:
         low_open=True,
     )
     size_ratio_max: float = parameter(
-        4.0,
+        2.0,
         "association gate: largest ratio between a region's extent and an object's projected "
         "extent (either way)",
         1.0,
@@ -111,10 +111,10 @@ class ObjectParams:
         10.0,
     )
     confirm_hits: int = parameter(
-        5, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
+        3, "N: hits needed in the last confirm_window in-view frames to confirm", 1, 1000
     )
     confirm_window: int = parameter(
-        8, "M: the in-view frames the confirmation counts hits over", 1, 1000
+        5, "M: the in-view frames the confirmation counts hits over", 1, 1000
     )
     end_misses: int = parameter(5, "K: consecutive in-view misses that end an object", 1, 100000)
     parallax_sigma: float = parameter(
@@ -124,6 +124,15 @@ class ObjectParams:
         0.0,
         100.0,
     )
+    residual_quantile: float = parameter(
+        0.999,
+        "an object is confirmed only when the squared residuals of its newest rays (at most "
+        "confirm_window) about its estimate, each over its variance, lie within this quantile "
+        "of the chi-square distribution (2 per ray); 1 drops the test",
+        0.0,
+        1.0,
+        low_open=True,
+    )
     max_rays: int = parameter(32, "the newest rays kept per object for its triangulation", 2, 4096)
     history_s: float = parameter(30.0, "rays older than this are dropped", 0.0, 1e6, low_open=True)
     tentative_timeout_s: float = parameter(
@@ -131,6 +140,14 @@ class ObjectParams:
     )
     min_region_score: float = parameter(
         0.5, "regions scoring below this are ignored (Region.score, 0..1)", 0.0, 1.0
+    )
+    hit_region_score: float = parameter(
+        0.5,
+        "a region scoring below min_region_score but at least this continues an object its "
+        "gate takes (a hit) and starts none (Region.score, 0..1; at or above "
+        "min_region_score: no such regions)",
+        0.0,
+        1.0,
     )
     max_objects: int = parameter(
         256, "most objects kept; beyond, the stalest tentative objects end", 1, 100000

@@ -364,9 +364,10 @@ class Observations:
     extent_px : numpy.ndarray
         (n,) the larger side of each region's box, pixels.
     edge_px : numpy.ndarray
-        (n,) the larger side of each region's box across the image edges it touches (0 for
-        a box inside the image): there the object may extend beyond the image, and the
-        centroid of what shows is not the object's.
+        (n, 2) each region's box side across the image edges it touches, per image axis:
+        its width where it touches the left or right edge, its height where it touches the
+        top or bottom (0 otherwise): the object may extend beyond the image there, and the
+        centroid of what shows is not the object's along that axis (only along it).
     scores : numpy.ndarray
         (n,) each region's score.
     indices : numpy.ndarray
@@ -418,7 +419,7 @@ def observe(
         extent.append(max(w, h))
         across_x = w if x <= 0 or x + w >= camera.width else 0
         across_y = h if y <= 0 or y + h >= camera.height else 0
-        edge.append(max(across_x, across_y))
+        edge.append((across_x, across_y))
         scores.append(region.score)
         pixels.append(region.centroid)
     bound = surface_bounds(ranges, surface_quantile)
@@ -435,7 +436,7 @@ def observe(
         high=high.astype(np.float64),
         over_surface=surface,
         extent_px=np.asarray(extent, dtype=np.float64),
-        edge_px=np.asarray(edge, dtype=np.float64),
+        edge_px=np.asarray(edge, dtype=np.float64).reshape(-1, 2),
         scores=np.asarray(scores, dtype=np.float64),
         indices=np.asarray(kept, dtype=np.int64),
     )

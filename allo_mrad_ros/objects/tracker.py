@@ -14,13 +14,15 @@ depth and the frame's stamp. It
    a region's centroid and an object's projection, gated by ``gate_sigma`` and by the ratio
    of the region's extent to the object's projected extent;
 4. adds each matched region's ray to its object and starts a tentative object from each
-   unmatched region (one view: the range interval);
+   unmatched region scoring ``min_region_score`` (one view: the range interval; a fainter
+   one, down to ``hit_region_score``, only continues an object);
 5. re-triangulates the objects that got a ray (:mod:`.triangulation`);
 6. confirms a tentative object after ``confirm_hits`` hits in its last ``confirm_window``
-   in-view frames, once parallax places it nearer than ``max_range`` and not behind the
-   surface; ends an object after ``end_misses`` consecutive in-view misses (a hidden or
-   out-of-view object is not missed), and a tentative one not hit for
-   ``tentative_timeout_s``.
+   in-view frames, once parallax places it nearer than ``max_range``, neither behind the
+   surface nor nearer than ``min_range``, and while its newest rays pass through it as one
+   point's would (``residual_quantile``); ends an object after ``end_misses`` consecutive
+   in-view misses (a hidden or out-of-view object is not missed), and a tentative one not
+   hit for ``tentative_timeout_s``.
 
 Something that keeps one direction in the station frame while the camera moves (the Moon, a
 star, glare locked to the Sun) has no parallax: its range stays undetermined and it is never
@@ -37,6 +39,7 @@ from typing import Literal
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector.regions import Region
@@ -121,6 +124,7 @@ class _Track:
     """An object's state: a ring of its newest rays and what was derived from them."""
 
     __slots__ = (
+        "coherent",
         "consistent",
         "count",
         "covariance",
@@ -154,6 +158,7 @@ class _Track:
         self.size = 0.0
         self.resolved = False
         self.consistent = True
+        self.coherent = True
         # Per in-view frame: hit or miss, and the region's score (0 for a miss).
         self.window: deque[tuple[bool, float]] = deque(maxlen=window)
         self.window_hits = 0  # the window's hits and scores summed (kept with it)
@@ -216,6 +221,13 @@ class ObjectTracker:
         self.params = params
         self.camera = camera
         self._focal = math.sqrt(camera.fx * camera.fy)
+        # The chi-square quantile of the rays' residuals, by degrees of freedom (inf: no test).
+        degrees = np.arange(2 * params.max_rays + 1)
+        self._chi2_limit = (
+            np.full(len(degrees), np.inf)
+            if params.residual_quantile >= 1.0
+            else chi2.ppf(params.residual_quantile, np.maximum(degrees, 1))
+        )
         self._tracks: list[_Track] = []
         self._next_id = 1
         self._last_stamp: float | None = None
@@ -293,7 +305,7 @@ class ObjectTracker:
             min_range=params.min_range,
             max_range=params.max_range,
             surface_quantile=params.surface_quantile,
-            min_score=params.min_region_score,
+            min_score=min(params.min_region_score, params.hit_region_score),
         )
         ended: list[TrackedObject] = []
         if self._last_stamp is not None and stamp < self._last_stamp:
@@ -302,10 +314,15 @@ class ObjectTracker:
         self._last_stamp = stamp
 
         tracks = self._tracks
-        in_view, matches = self._associate(tracks, observations, pose, depth, reference, stamp)
+        # The centroids' variances along x and y (the association's) and their larger, as an
+        # angle (the triangulation's).
+        pixel_variance = self._pixel_variances(observations)
+        in_view, matches = self._associate(
+            tracks, observations, pixel_variance, pose, depth, reference, stamp
+        )
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
-        variance = self._ray_variance(observations)
+        variance = pixel_variance.max(axis=1) / self._focal**2
         for row, j in matches:
             track = tracks[row]
             track.add_ray(observations, j, variance[j], stamp)
@@ -322,7 +339,9 @@ class ObjectTracker:
                 track.misses += 1
         taken = {j for _, j in matches}
         for j in range(len(observations)):
-            if j in taken:
+            # Only a region scoring min_region_score starts an object; a fainter one (down to
+            # hit_region_score) only continues one.
+            if j in taken or observations.scores[j] < params.min_region_score:
                 continue
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1
@@ -347,6 +366,7 @@ class ObjectTracker:
                 and track.window_hits >= params.confirm_hits
                 and track.resolved
                 and track.consistent
+                and track.coherent
             ):
                 track.state = "confirmed"
             if track.state == "ended":
@@ -365,26 +385,25 @@ class ObjectTracker:
         return tuple(sorted(records + ended, key=lambda o: o.id))
 
     # ------------------------------------------------------------------ steps
-    def _ray_variance(self, observations: Observations) -> np.ndarray:
-        """Each observation's angular variance: centroid noise over the focal length."""
+    def _pixel_variances(self, observations: Observations) -> np.ndarray:
+        """(n, 2) each observation's centroid variance along the image's x and y, pixels^2:
+        the image edge's share only along the axis across the edge it touches."""
         params = self.params
-        pixels = (
-            params.pixel_sigma**2
-            + (params.extent_sigma_fraction * observations.extent_px) ** 2
-            + (params.edge_sigma_fraction * observations.edge_px) ** 2
-        )
-        return pixels / self._focal**2
+        base = params.pixel_sigma**2 + (params.extent_sigma_fraction * observations.extent_px) ** 2
+        return base[:, None] + (params.edge_sigma_fraction * observations.edge_px) ** 2
 
     def _associate(
         self,
         tracks: list[_Track],
         observations: Observations,
+        pixel_variance: np.ndarray,
         pose: np.ndarray,
         depth: np.ndarray,
         reference: CameraIntrinsics,
         stamp: float,
     ) -> tuple[np.ndarray, list[tuple[int, int]]]:
-        """Which objects are in view, and the (object row, observation) pairs matched."""
+        """Which objects are in view, and the (object row, observation) pairs matched
+        (``pixel_variance``: :meth:`_pixel_variances` of the observations)."""
         params = self.params
         count = len(tracks)
         if count == 0:
@@ -426,13 +445,15 @@ class ObjectTracker:
         if len(observations) == 0:
             return in_view, []
 
-        pixel_variance = self._ray_variance(observations) * self._focal**2
+        # A region cut by the image edge is uncertain across that edge only: along it, its
+        # centroid is as good as any (an isotropic spread let an edge region match objects
+        # anywhere along the edge).
         du = observations.pixels[None, :, 0] - u[:, None]
         dv = observations.pixels[None, :, 1] - v[:, None]
         # The camera position's noise moves the projection by position_sigma / z radians.
         position_px2 = (params.position_sigma * self._focal / safe_z) ** 2
-        s00 = projected[:, None, 0, 0] + position_px2[:, None] + pixel_variance[None, :]
-        s11 = projected[:, None, 1, 1] + position_px2[:, None] + pixel_variance[None, :]
+        s00 = projected[:, None, 0, 0] + position_px2[:, None] + pixel_variance[None, :, 0]
+        s11 = projected[:, None, 1, 1] + position_px2[:, None] + pixel_variance[None, :, 1]
         s01 = projected[:, None, 0, 1]
         determinant = s00 * s11 - s01 * s01
         distance2 = (du * du * s11 - 2.0 * du * dv * s01 + dv * dv * s00) / determinant
@@ -463,7 +484,8 @@ class ObjectTracker:
         batch = len(tracks)
         packed = np.array([t.rays for t in tracks])
         stamps = packed[..., _STAMP]
-        filled = np.arange(capacity)[None, :] < np.array([t.count for t in tracks])[:, None]
+        counts = np.array([t.count for t in tracks])
+        filled = np.arange(capacity)[None, :] < counts[:, None]
         anchor = np.array([t.newest for t in tracks])
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
@@ -482,6 +504,15 @@ class ObjectTracker:
         )
         solution = triangulate(rays)
         resolved, consistent = self._range_checks(solution, rays)
+        # The residual test gates confirmation only: run where the rest would confirm.
+        coherent = np.ones(batch, dtype=bool)
+        candidates = np.flatnonzero(
+            [t.state == "tentative" and t.window_hits >= params.confirm_hits for t in tracks]
+            & resolved
+            & consistent
+        )
+        if len(candidates):
+            coherent[candidates] = self._coherent(solution, rays, counts, candidates)
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
         for i, track in enumerate(tracks):
@@ -490,12 +521,46 @@ class ObjectTracker:
             track.size = float(sizes[i])
             track.resolved = bool(resolved[i])
             track.consistent = bool(consistent[i])
+            track.coherent = bool(coherent[i])
+
+    def _coherent(
+        self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray
+    ) -> np.ndarray:
+        """Whether each object's newest rays pass through its estimate as one point's would:
+        the sum of their squared angular residuals, each over its variance (the
+        triangulation's weights), within the ``residual_quantile`` of a chi-square of
+        ``2 n`` degrees of freedom for the newest ``n`` rays (at most ``confirm_window``;
+        ``2 n - 3`` when they are all its rays). Regions of different things joined into one
+        object (glare that changes shape, a blob's parts) fail it. Only the newest rays
+        count: the drift allowed to older ones (``drift_speed``) would absorb their
+        scatter. ``counts`` are the rays each object's ring holds; only the objects ``which``
+        (indices into the batch) are tested."""
+        # The newest rays: the ring's places before its head (the anchor), gathered.
+        capacity = rays.valid.shape[1]
+        back = np.arange(min(self.params.confirm_window, capacity))
+        rows = which[:, None]
+        places = (rays.anchor[which, None] - back) % capacity
+        recent = (back < counts[rows]) & rays.valid[rows, places]
+        offset = solution.position[rows] - rays.origins[rows, places]
+        along = solution.ranges[rows, places]
+        across2 = np.maximum(np.einsum("brj,brj->br", offset, offset) - along**2, 0.0)
+        front = along > 0
+        safe = np.where(front, along, 1.0)
+        variance = rays.angular_variance[rows, places] * safe**2 + rays.extra_variance[rows, places]
+        # A ray the estimate lies behind is as far from it as a ray can be.
+        terms = np.where(recent, np.where(front, across2 / variance, np.inf), 0.0)
+        count = recent.sum(axis=1)
+        dof = 2 * count - np.where(count == rays.valid[which].sum(axis=1), 3, 0)
+        limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
+        return (dof < 1) | (terms.sum(axis=1) <= limit)
 
     def _range_checks(
         self, solution: Triangulation, rays: RayBatch
     ) -> tuple[np.ndarray, np.ndarray]:
         """Whether parallax alone places each object nearer than ``max_range``, and whether
-        it does not place it behind the surface (beyond the anchor's interval)."""
+        it places it within the anchor's interval: neither behind the surface nor nearer
+        than ``min_range`` (rays that keep their place in the image while the camera turns,
+        as a lens flare does, meet at the camera)."""
         params = self.params
         k = params.parallax_sigma
         rho, rho_sigma = solution.free_inverse_range()
@@ -508,7 +573,11 @@ class ObjectTracker:
         determined = np.isfinite(rho_sigma)
         farthest = rho + k * np.where(determined, rho_sigma, 0.0)
         behind = determined & (farthest < 1.0 / (high + params.occlusion_margin))
-        return resolved, ~behind
+        # Nothing may be nearer than min_range: while the rays' own estimate is, it is not
+        # confirmed (no margin of standard deviations, or a thing near the camera, with a
+        # wide spread while few rays have seen it, would be confirmed before they agree).
+        too_near = determined & (rho > 1.0 / params.min_range)
+        return resolved, ~(behind | too_near)
 
     def _within_capacity(
         self, live: list[_Track], ended: list[TrackedObject], stamp: float

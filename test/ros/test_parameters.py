@@ -44,8 +44,13 @@ def test_overrides_reach_the_detector(node):
         ("objects.pixel_sigma", 0.0, "objects.pixel_sigma must be in (0, 1000]"),
         ("objects.confirm_hits", 0, "objects.confirm_hits"),
         ("objects.confirm_window", 2000, "objects.confirm_window"),
-        # Valid alone, not with the default confirm_window (8): the tracker's own rule.
-        ("objects.confirm_hits", 9, "confirm_hits (9) must not exceed confirm_window (8)"),
+        # Valid alone, not with the default confirm_window: the tracker's own rule.
+        (
+            "objects.confirm_hits",
+            ObjectParams().confirm_window + 1,
+            f"confirm_hits ({ObjectParams().confirm_window + 1}) must not exceed "
+            f"confirm_window ({ObjectParams().confirm_window})",
+        ),
         (
             "objects.max_range",
             0.2,
@@ -75,13 +80,13 @@ def test_object_tracker_changes_reach_its_params_and_decision_is_applied(node):
         [
             Parameter("objects.confirm_window", value=8),
             Parameter("objects.confirm_hits", value=6),
-            Parameter("objects.gate_sigma", value=3.0),
+            Parameter("objects.gate_sigma", value=4.0),
             Parameter("decision", value="objects"),
         ]
     )
     assert all(result.successful for result in results), results
     params = node._config.objects.params
-    assert (params.confirm_window, params.confirm_hits, params.gate_sigma) == (8, 6, 3.0)
+    assert (params.confirm_window, params.confirm_hits, params.gate_sigma) == (8, 6, 4.0)
     assert node._config.decision == "objects" and node._config.tracks_every_frame
 
 
