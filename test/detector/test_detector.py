@@ -11,6 +11,7 @@ from allo_mrad_ros.example_scene import example_pair
 
 STAGES = [
     "colour_transfer",
+    "highlights",
     "cross_score",
     "scale_threshold",
     "noise_removal",
@@ -58,7 +59,7 @@ def test_pasted_object_is_found_and_clean_frame_is_not(pair):
     assert not clean.anomalous
     assert list(found.timings_ms) == STAGES  # the local cues are off by default
     with_cue = detect(pair.query, reference, MradParams(local_weight=1.0))
-    assert list(with_cue.timings_ms) == [*STAGES[:2], "local", *STAGES[2:]]
+    assert list(with_cue.timings_ms) == [*STAGES[:3], "local", *STAGES[3:]]
 
 
 def test_full_hd_example_meets_iou():
