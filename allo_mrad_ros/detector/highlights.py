@@ -24,7 +24,7 @@ and both add roughly the same amount to every channel:
 Where either applies, the query's *colourless* brightening over the reference pixel, the
 smallest of its three channel excesses (zero when any channel is not brighter), is
 subtracted from all three channels, up to an allowance: ``specular_tolerance`` 8-bit levels
-times the specular potential, and without limit inside a halo. A coloured object there keeps
+times the specular potential (rounded to whole levels), and without limit inside a halo. A coloured object there keeps
 its colour departure; a dark one is not brighter and keeps all of it; a colourless highlight
 where no highlight is predicted and no clipped region is near keeps all of it.
 """
@@ -69,7 +69,7 @@ CLIPPED_LEVEL = 250
 """A query pixel with a channel at or above this level (8-bit scale) is clipped."""
 LIT_LEVEL = 128.0
 """Mean brightest reference channel over a clipped component from which it is glare."""
-UNLIMITED = 255.0
+UNLIMITED = 255
 """The allowance inside a glare halo: any colourless brightening."""
 
 
@@ -91,20 +91,20 @@ def specular_potential(reference: np.ndarray) -> np.ndarray:
     reference : numpy.ndarray
         uint8 H x W x 3, the reference at the processing resolution.
     """
-    darkest = np.minimum(np.minimum(reference[..., 0], reference[..., 1]), reference[..., 2])
+    darkest = _darkest(reference)
     side = _window(darkest.shape)
     kernel = np.ones((side, side), np.uint8)
     # The white top-hat: the darkest channel over its opening (what is left of it once
     # every bright feature narrower than the window is removed).
     excess = cv2.morphologyEx(darkest, cv2.MORPH_TOPHAT, kernel, borderType=cv2.BORDER_REPLICATE)
-    potential = np.minimum(excess.astype(np.float32) * np.float32(1.0 / SPECULAR_FULL), 1.0)
     # A sharper or broader lobe than the reference's covers more or less of the surface
-    # round the reference's highlight.
+    # round the reference's highlight. Spread before the scaling, in uint8: a maximum
+    # commutes with the monotone scaling and capping, and is cheaper on bytes.
     spread = max(1, round(min(darkest.shape) * SPECULAR_SPREAD)) | 1
-    if spread == 1:
-        return potential
-    square = np.ones((spread, spread), np.uint8)
-    return cv2.dilate(potential, square, borderType=cv2.BORDER_REPLICATE)
+    if spread > 1:
+        square = np.ones((spread, spread), np.uint8)
+        excess = cv2.dilate(excess, square, borderType=cv2.BORDER_REPLICATE)
+    return np.minimum(excess.astype(np.float32) * np.float32(1.0 / SPECULAR_FULL), 1.0)
 
 
 def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.ndarray:
@@ -127,8 +127,10 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
     halo = np.zeros((height, width), bool)
     if factor <= 0.0:
         return halo
-    brightest = np.maximum(np.maximum(query[..., 0], query[..., 1]), query[..., 2])
-    clipped = (brightest >= CLIPPED_LEVEL).astype(np.uint8)
+    blue, green, red = cv2.split(query)
+    clipped = (cv2.max(cv2.max(blue, green), red) >= CLIPPED_LEVEL).astype(np.uint8)
+    if not cv2.countNonZero(clipped):
+        return halo
     count, labels, stats, _ = cv2.connectedComponentsWithStats(clipped, connectivity=8)
     if count <= 1:
         return halo
@@ -152,26 +154,40 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
 
 
 def colourless_excess(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """H x W float32: by how much every channel of ``query`` exceeds ``reference`` (the
-    smallest of the three excesses, 0 where a channel is not brighter)."""
-    difference = query.astype(np.float32) - reference.astype(np.float32)
-    smallest = np.minimum(np.minimum(difference[..., 0], difference[..., 1]), difference[..., 2])
-    return np.maximum(smallest, 0.0)
+    """H x W uint8: by how much every channel of ``query`` exceeds ``reference`` (uint8
+    images of one size): the smallest of the three excesses, 0 where a channel is not
+    brighter."""
+    # A saturating subtraction clips each channel's deficit to 0, so the smallest channel
+    # is max(0, min over channels of query - reference), in whole levels.
+    return _darkest(cv2.subtract(query, reference))
+
+
+def _darkest(image: np.ndarray) -> np.ndarray:
+    # Each pixel's smallest channel (OpenCV's planes: NumPy's strided channel views of a
+    # uint8 image are several times slower).
+    blue, green, red = cv2.split(image)
+    return cv2.min(cv2.min(blue, green), red)
 
 
 def allowance(
     potential: np.ndarray | None, halo: np.ndarray | None, tolerance: float
 ) -> np.ndarray | None:
-    """H x W float32 levels of colourless brightening tolerated: ``tolerance`` times the
-    specular ``potential``, and :data:`UNLIMITED` inside the ``halo``; None when neither."""
+    """H x W uint8 levels of colourless brightening tolerated: ``tolerance`` times the
+    specular ``potential`` (rounded to whole levels, half to even), and :data:`UNLIMITED`
+    inside the ``halo``; None when neither."""
     allowed = None
     if potential is not None:
-        allowed = potential * np.float32(tolerance)
+        allowed = cv2.convertScaleAbs(potential, alpha=float(tolerance))
     if halo is not None and halo.any():
-        if allowed is None:
-            allowed = np.zeros(halo.shape, np.float32)
-        allowed[halo] = UNLIMITED
+        allowed = _unlimited_in(halo, allowed)
     return allowed
+
+
+def _unlimited_in(halo: np.ndarray, allowed: np.ndarray | None) -> np.ndarray:
+    # A copy: ``allowed`` may be the reference cache's read-only array.
+    out = np.zeros(halo.shape, np.uint8) if allowed is None else allowed.copy()
+    out[halo] = UNLIMITED
+    return out
 
 
 def tolerate_highlights(
@@ -199,7 +215,8 @@ def tolerate_highlights(
     glare_halo_factor : float
         The halo's radius per square root of a clipped component's area; 0 = none.
     cache : ReferenceCache, optional
-        Keeps the resized reference and its potential while the reference is reused.
+        Keeps the resized reference and its specular allowance while the reference is
+        reused.
 
     Returns
     -------
@@ -228,23 +245,24 @@ def tolerate_highlights(
         ("nearest", height, width),
         lambda: _nearest(small, (height, width)),
     )
-    potential = None
+    allowed = None
     if specular_tolerance > 0.0:
-        potential = derived(
+        # The reference's alone: computed once while a reference is reused.
+        allowed = derived(
             cache,
             small,
-            ("specular_potential", height, width),
-            lambda: specular_potential(pixels),
+            ("specular_allowance", height, width, float(specular_tolerance)),
+            lambda: allowance(specular_potential(pixels), None, specular_tolerance),
         )
-    halo = None
     if glare_halo_factor > 0.0:
         halo = glare_halo(eight_bit(seen), pixels, glare_halo_factor)
-    allowed = allowance(potential, halo, specular_tolerance)
+        if halo.any():
+            allowed = _unlimited_in(halo, allowed)
     if allowed is None:
         return query
-    removed = np.minimum(colourless_excess(query, pixels), allowed)
-    out = query.astype(np.float32) - removed[..., None]
-    return cv2.convertScaleAbs(np.maximum(out, 0.0))
+    removed = cv2.min(colourless_excess(query, pixels), allowed)
+    # No channel goes below the reference's: the removed amount is at most each excess.
+    return cv2.subtract(query, cv2.merge((removed, removed, removed)))
 
 
 def _nearest(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -104,12 +104,15 @@ def halo_naive(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
 
 
 def tolerated_naive(seen, query, reference, tolerance, factor) -> np.ndarray:
+    # Whole levels: the allowance rounded half to even, as the module states.
     q = query.astype(np.float64)
     excess = np.maximum((q - reference.astype(np.float64)).min(axis=2), 0.0)
-    allowed = tolerance * potential_naive(reference) if tolerance > 0 else np.zeros(excess.shape)
+    allowed = np.zeros(excess.shape)
+    if tolerance > 0:
+        allowed = np.minimum(np.rint(tolerance * potential_naive(reference)), 255.0)
     if factor > 0:
         allowed[halo_naive(seen, reference, factor)] = UNLIMITED
-    return np.clip(np.rint(q - np.minimum(excess, allowed)[..., None]), 0, 255)
+    return q - np.minimum(excess, allowed)[..., None]
 
 
 # ---------------------------------------------------------------- scenes
