@@ -24,9 +24,10 @@ and both add roughly the same amount to every channel:
 Where either applies, the query's *colourless* brightening over the reference pixel, the
 smallest of its three channel excesses (zero when any channel is not brighter), is
 subtracted from all three channels, up to an allowance: ``specular_tolerance`` 8-bit levels
-times the specular potential (rounded to whole levels), and without limit inside a halo. A coloured object there keeps
-its colour departure; a dark one is not brighter and keeps all of it; a colourless highlight
-where no highlight is predicted and no clipped region is near keeps all of it.
+times the specular potential (rounded to whole levels), and without limit inside a halo. A
+coloured object there keeps its colour departure; a dark one is not brighter and keeps all
+of it; a colourless highlight where no highlight is predicted and no clipped region is near
+keeps all of it.
 """
 
 from __future__ import annotations
