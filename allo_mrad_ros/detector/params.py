@@ -230,6 +230,22 @@ class MradParams:
         0,
         3,
     )
+    specular_tolerance: float = parameter(
+        0.0,
+        "8-bit levels of colourless brightening of the query over its transferred reference "
+        "tolerated where the reference predicts a highlight for this view (a top-hat of its "
+        "darkest channel), in proportion to that prediction; 0 = off",
+        0,
+        SCORE_RANGE,
+    )
+    glare_halo: float = parameter(
+        0.0,
+        "radius, per square root of its area (pixels at the processing resolution), of the "
+        "halo round each clipped query region within which any colourless brightening over "
+        "the reference is tolerated; 0 = off (measured: it did not pay)",
+        0,
+        16,
+    )
     structure_weight: float = parameter(
         0.0,
         "weight of the structure cue (edges the query has and its reference cell lacks, "
@@ -452,6 +468,7 @@ _PAPER_OPTIMUM = MradParams(
     growth="tolerance",
     image_score="area",
     colour_transfer="none",
+    specular_tolerance=0.0,
     local_weight=0.0,
     frame_rule="area",
 )

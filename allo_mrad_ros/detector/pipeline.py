@@ -24,6 +24,7 @@ from allo_mrad_ros.detector.colour_transfer import (
 )
 from allo_mrad_ros.detector.decision import frame_decision, image_score
 from allo_mrad_ros.detector.gain_field import apply_gain_field
+from allo_mrad_ros.detector.highlights import tolerate_highlights
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -206,6 +207,16 @@ def detect(
     if params.gain_field_degree > 0:
         with timer.stage("gain_field"):
             work = apply_gain_field(work, reference, params.gain_field_degree)
+    if params.specular_tolerance > 0.0 or params.glare_halo > 0.0:
+        with timer.stage("highlights"):
+            work = tolerate_highlights(
+                seen,
+                work,
+                reference,
+                specular_tolerance=params.specular_tolerance,
+                glare_halo_factor=params.glare_halo,
+                cache=cache,
+            )
     # The ranking map may use another photometric model than the mask; both come from
     # one pass that shares the cell statistics.
     models = [params.photometric]

@@ -67,6 +67,8 @@ def same(a, b):
         {"photometric": "none", "map_photometric": "cell_affine"},
         {"pixel_score": "regions", "transfer_bin": 8, "transfer_edge_margin": 2},
         {"transfer_gain": False, "grid": 4},
+        {"specular_tolerance": 16.0},
+        {"glare_halo": 2.0},
     ],
 )
 def test_cached_detections_equal_fresh_ones_over_consecutive_frames(frames, changes):

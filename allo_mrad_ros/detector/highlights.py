@@ -1,0 +1,272 @@
+"""Stage 0'': tolerate light the reference cannot draw exactly, colourless and where it may be.
+
+Two kinds of light brighten a query over its transferred reference without being an object,
+and both add roughly the same amount to every channel:
+
+* **A specular highlight** whose strength or width the reference does not match (another
+  roughness or specular strength than the model's, a Sun of finite size). The reference is
+  rendered for this view, so it already shows where a highlight falls: a surface brighter
+  than its neighbourhood in its *darkest* channel (a colourless addition raises that channel
+  as much as the others; a bright coloured paint does not). The reference's specular
+  potential is that excess, a grey-level white top-hat of the darkest channel over a window
+  of :data:`SPECULAR_WINDOW` of the image's shorter side, normalised by
+  :data:`SPECULAR_FULL` levels and spread by a window of :data:`SPECULAR_SPREAD` (a sharper
+  or broader lobe than the reference's covers more or less of the surface round the
+  reference's highlight). Only the reference's pixels enter: the potential is computed once
+  per reused reference (:mod:`~allo_mrad_ros.detector.reference_cache`).
+* **A glare halo** round clipped query pixels (a lens's flare, a sensor's bloom), which
+  reaches further the larger the clipped region: each connected clipped component of area
+  ``A`` (pixels at the processing resolution) whose pixels the reference shows lit gets a
+  halo of radius ``glare_halo * sqrt(A)``. A clipped component over a surface the reference
+  does not light (a bright object, the Sun over space) makes none, and the clipped pixels
+  themselves are left to the colour transfer's glare rule (``glare_level``).
+
+Where either applies, the query's *colourless* brightening over the reference pixel, the
+smallest of its three channel excesses (zero when any channel is not brighter), is
+subtracted from all three channels, up to an allowance: ``specular_tolerance`` 8-bit levels
+times the specular potential (rounded to whole levels), and without limit inside a halo. A
+coloured object there keeps its colour departure; a dark one is not brighter and keeps all
+of it; a colourless highlight where no highlight is predicted and no clipped region is near
+keeps all of it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from allo_mrad_ros.detector.images import eight_bit
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.errors import InvalidInput
+
+__all__ = [
+    "CLIPPED_LEVEL",
+    "LIT_LEVEL",
+    "SPECULAR_FULL",
+    "SPECULAR_SPREAD",
+    "SPECULAR_WINDOW",
+    "UNLIMITED",
+    "HighlightsError",
+    "allowance",
+    "colourless_excess",
+    "glare_halo",
+    "specular_potential",
+    "tolerate_highlights",
+]
+
+# The three constants of the potential were chosen on the path-traced bench's validation
+# split (docs/evaluation.md); the test split was not consulted.
+SPECULAR_WINDOW = 1.0 / 8.0
+"""The top-hat's window (what narrower than it is a highlight), as a fraction of the image's
+shorter side."""
+SPECULAR_SPREAD = 1.0 / 16.0
+"""The spread's window, as a fraction of the image's shorter side."""
+SPECULAR_FULL = 32.0
+"""A darkest-channel excess of this many 8-bit levels over the neighbourhood is a full
+highlight (potential 1)."""
+CLIPPED_LEVEL = 250
+"""A query pixel with a channel at or above this level (8-bit scale) is clipped."""
+LIT_LEVEL = 128.0
+"""Mean brightest reference channel over a clipped component from which it is glare."""
+UNLIMITED = 255
+"""The allowance inside a glare halo: any colourless brightening."""
+
+
+class HighlightsError(InvalidInput):
+    """The highlight tolerance cannot run with these inputs or parameters."""
+
+
+def _window(shape: tuple[int, int]) -> int:
+    # Odd, at least 3: a symmetric square neighbourhood.
+    side = max(3, round(min(shape) * SPECULAR_WINDOW))
+    return side | 1
+
+
+def specular_potential(reference: np.ndarray) -> np.ndarray:
+    """H x W float32 in [0, 1]: where, in this view, the reference predicts a highlight.
+
+    Parameters
+    ----------
+    reference : numpy.ndarray
+        uint8 H x W x 3, the reference at the processing resolution.
+    """
+    darkest = _darkest(reference)
+    side = _window(darkest.shape)
+    kernel = np.ones((side, side), np.uint8)
+    # The white top-hat: the darkest channel over its opening (what is left of it once
+    # every bright feature narrower than the window is removed).
+    excess = cv2.morphologyEx(darkest, cv2.MORPH_TOPHAT, kernel, borderType=cv2.BORDER_REPLICATE)
+    # A sharper or broader lobe than the reference's covers more or less of the surface
+    # round the reference's highlight. Spread before the scaling, in uint8: a maximum
+    # commutes with the monotone scaling and capping, and is cheaper on bytes.
+    spread = max(1, round(min(darkest.shape) * SPECULAR_SPREAD)) | 1
+    if spread > 1:
+        square = np.ones((spread, spread), np.uint8)
+        excess = cv2.dilate(excess, square, borderType=cv2.BORDER_REPLICATE)
+    return np.minimum(excess.astype(np.float32) * np.float32(1.0 / SPECULAR_FULL), 1.0)
+
+
+def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.ndarray:
+    """H x W bool: the halos round the clipped components of ``query`` that the reference
+    predicts lit (their pixels themselves excluded).
+
+    Parameters
+    ----------
+    query : numpy.ndarray
+        uint8 H x W x 3, the query at the processing resolution before the colour transfer.
+    reference : numpy.ndarray
+        uint8 H x W x 3, the reference at the query's size: a clipped component counts when
+        the reference's brightest channel averages at least :data:`LIT_LEVEL` over it (a
+        lit surface the camera clipped; a clipped object the reference lacks makes none).
+    factor : float
+        A component of area ``A`` reaches every pixel within Euclidean distance
+        ``factor * sqrt(A)`` of one of its pixels; 0 gives no halo.
+    """
+    height, width = query.shape[:2]
+    halo = np.zeros((height, width), bool)
+    if factor <= 0.0:
+        return halo
+    blue, green, red = cv2.split(query)
+    clipped = (cv2.max(cv2.max(blue, green), red) >= CLIPPED_LEVEL).astype(np.uint8)
+    if not cv2.countNonZero(clipped):
+        return halo
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(clipped, connectivity=8)
+    if count <= 1:
+        return halo
+    lit = np.maximum(np.maximum(reference[..., 0], reference[..., 1]), reference[..., 2])
+    sums = np.bincount(labels.ravel(), weights=lit.ravel(), minlength=count)
+    for label in range(1, count):
+        x, y, w, h, area = (int(v) for v in stats[label])
+        if sums[label] < LIT_LEVEL * area:
+            continue
+        radius = factor * math.sqrt(area)
+        reach = math.floor(radius)
+        top, bottom = max(0, y - reach), min(height, y + h + reach)
+        left, right = max(0, x - reach), min(width, x + w + reach)
+        outside = (labels[top:bottom, left:right] != label).astype(np.uint8)
+        # Exact Euclidean distance to the component's nearest pixel (0 on it).
+        distance = cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        halo[top:bottom, left:right] |= distance <= np.float32(radius)
+    # The clipped pixels themselves are not tolerated here: over station the colour
+    # transfer's glare rule already takes them; over space they may be a bright object.
+    return halo & (clipped == 0)
+
+
+def colourless_excess(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """H x W uint8: by how much every channel of ``query`` exceeds ``reference`` (uint8
+    images of one size): the smallest of the three excesses, 0 where a channel is not
+    brighter."""
+    # A saturating subtraction clips each channel's deficit to 0, so the smallest channel
+    # is max(0, min over channels of query - reference), in whole levels.
+    return _darkest(cv2.subtract(query, reference))
+
+
+def _darkest(image: np.ndarray) -> np.ndarray:
+    # Each pixel's smallest channel (OpenCV's planes: NumPy's strided channel views of a
+    # uint8 image are several times slower).
+    blue, green, red = cv2.split(image)
+    return cv2.min(cv2.min(blue, green), red)
+
+
+def allowance(
+    potential: np.ndarray | None, halo: np.ndarray | None, tolerance: float
+) -> np.ndarray | None:
+    """H x W uint8 levels of colourless brightening tolerated: ``tolerance`` times the
+    specular ``potential`` (rounded to whole levels, half to even), and :data:`UNLIMITED`
+    inside the ``halo``; None when neither."""
+    allowed = None
+    if potential is not None:
+        allowed = cv2.convertScaleAbs(potential, alpha=float(tolerance))
+    if halo is not None and halo.any():
+        allowed = _unlimited_in(halo, allowed)
+    return allowed
+
+
+def _unlimited_in(halo: np.ndarray, allowed: np.ndarray | None) -> np.ndarray:
+    # A copy: ``allowed`` may be the reference cache's read-only array.
+    out = np.zeros(halo.shape, np.uint8) if allowed is None else allowed.copy()
+    out[halo] = UNLIMITED
+    return out
+
+
+def tolerate_highlights(
+    seen: np.ndarray,
+    query: np.ndarray,
+    reference: np.ndarray,
+    *,
+    specular_tolerance: float,
+    glare_halo_factor: float,
+    cache: ReferenceCache | None = None,
+) -> np.ndarray:
+    """The query with its tolerated colourless brightening over the reference removed.
+
+    Parameters
+    ----------
+    seen : numpy.ndarray
+        H x W x 3, the query at the processing resolution before the colour transfer (where
+        clipping is read).
+    query : numpy.ndarray
+        H x W x 3, the processed query (after the colour transfer and any gain field).
+    reference : numpy.ndarray
+        The (transferred) reference of the same view, any size with the query's aspect.
+    specular_tolerance : float
+        8-bit levels tolerated at a full predicted highlight; 0 = none.
+    glare_halo_factor : float
+        The halo's radius per square root of a clipped component's area; 0 = none.
+    cache : ReferenceCache, optional
+        Keeps the resized reference and its specular allowance while the reference is
+        reused.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8, the query's size; ``query`` itself when nothing is tolerated.
+
+    Raises
+    ------
+    HighlightsError
+        For a negative tolerance or factor, or ``seen`` of another size than ``query``.
+    """
+    if specular_tolerance < 0.0 or glare_halo_factor < 0.0:
+        raise HighlightsError(
+            f"specular_tolerance ({specular_tolerance}) and glare_halo "
+            f"({glare_halo_factor}) must be >= 0"
+        )
+    if seen.shape[:2] != query.shape[:2]:
+        raise HighlightsError(f"seen {seen.shape} and query {query.shape} differ in size")
+    query = eight_bit(query)
+    height, width = query.shape[:2]
+    small = eight_bit(reference)
+    # The same key as the colour transfer's: one resize per reused reference.
+    pixels = derived(
+        cache,
+        small,
+        ("nearest", height, width),
+        lambda: _nearest(small, (height, width)),
+    )
+    allowed = None
+    if specular_tolerance > 0.0:
+        # The reference's alone: computed once while a reference is reused.
+        allowed = derived(
+            cache,
+            small,
+            ("specular_allowance", height, width, float(specular_tolerance)),
+            lambda: allowance(specular_potential(pixels), None, specular_tolerance),
+        )
+    if glare_halo_factor > 0.0:
+        halo = glare_halo(eight_bit(seen), pixels, glare_halo_factor)
+        if halo.any():
+            allowed = _unlimited_in(halo, allowed)
+    if allowed is None:
+        return query
+    removed = cv2.min(colourless_excess(query, pixels), allowed)
+    # No channel goes below the reference's: the removed amount is at most each excess.
+    return cv2.subtract(query, cv2.merge((removed, removed, removed)))
+
+
+def _nearest(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    if image.shape[:2] == shape:
+        return image
+    return cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
