@@ -161,14 +161,16 @@ class CameraFeed:
         return condition()
 
     def wait_for_node(self, timeout: float = 30.0) -> bool:
-        """Wait until the node is ready for the first image: subscribed to the image topic,
-        and its image and camera_info subscriptions have matched a publisher (what its
-        ``/diagnostics`` report; this side's count can rise first, and an image sent then is
-        dropped by DDS)."""
+        """Wait until the node is ready for the first image: both sides of the image and
+        the camera_info topics matched. This side's publishers have matched the node's
+        subscriptions (else a best-effort sample goes to nobody), and the node's
+        subscriptions have matched a publisher (what its ``/diagnostics`` report; this side's
+        count can rise first, and an image sent then is dropped by DDS)."""
         seen = len(self.diagnostics)  # an earlier node's reports do not count
 
         def ready() -> bool:
-            if self.pub_image.get_subscription_count() == 0 or len(self.diagnostics) == seen:
+            ours = (self.pub_image, self.pub_info)
+            if any(p.get_subscription_count() == 0 for p in ours) or len(self.diagnostics) == seen:
                 return False
             values = self.diagnostic_values()
             return all(

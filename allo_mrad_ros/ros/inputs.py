@@ -94,6 +94,11 @@ class NodeInputs:
         self._config = config
         self.images: LatestSlot[tuple[Image | CompressedImage, float]] = LatestSlot()
         self._intrinsics: CameraIntrinsics | None = None
+        # Whether the camera_info subscription of now has given a valid message: until it
+        # has, an image without its camera_info is the start-up state, not an input error
+        # (the image and camera_info subscriptions are matched apart by discovery, at the
+        # node's start and at each new subscription when an output's subscriber returns).
+        self._info_since_subscribed = False
         # Valid camera_infos by stamp: (intrinsics, frame_id, message), paired with images by
         # stamp; the message is what ~/score/camera_info is made from.
         self._infos: StampedBuffer[tuple[CameraIntrinsics, str, CameraInfo]] = StampedBuffer(64)
@@ -164,6 +169,8 @@ class NodeInputs:
             return profile
 
         node = self._node
+        with self._lock:
+            self._info_since_subscribed = False
         self._camera = {
             "image": node.create_subscription(
                 self._image_type,
@@ -277,6 +284,7 @@ class NodeInputs:
         )
         with self._lock:
             self._intrinsics = intrinsics
+            self._info_since_subscribed = True
 
     def on_sun(self, msg: Vector3Stamped) -> None:
         """Keep the Sun direction, in the station frame, by its stamp."""
@@ -328,7 +336,7 @@ class NodeInputs:
                 self._sun_strength,
                 self._bodies,
                 problem,
-                waiting_for_camera_info=problem is not None and self._intrinsics is None,
+                waiting_for_camera_info=problem is not None and not self._info_since_subscribed,
             )
 
     def size_refusal(self, msg: Image | CompressedImage) -> MessageError | None:

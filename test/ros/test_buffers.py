@@ -23,11 +23,18 @@ def test_latest_slot_keeps_the_newest_and_counts_drops():
 def test_take_waits_for_a_put_and_close_wakes_it():
     slot: LatestSlot[str] = LatestSlot()
     threading.Timer(0.05, slot.put, args=("late",)).start()
-    assert slot.take(timeout=5.0) == "late"
-    threading.Timer(0.05, slot.close).start()
-    start = time.monotonic()
-    assert slot.take(timeout=5.0) is None
-    assert time.monotonic() - start < 4.0
+    assert slot.take(timeout=30.0) == "late"
+    # A take with no timeout, already waiting, ends only if close wakes it (else the join
+    # below expires): no elapsed time to compare, which a loaded machine can stretch.
+    taken = []
+    waiter = threading.Thread(target=lambda: taken.append(slot.take(timeout=None)), daemon=True)
+    waiter.start()
+    deadline = time.monotonic() + 30.0  # until it waits in the slot (a bound, not a timing)
+    while not slot._condition._waiters and time.monotonic() < deadline:
+        time.sleep(0.001)
+    slot.close()
+    waiter.join(30.0)
+    assert not waiter.is_alive() and taken == [None]
 
 
 def test_stamped_buffer_orders_and_finds_the_nearest_within_tolerance():

@@ -10,6 +10,7 @@ import re
 import select
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -79,8 +80,14 @@ def test_images_over_the_default_shared_memory_segment_cross_between_processes()
         return child.stdout.readline().strip() if ready else ""
 
     try:
-        # Its side matched ours: from now on an image is dropped only by the transport.
+        # Both sides matched: the child's reader ours (it says so) and our writer its reader
+        # (discovery runs on each side apart; a best-effort writer that has not matched the
+        # reader yet sends to nobody). From then on an image is dropped only by the transport.
         assert line(60.0) == "matched"
+        deadline = time.monotonic() + 60.0
+        while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert publisher.get_subscription_count() == 1, "our writer never matched the reader"
         image = Image(width=640, height=360, encoding="rgb8", step=1920)
         image.data = bytes(1920 * 360)  # 691 kB: over Fast DDS's default 512 kB segment
         for index in range(5):

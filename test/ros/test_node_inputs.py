@@ -2,6 +2,7 @@
 both give one."""
 
 import dataclasses
+import types
 
 import numpy as np
 import pytest
@@ -107,3 +108,41 @@ def test_the_size_refusal_compares_a_raw_image_with_the_camera_info_of_its_stamp
     assert inputs.size_refusal(_raw_image(320, 180, 5)) is None  # paired by its stamp
     assert inputs.size_refusal(_raw_image(640, 360, 9)) is None
     assert inputs.size_refusal(CompressedImage(format="jpeg")) is None  # size unknown undecoded
+
+
+class _Node:
+    """What the inputs ask of a node to subscribe and unsubscribe."""
+
+    def create_subscription(self, kind, topic, callback, qos, **options):
+        return types.SimpleNamespace(topic_name=topic)
+
+    def destroy_subscription(self, subscription):
+        pass
+
+
+class _Counts:
+    def report(self, error):
+        raise AssertionError(f"reported: {error}")
+
+
+def test_images_before_a_new_subscription_s_first_camera_info_are_the_start_up_state():
+    # The image and camera_info subscriptions made when an output's subscriber returns are
+    # matched apart by discovery, as at the node's start: the first images may come before
+    # the first camera_info. That is a start-up state each time, not an input error.
+    inputs = NodeInputs(
+        _Node(), _config(), lambda: True, QoSOverridingOptions.with_default_policies
+    )
+    inputs.open(Image, "/arm_camera/image_raw", "/arm_camera/camera_info", 10, _Counts())
+    inputs.subscribe()
+    assert inputs.snapshot(_raw_image(320, 180, 5)).waiting_for_camera_info
+    inputs.on_camera_info(_camera_info(320, 180, 5))
+    assert inputs.snapshot(_raw_image(320, 180, 5)).camera_problem is None
+    inputs.unsubscribe()  # nobody listens: the inputs go
+    inputs.subscribe()  # a subscriber again: new subscriptions
+    again = inputs.snapshot(_raw_image(320, 180, 9))
+    assert again.camera_problem is not None and again.waiting_for_camera_info
+    inputs.on_camera_info(_camera_info(320, 180, 9))
+    assert inputs.snapshot(_raw_image(320, 180, 9)).camera_problem is None
+    # Once this subscription has given a camera_info, an image without its own is an error.
+    missing = inputs.snapshot(_raw_image(320, 180, 11))
+    assert missing.camera_problem is not None and not missing.waiting_for_camera_info

@@ -221,10 +221,13 @@ def failed_frames(values):
 
 def accounted_for(values):
     """Whether every image the node received was processed, dropped as stale (a newer one
-    replaced it before it was taken) or failed: nothing is waiting or in progress."""
+    replaced it before it was taken), skipped before the first camera_info (a start-up
+    state: the node's first image may come before its first camera_info) or failed:
+    nothing is waiting or in progress."""
     return bool(values) and counter(values, "frames_received") == (
         counter(values, "frames_processed")
         + counter(values, "frames_dropped_stale")
+        + counter(values, "frames_before_first_camera_info")
         + failed_frames(values)
     )
 

@@ -201,8 +201,14 @@ def test_no_subscriber_no_processing_and_the_inputs_are_unsubscribed(graph, fram
 
     def unsubscribed():
         # The node looks for subscribers a few times a second; the diagnostics may say
-        # idle one message before the inputs are dropped.
-        return idle() and feed.diagnostic_values().get("inputs_subscribed") == "false"
+        # idle one message before the inputs are dropped. Our publisher learns that the
+        # node's subscription is gone by discovery, apart from (and maybe after) the
+        # diagnostics that say so.
+        return (
+            idle()
+            and feed.diagnostic_values().get("inputs_subscribed") == "false"
+            and feed.pub_image.get_subscription_count() == 0
+        )
 
     end = time.monotonic() + 60.0
     while time.monotonic() < end and not unsubscribed():

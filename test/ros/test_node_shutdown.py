@@ -131,7 +131,9 @@ def test_a_publish_into_a_context_shut_down_under_it_ends_the_run_without_a_repo
 def _start(log: Path, marker: Path, hold: str) -> subprocess.Popen:
     """The node as a terminal starts it (SIGINT not ignored), held at publish time."""
     arguments = [sys.executable, "-m", "allo_mrad_ros.ros.node", "--ros-args"]
-    for parameter in ("pose_source:=topic", "reference_scale:=0.25"):
+    # No age bound: on a loaded machine every frame may be older than the default 0.1 s
+    # when taken, and the frame to hold at publish time would never come.
+    for parameter in ("pose_source:=topic", "reference_scale:=0.25", "max_input_age_s:=0.0"):
         arguments += ["-p", parameter]
     env = {**os.environ, HOLD_AT: hold, HOLD_MARKER: str(marker)}
     return subprocess.Popen(

@@ -355,6 +355,24 @@ def test_rosbag2_folder_named_dot_bag_and_damaged_storage(tmp_path, sequence):
         bag_info(out)
 
 
+def subscribe_once_published(node, wanted, qos, alive, limit_s: float = 60.0) -> None:
+    """Subscribe ``node`` to each ``(type, topic, list)`` of ``wanted`` only once the player's
+    publishers are in its graph, so each subscription matches the publisher as it is made.
+
+    Discovery is two-sided: a player that sees our subscription (``--wait-for``) and
+    publishes at once can send before our side has matched its publisher, and the first
+    samples are lost, reliable or not. Subscribing after our side knows the publisher
+    leaves no such window, on any machine.
+    """
+    deadline = time.monotonic() + limit_s
+    while any(node.count_publishers(topic) == 0 for _, topic, _ in wanted):
+        assert alive(), "the player ended before it published"
+        assert time.monotonic() < deadline, "the player's publishers never appeared"
+        time.sleep(0.01)
+    for kind, topic, into in wanted:
+        node.create_subscription(kind, topic, into.append, qos)
+
+
 @pytest.mark.timeout(120)
 def test_play_publishes_the_bag_into_an_rclpy_subscriber(tmp_path, sequence):
     rclpy = pytest.importorskip("rclpy")
@@ -370,10 +388,6 @@ def test_play_publishes_the_bag_into_an_rclpy_subscriber(tmp_path, sequence):
     rclpy.init(context=context)
     node = rclpy.create_node("allo_bag_test_listener", context=context)
     images, labels, bodies = [], [], []
-    qos = QoSProfile(depth=50)
-    node.create_subscription(Image, T.image, images.append, qos)
-    node.create_subscription(String, T.label, labels.append, qos)
-    node.create_subscription(MarkerArray, T.bodies, bodies.append, qos)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     env = dict(
@@ -382,7 +396,7 @@ def test_play_publishes_the_bag_into_an_rclpy_subscriber(tmp_path, sequence):
     player = subprocess.Popen(
         [
             *(sys.executable, "-m", "rosbag_tools", "play", str(out), "--rate", "4"),
-            *("--delay", "0", "--wait-for", T.image, T.label, T.bodies, "--wait-timeout", "30"),
+            *("--delay", "0", "--wait-for", T.image, T.label, T.bodies, "--wait-timeout", "90"),
         ],
         cwd=REPO,
         env=env,
@@ -391,6 +405,13 @@ def test_play_publishes_the_bag_into_an_rclpy_subscriber(tmp_path, sequence):
         text=True,
     )
     try:
+        qos = QoSProfile(depth=50)
+        subscribe_once_published(
+            node,
+            [(Image, T.image, images), (String, T.label, labels), (MarkerArray, T.bodies, bodies)],
+            qos,
+            alive=lambda: player.poll() is None,
+        )
         deadline = time.monotonic() + 60
         finished = None
         while time.monotonic() < deadline:
@@ -448,8 +469,6 @@ def test_play_loops_filters_topics_and_publishes_the_clock(tmp_path, sequence):
     rclpy.init(context=context)
     node = rclpy.create_node("allo_bag_loop_listener", context=context)
     labels, clocks = [], []
-    node.create_subscription(String, T.label, labels.append, QoSProfile(depth=50))
-    node.create_subscription(Clock, "/clock", clocks.append, QoSProfile(depth=50))
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     result = {}
@@ -462,16 +481,21 @@ def test_play_loops_filters_topics_and_publishes_the_clock(tmp_path, sequence):
             passes=2,
             topics=[T.label],
             clock=True,
-            # The player seeing our subscription does not mean our subscription has seen
-            # the player yet; without a settle delay the first samples can be dropped.
-            delay=0.5,
+            delay=0,  # our subscriptions have matched the player when it sees them
             wait_for=[T.label, "/clock"],
+            wait_timeout=90.0,
             node_name="allo_bag_loop_player",
         )
 
     thread = threading.Thread(target=player)
     thread.start()
     try:
+        subscribe_once_published(
+            node,
+            [(String, T.label, labels), (Clock, "/clock", clocks)],
+            QoSProfile(depth=50),
+            alive=thread.is_alive,
+        )
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and (thread.is_alive() or len(labels) < 2 * FRAMES):
             executor.spin_once(timeout_sec=0.05)
