@@ -45,7 +45,9 @@ def test_a_named_busy_thread_shows_with_its_cpu():
     before = thread_cpu.sample(os.getpid())
     worker = threading.Thread(target=spin)
     worker.start()
-    deadline = time.monotonic() + 10.0
+    # Until the thread has had 50 ms of CPU: 60 s bounds it on a loaded machine, where its
+    # share of a core may be small (the loop ends as soon as it has).
+    deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline:
         shares = thread_cpu.per_frame_ms(before, thread_cpu.sample(os.getpid()), frames=1)
         if shares.get("cpu_probe", 0.0) >= 50.0:

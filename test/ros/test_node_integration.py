@@ -24,6 +24,9 @@ pytestmark = pytest.mark.ros
 INTRINSICS = CameraIntrinsics(640, 360, 444.4, 444.4, 320.0, 180.0)
 SUN = (0.3, -0.5, 0.8)
 T0 = 1_900_000_000 * 10**9  # stamps in 2030
+# Longest wait for an output or a diagnostic after a frame's mask: a bound for a loaded
+# machine, never a measured time (each wait ends as soon as its condition holds).
+LATER_S = 60.0
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +79,7 @@ def test_object_absent_from_the_model_is_masked_and_flagged(node_process, ros_pe
     pose, _, anomalous, truth = scenes
     mask_msg = publish_until_output(ros_peer, T0 + 1, anomalous, pose)
     assert mask_msg is not None, node_process[1].read_text()
-    assert ros_peer.wait_for(lambda: T0 + 1 in ros_peer.received["score"], 5.0)
+    assert ros_peer.wait_for(lambda: T0 + 1 in ros_peer.received["score"], LATER_S)
     mask = np.frombuffer(mask_msg.data, np.uint8).reshape(360, 640)
     hits = np.count_nonzero((mask > 0) & truth)
     # Hysteresis growth keeps the blur's rim around the object.
@@ -86,7 +89,7 @@ def test_object_absent_from_the_model_is_masked_and_flagged(node_process, ros_pe
     score_msg = ros_peer.received["score"][T0 + 1]
     assert score_msg.encoding == "32FC1" and score_msg.header.frame_id == "arm_camera_optical_frame"
     # ~/anomaly is its own topic: its message may arrive after the mask's and the score's.
-    assert ros_peer.wait_for(lambda: bool(ros_peer.anomaly_flags), 5.0)
+    assert ros_peer.wait_for(lambda: bool(ros_peer.anomaly_flags), LATER_S)
     assert ros_peer.anomaly_flags[-1] is True
 
 
@@ -96,7 +99,7 @@ def test_clean_frame_is_not_flagged(node_process, ros_peer, scenes):
     assert mask_msg is not None, node_process[1].read_text()
     assert not np.frombuffer(mask_msg.data, np.uint8).any()
     assert ros_peer.wait_for(
-        lambda: ros_peer.anomaly_flags and ros_peer.anomaly_flags[-1] is False, 5
+        lambda: ros_peer.anomaly_flags and ros_peer.anomaly_flags[-1] is False, LATER_S
     )
 
 
@@ -111,7 +114,7 @@ def test_a_still_camera_reuses_its_reference_and_a_moved_one_renders(
     start = T0 + 5 * 10**9  # stamps no other test uses
     for offset in (0, 1):
         assert publish_until_output(ros_peer, start + offset, clean, pose) is not None
-    assert ros_peer.wait_for(lambda: count("references_reused") >= 1, 5.0), (
+    assert ros_peer.wait_for(lambda: count("references_reused") >= 1, LATER_S), (
         ros_peer.diagnostic_values()
     )
     rendered = count("references_rendered")
@@ -119,7 +122,7 @@ def test_a_still_camera_reuses_its_reference_and_a_moved_one_renders(
     moved = look_at([-26.0, -16.0, 8.0], [0.0, 0.0, 0.0])
     # 0.1 s later: beyond the pose lookup's tolerance of the earlier poses, within the age.
     assert publish_until_output(ros_peer, start + 10**8, clean, moved) is not None
-    assert ros_peer.wait_for(lambda: count("references_rendered") > rendered, 5.0)
+    assert ros_peer.wait_for(lambda: count("references_rendered") > rendered, LATER_S)
 
 
 def test_missing_pose_gives_no_output_and_a_diagnostic(node_process, ros_peer, scenes):
@@ -130,7 +133,7 @@ def test_missing_pose_gives_no_output_and_a_diagnostic(node_process, ros_peer, s
         ros_peer.spin(0.5)
     assert stamp not in ros_peer.received["mask"]
     assert ros_peer.wait_for(
-        lambda: int(ros_peer.diagnostic_values().get("pose_lookup_failures", 0)) >= 1, 5.0
+        lambda: int(ros_peer.diagnostic_values().get("pose_lookup_failures", 0)) >= 1, LATER_S
     )
     assert node_process[0].poll() is None
     assert publish_until_output(ros_peer, T0 + 4, clean, pose) is not None  # still working
