@@ -36,6 +36,8 @@ from allo_mrad_ros.detector.grid import cell_edges
 from allo_mrad_ros.detector.images import (
     area_downscale,
     eight_bit,
+    nearest_resize,
+    reference_at,
     station_surface,
 )
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
@@ -238,7 +240,7 @@ def clip_glare(query: np.ndarray, reference: np.ndarray, level: float) -> np.nda
     colours. Returns a uint8 image of the query's size.
     """
     values = eight_bit(query)
-    pixels = _resized(eight_bit(reference), values.shape[:2])
+    pixels = nearest_resize(eight_bit(reference), values.shape[:2])
     glare = _glare(values, level) & station_surface(pixels)
     out = values.copy()
     out[glare] = pixels[glare]
@@ -296,10 +298,8 @@ def apply_to_query(
         lambda: _bin_index(small, transfer.bin_width),
     )
     predicted = small.astype(np.float32) + transfer.offsets(small, bins)
-    pixels = derived(
-        cache, small, ("nearest", height, width), lambda: _resized(small, (height, width))
-    )
-    predicted = _resized(predicted, (height, width))
+    pixels = reference_at(small, (height, width), cache)
+    predicted = nearest_resize(predicted, (height, width))
     values = eight_bit(query)
     departure = cv2.subtract(values.astype(np.float32), predicted)
     if gain is not None:
@@ -314,12 +314,6 @@ def apply_to_query(
             )
             out[glare] = pixels[glare]
     return out
-
-
-def _resized(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    if image.shape[:2] == shape:
-        return image
-    return cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
 def _per_pixel(cells: np.ndarray, height: int, width: int) -> np.ndarray:

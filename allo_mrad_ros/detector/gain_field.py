@@ -31,6 +31,7 @@ from allo_mrad_ros.detector.images import (
     area_downscale,
     brightest_channel,
     eight_bit,
+    nearest_resize,
     station_surface,
 )
 from allo_mrad_ros.errors import InvalidInput
@@ -272,11 +273,7 @@ def apply_gain_field(query: np.ndarray, reference: np.ndarray, degree: int) -> n
         small_reference = reference
     else:
         small_query = query
-        small_reference = (
-            reference
-            if (hr, wr) == (height, width)
-            else cv2.resize(reference, (width, height), interpolation=cv2.INTER_NEAREST)
-        )
+        small_reference = nearest_resize(reference, (height, width))
     field = fit_gain_field(small_query, small_reference, degree)
     if field.coefficients.size == 0:
         return query

@@ -37,7 +37,7 @@ import math
 import cv2
 import numpy as np
 
-from allo_mrad_ros.detector.images import eight_bit
+from allo_mrad_ros.detector.images import brightest_channel, eight_bit, reference_at
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 from allo_mrad_ros.errors import InvalidInput
 
@@ -135,7 +135,7 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
     count, labels, stats, _ = cv2.connectedComponentsWithStats(clipped, connectivity=8)
     if count <= 1:
         return halo
-    lit = np.maximum(np.maximum(reference[..., 0], reference[..., 1]), reference[..., 2])
+    lit = brightest_channel(reference)
     sums = np.bincount(labels.ravel(), weights=lit.ravel(), minlength=count)
     for label in range(1, count):
         x, y, w, h, area = (int(v) for v in stats[label])
@@ -239,13 +239,7 @@ def tolerate_highlights(
     query = eight_bit(query)
     height, width = query.shape[:2]
     small = eight_bit(reference)
-    # The same key as the colour transfer's: one resize per reused reference.
-    pixels = derived(
-        cache,
-        small,
-        ("nearest", height, width),
-        lambda: _nearest(small, (height, width)),
-    )
+    pixels = reference_at(small, (height, width), cache)
     allowed = None
     if specular_tolerance > 0.0:
         # The reference's alone: computed once while a reference is reused.
@@ -264,9 +258,3 @@ def tolerate_highlights(
     removed = cv2.min(colourless_excess(query, pixels), allowed)
     # No channel goes below the reference's: the removed amount is at most each excess.
     return cv2.subtract(query, cv2.merge((removed, removed, removed)))
-
-
-def _nearest(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    if image.shape[:2] == shape:
-        return image
-    return cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)

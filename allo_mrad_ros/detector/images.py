@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+
 # Multiplier that brings each accepted dtype onto the 0..255 scale of an 8-bit image.
 _TO_8BIT_SCALE = {
     np.dtype(np.uint8): 1.0,
@@ -99,6 +101,29 @@ def brightest_channel(image: np.ndarray) -> np.ndarray:
 def station_surface(reference: np.ndarray) -> np.ndarray:
     """H x W bool: where the reference (8-bit scale) shows station, not space."""
     return brightest_channel(reference) > SPACE_LEVEL
+
+
+def nearest_resize(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``image`` at ``shape`` = (height, width) by nearest neighbour (itself when it has it)."""
+    if image.shape[:2] == shape:
+        return image
+    return cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
+def reference_at(
+    reference: np.ndarray,
+    shape: tuple[int, int],
+    cache: ReferenceCache | None = None,
+) -> np.ndarray:
+    """The uint8 reference at the query's ``shape`` = (height, width), nearest neighbour (a
+    pixel takes one reference colour, not a blend of two materials); kept in ``cache`` while
+    the reference is reused, one resize for every stage that reads it."""
+    return derived(
+        cache,
+        reference,
+        ("nearest", *shape),
+        lambda: nearest_resize(eight_bit(reference), shape),
+    )
 
 
 def check_aspect(query: np.ndarray, reference: np.ndarray) -> None:

@@ -54,7 +54,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_index_map
-from allo_mrad_ros.detector.images import SPACE_LEVEL, eight_bit
+from allo_mrad_ros.detector.images import SPACE_LEVEL, eight_bit, reference_at
 from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
 
 __all__ = [
@@ -64,7 +64,6 @@ __all__ = [
     "colour_evidence",
     "combine",
     "dark_evidence",
-    "reference_at",
 ]
 
 NOISE_SIGMAS = 3.0
@@ -76,28 +75,6 @@ not inflated by its noise."""
 
 _MAD_SCALE = 1.4826  # a normal distribution's SD over its median absolute deviation
 _LEVELS = 256
-
-
-def reference_at(
-    reference: np.ndarray,
-    shape: tuple[int, int],
-    cache: ReferenceCache | None = None,
-) -> np.ndarray:
-    """The uint8 reference at the query's ``shape`` = (height, width), nearest neighbour (a
-    pixel takes one reference colour, not a blend of two materials), as the colour transfer
-    resizes it; kept in ``cache`` while the reference is reused."""
-    return derived(
-        cache,
-        reference,
-        ("nearest", *shape),
-        lambda: _resized(eight_bit(reference), shape),
-    )
-
-
-def _resized(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    if image.shape[:2] == shape:
-        return image
-    return cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
 def _window(radius: int) -> np.ndarray:
