@@ -112,8 +112,8 @@ class Snapshot:
     bodies: tuple
     # Why the frame's camera is unknown (no camera_info of its stamp), else None.
     camera_problem: MessageError | None = None
-    # No camera_info has arrived yet: a start-up state (the two topics are matched apart by
-    # discovery), counted and told once, not an input error.
+    # No camera_info has arrived since the inputs were (re)subscribed: a start-up state (the
+    # two topics are matched apart by discovery), counted and told once, not an input error.
     waiting_for_camera_info: bool = False
 
 
