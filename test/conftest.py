@@ -21,8 +21,10 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 use_loopback_profile(profile=REPO / "config" / "fastdds_loopback.xml")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-# A domain of its own per test run, so parallel runs on one machine do not hear each other.
-os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+# A domain of its own per test run, so parallel runs on one machine do not hear each other;
+# within 1..101, where a Linux host's participant ports stay below its ephemeral range (domain
+# 0 is a real system's default).
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
 
 # Property tests: `make test` draws the same few examples on every run (a CI run must not
 # fail by chance); `make fuzz` (ALLO_FUZZ=1) draws many new ones each time.

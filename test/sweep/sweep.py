@@ -32,7 +32,8 @@ from allo_mrad_ros.ros.node_process import use_loopback_profile  # noqa: E402
 use_loopback_profile(profile=REPO / "config" / "fastdds_loopback.xml")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+# 1..101: the ports of higher domains fall in Linux's ephemeral range.
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
 
 from sweep_verdicts import CLEAN, Outcome, counts, table_text, write_reports  # noqa: E402
 

@@ -297,7 +297,9 @@ def run_process(case: ProcessCase) -> Outcome:
     """Run the case's script; its exit status is the verdict, its last line the detail."""
     group = "node process"
     # Neither the domain of the node start cases beside it nor another process case's.
-    domain = 100 + (int(os.environ.get("ROS_DOMAIN_ID", "0") or 0) + 17 * next(_DOMAINS)) % 100
+    # Within 1..101 (the ports of higher domains fall in Linux's ephemeral range).
+    parent = int(os.environ.get("ROS_DOMAIN_ID", "1") or 1)
+    domain = 1 + (parent - 1 + 17 * next(_DOMAINS)) % 101
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
     # The tree under test where PYTHONPATH names one, else this one.
     env["PYTHONPATH"] = os.pathsep.join(
