@@ -275,7 +275,11 @@ def test_every_frame_of_a_full_hd_burst_is_processed_or_counted_as_dropped_and_m
         def done():
             values = ros_peer.diagnostic_values()
             processed = counter(values, "frames_processed") - counter(before, "frames_processed")
-            return accounted_for(values) and processed == masks()
+            # A frame of an earlier test still in flight when the counters read idle may be
+            # received (and processed) during the burst: it has no mask of the burst's.
+            received = counter(values, "frames_received") - counter(before, "frames_received")
+            strays = max(0, received - 100)
+            return accounted_for(values) and masks() <= processed <= masks() + strays
 
         assert ros_peer.wait_for(done, 120.0), (
             f"before {before}, now {ros_peer.diagnostic_values()}, {masks()} masks"
