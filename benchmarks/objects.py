@@ -329,18 +329,18 @@ def main(argv: list[str] | None = None) -> None:
         "--detector",
         action="append",
         default=[],
-        help="with --diagnose: a detector parameter (MradParams), name=value (repeated)",
+        help="a detector parameter (MradParams), name=value (repeated): the detections the "
+        "tracker is fed (and its parameters chosen on)",
     )
     args = parser.parse_args(argv)
 
     ensure_data(args.data, args.width, args.height, args.seed)
+    base = PipelineConfig(methods=("MRAD",))
+    config = replace(base, params=replace(base.params, **parse_changes(args.detector)))
     if args.diagnose:
         params = ObjectParams().replace(**parse_changes(args.param))
-        base = PipelineConfig(methods=("MRAD",))
-        detector = replace(base.params, **parse_changes(args.detector))
-        diagnose(args.data, args.cache, params, replace(base, params=detector), args.jobs)
+        diagnose(args.data, args.cache, params, config, args.jobs)
         return
-    config = PipelineConfig(methods=("MRAD",))
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
     coverage = coverage_of(args.data, runs)
     print(coverage_table(coverage))
@@ -379,6 +379,7 @@ def main(argv: list[str] | None = None) -> None:
         "data": str(args.data),
         "frames": {s: len(r.frames) for s, r in runs.items()},
         "camera": {"width": runs["test"].camera.width, "height": runs["test"].camera.height},
+        "detector_changes": parse_changes(args.detector),
         "chosen_params": dict(vars(best_params)),
         "defaults": dict(vars(defaults)),
         "grid": {k: [list(v) if isinstance(v, tuple) else v for v in vs] for k, vs in GRID.items()},

@@ -258,7 +258,8 @@ class MradParams:
         0.0,
         "weight of the local colour cue (each pixel's departure, in robust noise scales of its "
         "cell, beyond the colours the reference shows within local_radius pixels; squared, "
-        "in cross-score units), which replaces the cross score where it is larger; 0 = off",
+        "in cross-score units), which replaces the cross score where it is larger (the frame "
+        "decision reads the cross score alone); 0 = off",
         0,
         100,
     )

@@ -240,10 +240,52 @@ def detect(
             cue = structure_score(work, reference, params.grid)
             cue *= np.float32(params.structure_weight * params.score_ref)
             raw, map_raw = raw + cue, [m + cue for m in map_raw]
+    # The frame decision reads the cell statistics alone: its operating point is calibrated
+    # on them, and the local cues' evidence (chosen for the ranking map and the regions)
+    # would move it. With a cue on, the decision gets a mask of its own.
+    verdict = None
     if params.local_weight > 0.0 or params.dark_weight > 0.0:
+        with timer.stage("decision_mask"):
+            verdict = _verdict_inputs(raw, map_raw, params, full_shape)
         with timer.stage("local"):
             evidence = local_evidence(work, reference, params, cache)
             raw, map_raw = combine(raw, evidence), [combine(m, evidence) for m in map_raw]
+    blurred, mask = _grown_mask(raw, params, timer)
+    with timer.stage("regions"):
+        regions = extract_regions(mask, blurred, full_shape, params.connectivity)
+    with timer.stage("pixel_score"):
+        score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
+    return _decided(
+        timer,
+        params,
+        score,
+        raw,
+        mask,
+        regions,
+        full_shape=full_shape,
+        work_query=seen,
+        masked_score=params.pixel_score == "regions",
+        verdict=verdict,
+    )
+
+
+@dataclass(frozen=True)
+class _VerdictInputs:
+    """What the frame decision reads when it is made apart from the published mask (see
+    :func:`detect`): the mask at both resolutions, the ranking map and the mask's raw score."""
+
+    full_mask: np.ndarray
+    score: np.ndarray
+    raw: np.ndarray
+    mask: np.ndarray
+
+
+def _grown_mask(
+    raw: np.ndarray, params: MradParams, timer: _StageTimer | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stages 2-4 on a raw score map: scaling and threshold, noise removal, blur and region
+    growth; the blurred scores and the mask (uint8, 0/1), at the processing resolution."""
+    timer = timer or _StageTimer()
     with timer.stage("scale_threshold"):
         scaled = threshold_scores(
             scale_scores(raw, params.score_scaling, params.score_ref), params.min_score
@@ -273,21 +315,19 @@ def detect(
             mask = grow_regions(
                 blurred, seeds, params.tolerance, params.min_score, params.connectivity
             )
-    with timer.stage("regions"):
-        regions = extract_regions(mask, blurred, full_shape, params.connectivity)
-    with timer.stage("pixel_score"):
+    return blurred, mask
+
+
+def _verdict_inputs(
+    raw: np.ndarray, map_raw: list[np.ndarray], params: MradParams, full_shape: tuple[int, int]
+) -> _VerdictInputs:
+    """The decision's inputs from the cell statistics' scores alone (``raw`` for the mask,
+    ``map_raw`` for the ranking map where it has a model of its own)."""
+    blurred, mask = _grown_mask(raw, params)
+    score = blurred
+    if params.frame_map == "ranking":
         score = _pixel_score(map_raw[0] if map_raw else raw, blurred, mask, params)
-    return _decided(
-        timer,
-        params,
-        score,
-        raw,
-        mask,
-        regions,
-        full_shape=full_shape,
-        work_query=seen,
-        masked_score=params.pixel_score == "regions",
-    )
+    return _VerdictInputs(_restore_resolution(mask, full_shape), score, raw, mask)
 
 
 def transfer_colours(
@@ -449,15 +489,20 @@ def _decided(
     full_shape: tuple[int, int],
     work_query: np.ndarray,
     masked_score: bool = False,
+    verdict: _VerdictInputs | None = None,
 ) -> DetectionResult:
     """The last stage of every method: the mask (at the processing resolution) back at the
-    query's ``full_shape``, the image decision on it, and the result."""
+    query's ``full_shape``, the image decision on it (on ``verdict`` where the decision is
+    made apart), and the result."""
     with timer.stage("decision"):
         # The full-resolution score is made only when read (DetectionResult.score).
         full_mask = _restore_resolution(mask, full_shape)
-        decision = frame_decision(full_mask, score, raw, mask, work_query, params)
-        area = decision.area
-        frame_score = image_score(score, area, params)
+        decided = verdict or _VerdictInputs(full_mask, score, raw, mask)
+        decision = frame_decision(
+            decided.full_mask, decided.score, decided.raw, decided.mask, work_query, params
+        )
+        area = int(cv2.countNonZero(full_mask))
+        frame_score = image_score(score, decision.area, params)
     return DetectionResult(
         work_score=score,
         raw_score=raw,

@@ -58,7 +58,7 @@ def test_pasted_object_is_found_and_clean_frame_is_not(pair):
     assert not clean.anomalous
     assert list(found.timings_ms) == STAGES  # the local cues are off by default
     with_cue = detect(pair.query, reference, MradParams(local_weight=1.0))
-    assert list(with_cue.timings_ms) == [*STAGES[:2], "local", *STAGES[2:]]
+    assert list(with_cue.timings_ms) == [*STAGES[:2], "decision_mask", "local", *STAGES[2:]]
 
 
 def test_full_hd_example_meets_iou():

@@ -196,6 +196,32 @@ def test_colour_cue_ranks_a_thin_cable_higher():
     assert _separation(on, cable) > _separation(off, cable) + 0.3
 
 
+@pytest.mark.parametrize("cue", ["local_weight", "dark_weight"])
+@pytest.mark.parametrize(
+    ("rule", "frame_map"), [("contrast", "mask"), ("contrast", "ranking"), ("area", "mask")]
+)
+def test_the_frame_decision_reads_the_cell_statistics_alone(cue, rule, frame_map):
+    # The cue grows the mask (its regions, the ranking map), but the decision's operating
+    # point was calibrated without it: the verdict and the anomaly score stay the cue-free
+    # detector's to the bit, while the mask and the regions take the cue's evidence.
+    query, reference, disc, _ = _busy_cell_scene(12)
+    base = MradParams(
+        process_scale=1.0,
+        grid=4,
+        colour_transfer="none",
+        local_radius=1,
+        frame_rule=rule,
+        frame_map=frame_map,
+        area_threshold=1e-4,
+    )
+    off = detect(query, reference, base)
+    on = detect(query, reference, base.replace(**{cue: 1.0}))
+    assert on.mask[disc].sum() > off.mask[disc].sum()
+    assert on.area > off.area
+    assert (on.anomalous, on.anomaly_score) == (off.anomalous, off.anomaly_score)
+    assert "decision_mask" in on.timings_ms and "decision_mask" not in off.timings_ms
+
+
 def test_weights_zero_leave_the_detection_unchanged():
     query, reference, _, _ = _busy_cell_scene(14)
     params = MradParams(process_scale=0.5, local_weight=0.0)
