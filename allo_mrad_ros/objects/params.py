@@ -133,10 +133,28 @@ class ObjectParams:
         1.0,
         low_open=True,
     )
+    duplicate_quantile: float = parameter(
+        0.999,
+        "an object is not confirmed while its extent meets a confirmed object's in the image "
+        "and in range: each gap (less half their summed sizes) at most zero or within this "
+        "two-sided normal quantile of its noise (the regions' centroid noise; the ranges' "
+        "uncertainty): a second track of one thing, as a detection split into regions "
+        "gives; 0 drops the test",
+        0.0,
+        0.999999,
+    )
     max_rays: int = parameter(32, "the newest rays kept per object for its triangulation", 2, 4096)
     history_s: float = parameter(30.0, "rays older than this are dropped", 0.0, 1e6, low_open=True)
     tentative_timeout_s: float = parameter(
         2.0, "a tentative object not hit for this long ends", 0.0, 1e6, low_open=True
+    )
+    reacquire_s: float = parameter(
+        5.0,
+        "a confirmed object that ended this recently keeps its id for an object confirmed "
+        "where it was (the same test as duplicate_quantile's, against its last estimate); "
+        "0 = never",
+        0.0,
+        1e6,
     )
     min_region_score: float = parameter(
         0.5, "regions scoring below this are ignored (Region.score, 0..1)", 0.0, 1.0

@@ -120,6 +120,56 @@ def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2]) / 2.0
 
 
+def same_object(
+    first: tuple[np.ndarray, np.ndarray, float, float],
+    second: tuple[np.ndarray, np.ndarray, float, float],
+    camera: np.ndarray,
+    limit: float,
+) -> bool:
+    """Whether two estimates may be one thing, seen from the ``camera`` position.
+
+    They are when their extents meet in the image and parallax cannot yet tell their ranges
+    apart. In the image: the angle between them less half their summed angular sizes (the
+    gap between their extents) is at most zero, or its square within ``limit`` times the
+    summed variances of their directions (their regions' centroid noise: a thing the
+    detection splits leaves a few pixels between its parts). In range: the range gap less
+    half their summed sizes is at most zero, or its square within ``limit`` times its
+    variance (the two covariances along their lines of sight). Two things apart in the
+    image are two however uncertain their ranges: the image tells them apart where the
+    triangulation cannot yet.
+
+    Parameters
+    ----------
+    first, second : tuple
+        Of each: position (3,) and covariance (3, 3) in the station frame, size across
+        (metres) and the standard deviation of its direction (radians).
+    camera : numpy.ndarray
+        The camera's position (3,), station frame.
+    limit : float
+        A squared gap's bound in variances (a chi-square quantile of 1 degree of freedom).
+
+    Returns
+    -------
+    bool
+    """
+    ranges, directions = [], []
+    for position, *_ in (first, second):
+        line = np.asarray(position, dtype=np.float64) - camera
+        distance = float(np.linalg.norm(line))
+        ranges.append(distance)
+        directions.append(line / distance if distance > 0 else line)
+    (_, covariance_a, size_a, noise_a), (_, covariance_b, size_b, noise_b) = first, second
+    cosine = float(np.clip(directions[0] @ directions[1], -1.0, 1.0))
+    image_gap = math.acos(cosine) - 0.5 * (size_a / ranges[0] + size_b / ranges[1])
+    if image_gap > 0.0 and image_gap**2 > limit * (noise_a**2 + noise_b**2):
+        return False
+    range_gap = abs(ranges[0] - ranges[1]) - 0.5 * (size_a + size_b)
+    variance = float(
+        directions[0] @ covariance_a @ directions[0] + directions[1] @ covariance_b @ directions[1]
+    )
+    return bool(range_gap <= 0.0 or range_gap**2 <= limit * variance)
+
+
 class _Track:
     """An object's state: a ring of its newest rays and what was derived from them."""
 
@@ -228,13 +278,18 @@ class ObjectTracker:
             if params.residual_quantile >= 1.0
             else chi2.ppf(params.residual_quantile, np.maximum(degrees, 1))
         )
+        # The squared range gap, in variances, within which two estimates are one object.
+        self._duplicate_limit = float(chi2.ppf(params.duplicate_quantile, 1))
         self._tracks: list[_Track] = []
+        # Confirmed objects that ended, for reacquire_s: id, end stamp and last estimate.
+        self._lost: list[tuple[int, float, tuple[np.ndarray, np.ndarray, float]]] = []
         self._next_id = 1
         self._last_stamp: float | None = None
 
     def reset(self) -> None:
         """Forget every object (ids keep counting up)."""
         self._tracks = []
+        self._lost = []
         self._last_stamp = None
 
     @property
@@ -311,6 +366,7 @@ class ObjectTracker:
         if self._last_stamp is not None and stamp < self._last_stamp:
             ended = [self._record(t, False, None, state="ended") for t in self._tracks]
             self._tracks = []
+            self._lost = []
         self._last_stamp = stamp
 
         tracks = self._tracks
@@ -355,11 +411,17 @@ class ObjectTracker:
 
         view = dict(zip((t.id for t in tracks), in_view, strict=False))
         live: list[_Track] = []
+        confirmed = [t for t in tracks if t.state == "confirmed"]
+        camera = pose[:3, 3]
+        self._lost = [lost for lost in self._lost if stamp - lost[1] <= params.reacquire_s]
         for track in tracks:
             seen = track.id in matched_region
             if track.misses >= params.end_misses or (
                 track.state == "tentative" and stamp - track.last_hit > params.tentative_timeout_s
             ):
+                if track.state == "confirmed" and params.reacquire_s > 0:
+                    estimate = (track.position, track.covariance, track.size)
+                    self._lost.append((track.id, stamp, estimate))
                 track.state = "ended"
             elif (
                 track.state == "tentative"
@@ -367,8 +429,15 @@ class ObjectTracker:
                 and track.resolved
                 and track.consistent
                 and track.coherent
+                and not self._duplicate(track, confirmed, camera)
             ):
                 track.state = "confirmed"
+                confirmed.append(track)
+                lost_id = self._reacquired(track, camera)
+                if lost_id is not None:
+                    # Its tentative id ends; the object it is goes on under its old one.
+                    ended.append(self._record(track, False, None, state="ended"))
+                    track.id = lost_id
             if track.state == "ended":
                 ended.append(
                     self._record(
@@ -553,6 +622,53 @@ class ObjectTracker:
         dof = 2 * count - np.where(count == rays.valid[which].sum(axis=1), 3, 0)
         limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
         return (dof < 1) | (terms.sum(axis=1) <= limit)
+
+    def _duplicate(self, track: _Track, confirmed: Sequence[_Track], camera: np.ndarray) -> bool:
+        """Whether ``track`` is a second track of one of the ``confirmed`` objects, seen from
+        the ``camera`` position (:func:`same_object`, each direction as noisy as a region
+        of its angular size). A detection that splits one thing into regions the gate keeps
+        apart (a blanket's folds, a wrench's head and handle) starts a second track of it;
+        confirmed, it would be a second object where there is one."""
+        if self.params.duplicate_quantile == 0.0:
+            return False
+        return any(
+            same_object(
+                self._estimate(track, camera),
+                self._estimate(other, camera),
+                camera,
+                self._duplicate_limit,
+            )
+            for other in confirmed
+        )
+
+    def _reacquired(self, track: _Track, camera: np.ndarray) -> int | None:
+        """The id of the object lost within ``reacquire_s`` that ``track`` is
+        (:func:`same_object` against its last estimate; the most recently lost first), taken
+        off the lost list; None if none."""
+        candidate = self._estimate(track, camera)
+        for k in range(len(self._lost) - 1, -1, -1):
+            lost_id, _, (position, covariance, size) = self._lost[k]
+            lost = self._estimate_at(position, covariance, size, camera)
+            if same_object(candidate, lost, camera, self._duplicate_limit):
+                del self._lost[k]
+                return lost_id
+        return None
+
+    def _estimate(
+        self, track: _Track, camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """``track``'s position, covariance, size and the angular noise of a region of its
+        angular size seen from ``camera`` (the association's centroid noise)."""
+        return self._estimate_at(track.position, track.covariance, track.size, camera)
+
+    def _estimate_at(
+        self, position: np.ndarray, covariance: np.ndarray, size: float, camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        params = self.params
+        distance = float(np.linalg.norm(position - camera))
+        extent_px = self._focal * size / distance if distance > 0 else 0.0
+        noise_px = math.hypot(params.pixel_sigma, params.extent_sigma_fraction * extent_px)
+        return position, covariance, size, noise_px / self._focal
 
     def _range_checks(
         self, solution: Triangulation, rays: RayBatch

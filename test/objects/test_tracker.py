@@ -6,14 +6,17 @@ parallax, a slow drift followed, and bad input refused."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from objects_scene import CAMERA, SPACE, project, region_at, scene_params, sweep, wall_depth
+from scipy.stats import chi2
 
 from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.objects import ObjectParams, ObjectsError, ObjectTracker
 from allo_mrad_ros.objects.params import parameter_table
+from allo_mrad_ros.objects.tracker import same_object
 
 POINT = np.array([0.5, 0.0, 0.3])  # 10 m ahead of the sweep's camera
 FPS = 10.0
@@ -528,3 +531,144 @@ def test_a_faint_region_continues_an_object_and_starts_none():
 def test_the_region_scores_are_checked():
     with pytest.raises(ObjectsError, match="hit_region_score"):
         ObjectParams(hit_region_score=1.5)
+
+
+def _split_object(tracker, frames):
+    # One thing the detection splits into two regions, 26 px across each, centred 12 px
+    # either side of its centre (they overlap by 2 px): two tracks, about 0.5 m apart at
+    # 10 m and 0.5 m across each.
+    for k in range(frames):
+        t = k / FPS
+        pose = sweep(t)
+        u, v, _ = project(POINT, pose)
+        regions = [region_at(u - 12.0, v, extent=26), region_at(u + 12.0, v, extent=26)]
+        objects = tracker.update(regions, pose, SPACE, t)
+    return objects
+
+
+def test_a_second_track_of_a_confirmed_object_is_not_confirmed():
+    objects = _split_object(ObjectTracker(scene_params(), CAMERA), 30)
+    assert [o.id for o in objects] == [1, 2]
+    assert [o.state for o in objects] == ["confirmed", "tentative"]
+    # Without the test both tracks of the one thing are confirmed: their estimates are
+    # apart by far more than their uncertainty, but by less than their sizes.
+    objects = _split_object(ObjectTracker(scene_params(duplicate_quantile=0.0), CAMERA), 30)
+    assert [o.state for o in objects] == ["confirmed", "confirmed"]
+    first, second = objects
+    offset = first.position - second.position
+    assert offset @ np.linalg.solve(first.covariance + second.covariance, offset) > 100.0
+    assert np.linalg.norm(offset) <= 0.5 * (first.size + second.size)
+
+
+def test_two_objects_apart_in_the_image_are_both_confirmed():
+    # 1 m apart across the line of sight (50 px), 8 px each: apart in the image, though
+    # their ranges are uncertain by more than 1 m when they are confirmed.
+    other = POINT + np.array([1.0, 0.0, 0.0])
+    tracker = ObjectTracker(scene_params(), CAMERA)
+    for k in range(30):
+        t = k / FPS
+        pose = sweep(t)
+        regions = [region_at(*project(p, pose)[:2]) for p in (POINT, other)]
+        objects = tracker.update(regions, pose, SPACE, t)
+    assert [(o.id, o.state) for o in objects] == [(1, "confirmed"), (2, "confirmed")]
+
+
+@pytest.mark.parametrize(("sigmas", "one"), [(3.0, True), (3.5, False)])
+def test_overlapping_estimates_are_one_while_their_ranges_agree_within_the_limit(sigmas, one):
+    # Two estimates on one line of sight from the camera, 2 m apart in range, 0.2 m across:
+    # the range gap (1.8 m) is ``sigmas`` standard deviations; the default quantile (0.999,
+    # two-sided: 3.29 standard deviations) calls them one at 3 and two at 3.5.
+    camera = np.zeros(3)
+    limit = chi2.ppf(ObjectParams().duplicate_quantile, 1)
+    covariance = np.eye(3) * (1.8 / sigmas) ** 2 / 2.0
+    near = (np.array([0.0, 0.0, 10.0]), covariance, 0.2, 0.0)
+    far = (np.array([0.0, 0.0, 12.0]), covariance, 0.2, 0.0)
+    assert same_object(near, far, camera, limit) is one
+    assert same_object(far, near, camera, limit) is one
+    # Overlapping extents in range: one, however certain.
+    touching = (np.array([0.0, 0.0, 10.15]), np.eye(3) * 1e-12, 0.2, 0.0)
+    assert same_object(near, touching, camera, limit) is True
+
+
+@pytest.mark.parametrize(("sigmas", "one"), [(3.0, True), (3.5, False)])
+def test_estimates_apart_in_the_image_are_two_beyond_their_directions_noise(sigmas, one):
+    # 0.5 m apart across the line of sight at 10 m, 0.2 m across: the gap between their
+    # extents is 0.03 rad, ``sigmas`` standard deviations of the two directions' noise;
+    # their ranges agree exactly, and are as uncertain as can be.
+    camera = np.zeros(3)
+    limit = chi2.ppf(ObjectParams().duplicate_quantile, 1)
+    angle = math.atan2(0.5, 10.0)
+    gap = angle - 0.5 * (0.2 / 10.0 + 0.2 / math.hypot(0.5, 10.0))
+    noise = gap / sigmas / math.sqrt(2.0)
+    here = (np.array([0.0, 0.0, 10.0]), np.eye(3) * 100.0, 0.2, noise)
+    aside = (
+        10.0 * np.array([math.sin(angle), 0.0, math.cos(angle)]),
+        np.eye(3) * 100.0,
+        0.2,
+        noise,
+    )
+    assert same_object(here, aside, camera, limit) is one
+
+
+def _lost_and_found(tracker, gap_frames):
+    # Seen for 15 frames (confirmed), missed in view for ``gap_frames`` (5 end it), seen
+    # again for 15: every frame's objects.
+    history = []
+    for k in range(30 + gap_frames):
+        t = k / FPS
+        pose = sweep(t)
+        u, v, _ = project(POINT, pose)
+        regions = [] if 15 <= k < 15 + gap_frames else [region_at(u, v)]
+        history.append(tracker.update(regions, pose, SPACE, t))
+    return history
+
+
+def test_an_object_confirmed_again_where_one_was_lost_keeps_its_id():
+    history = _lost_and_found(ObjectTracker(scene_params(), CAMERA), 10)
+    assert [(o.id, o.state) for o in history[19]] == [(1, "ended")]  # 5 misses end it
+    last = history[-1]
+    assert [(o.id, o.state) for o in last] == [(1, "confirmed")]
+    assert np.linalg.norm(last[0].position - POINT) < 1e-6
+    # The frame it is confirmed again, its tentative id ends, reported once.
+    again = next(
+        k for k, objects in enumerate(history) if k > 19 and objects and objects[0].id == 1
+    )
+    assert [(o.id, o.state) for o in history[again]] == [(1, "confirmed"), (2, "ended")]
+    assert all(o.id == 2 and o.state == "tentative" for k in range(20, again) for o in history[k])
+
+
+@pytest.mark.parametrize(
+    ("changes", "gap_frames"), [({"reacquire_s": 0.0}, 10), ({"reacquire_s": 0.5}, 10)]
+)
+def test_an_object_lost_longer_ago_than_reacquire_s_gets_a_new_id(changes, gap_frames):
+    # Lost at frame 19 (1.9 s), confirmed again at frame 27 or later: beyond 0.5 s.
+    history = _lost_and_found(ObjectTracker(scene_params(**changes), CAMERA), gap_frames)
+    assert [(o.id, o.state) for o in history[-1]] == [(2, "confirmed")]
+
+
+def test_a_lost_object_is_forgotten_with_the_rest_on_reset():
+    tracker = ObjectTracker(scene_params(), CAMERA)
+    history = []
+    for k in range(20):  # confirmed, then 5 misses in view end it at frame 19
+        t = k / FPS
+        pose = sweep(t)
+        regions = [] if k >= 15 else [region_at(*project(POINT, pose)[:2])]
+        history.append(tracker.update(regions, pose, SPACE, t))
+    tracker.reset()
+    for k in range(20, 40):  # seen again, as the same stamps go on
+        t = k / FPS
+        pose = sweep(t)
+        objects = tracker.update([region_at(*project(POINT, pose)[:2])], pose, SPACE, t)
+    assert [(o.id, o.state) for o in history[-1]] == [(1, "ended")]
+    assert [(o.id, o.state) for o in objects] == [(2, "confirmed")]
+
+
+def test_the_documented_parameter_table_is_the_parameters_own():
+    docs = Path(__file__).resolve().parents[2] / "docs" / "objects.md"
+    section = docs.read_text().split("## Parameters", 1)[1].split("\n## ", 1)[0]
+    documented = [line for line in section.splitlines() if line.startswith("| `")]
+    expected = [
+        f"| `{name}` | {default} | {interval} | {description} |"
+        for name, default, interval, description in parameter_table()
+    ]
+    assert documented == expected
