@@ -111,6 +111,21 @@ class TrackedObject:
     last_hit_stamp: float
 
 
+def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) -> np.ndarray:
+    """(n, _COLUMNS) each observation's ray as a row of a track's ray table: built once a
+    frame, so that adding a ray to a track is one row copy (a write per column per track
+    cost a twentieth of the frame)."""
+    rows = np.empty((len(observations), _COLUMNS))
+    rows[:, 0:3] = observations.origin
+    rows[:, 3:6] = observations.directions
+    rows[:, _VARIANCE] = variance
+    rows[:, _STAMP] = stamp
+    rows[:, _LOW] = observations.low
+    rows[:, _HIGH] = observations.high
+    rows[:, _EXTENT] = observations.extent_px
+    return rows
+
+
 def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Each row's median over its ``valid`` entries (each row has one at least): what
     ``numpy.nanmedian`` gives with the others set to NaN, without its masked-array cost."""
@@ -179,16 +194,10 @@ class _Track:
         self.window_hits += hit
         self.window_score += score
 
-    def add_ray(self, observations: Observations, j: int, variance: float, stamp: float) -> None:
+    def add_ray(self, row: np.ndarray) -> None:
+        """Store one ray's row (:func:`_ray_rows`) in the ring."""
         i = self.head
-        row = self.rays[i]
-        row[0:3] = observations.origin
-        row[3:6] = observations.directions[j]
-        row[_VARIANCE] = variance
-        row[_STAMP] = stamp
-        row[_LOW] = observations.low[j]
-        row[_HIGH] = observations.high[j]
-        row[_EXTENT] = observations.extent_px[j]
+        self.rays[i] = row
         self.head = (i + 1) % len(self.rays)
         self.count = min(self.count + 1, len(self.rays))
 
@@ -322,17 +331,20 @@ class ObjectTracker:
         )
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
-        variance = pixel_variance.max(axis=1) / self._focal**2
+        ray_rows = _ray_rows(observations, pixel_variance.max(axis=1) / self._focal**2, stamp)
+        scores = observations.scores.tolist()
+        indices = observations.indices.tolist()
         for row, j in matches:
             track = tracks[row]
-            track.add_ray(observations, j, variance[j], stamp)
-            track.push(True, float(observations.scores[j]))
+            track.add_ray(ray_rows[j])
+            track.push(True, scores[j])
             track.misses = 0
             track.hits += 1
             track.last_hit = stamp
-            matched_region[track.id] = int(observations.indices[j])
+            matched_region[track.id] = indices[j]
             updated.append(track)
         matched_rows = {row for row, _ in matches}
+        in_view = in_view.tolist()  # Python bools: read once per object below
         for row, track in enumerate(tracks):
             if row not in matched_rows and in_view[row]:
                 track.push(False, 0.0)
@@ -341,14 +353,14 @@ class ObjectTracker:
         for j in range(len(observations)):
             # Only a region scoring min_region_score starts an object; a fainter one (down to
             # hit_region_score) only continues one.
-            if j in taken or observations.scores[j] < params.min_region_score:
+            if j in taken or scores[j] < params.min_region_score:
                 continue
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1
-            track.add_ray(observations, j, variance[j], stamp)
-            track.push(True, float(observations.scores[j]))
+            track.add_ray(ray_rows[j])
+            track.push(True, scores[j])
             track.hits = 1
-            matched_region[track.id] = int(observations.indices[j])
+            matched_region[track.id] = indices[j]
             tracks.append(track)
             updated.append(track)
         self._refine(updated, stamp)
