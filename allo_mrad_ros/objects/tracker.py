@@ -447,8 +447,13 @@ class ObjectTracker:
         )
         # Hidden: beyond the surface at its pixel by the margin and 3 sigma of its depth.
         sx, sy = reference.width / camera.width, reference.height / camera.height
-        cols = np.clip(np.floor((u + 0.5) * sx).astype(np.int64), 0, reference.width - 1)
-        rows = np.clip(np.floor((v + 0.5) * sy).astype(np.int64), 0, reference.height - 1)
+        # Clipped with minimum and maximum (numpy.clip's dispatch costs more than both).
+        cols = np.minimum(
+            np.maximum(np.floor((u + 0.5) * sx).astype(np.int64), 0), reference.width - 1
+        )
+        rows = np.minimum(
+            np.maximum(np.floor((v + 0.5) * sy).astype(np.int64), 0), reference.height - 1
+        )
         surface = np.where(inside, depth[rows, cols], 0.0)
         axis = rotation[:, 2]
         depth_sigma = np.sqrt(np.maximum(np.einsum("i,bij,j->b", axis, covariance, axis), 0.0))
@@ -480,11 +485,9 @@ class ObjectTracker:
         candidates = np.flatnonzero(gate.any(axis=1))
         cost = np.where(gate[candidates], distance2[candidates], _FORBIDDEN)
         rows_, cols_ = linear_sum_assignment(cost)
-        matches = [
-            (int(candidates[r]), int(c))
-            for r, c in zip(rows_, cols_, strict=True)
-            if gate[candidates[r], c]
-        ]
+        objects = candidates[rows_]
+        kept = gate[objects, cols_]
+        matches = list(zip(objects[kept].tolist(), cols_[kept].tolist(), strict=True))
         return in_view, matches
 
     def _refine(self, tracks: list[_Track], stamp: float) -> None:
@@ -527,13 +530,23 @@ class ObjectTracker:
             coherent[candidates] = self._coherent(solution, rays, counts, candidates)
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
-        for i, track in enumerate(tracks):
-            track.position = solution.position[i]
-            track.covariance = solution.covariance[i]
-            track.size = float(sizes[i])
-            track.resolved = bool(resolved[i])
-            track.consistent = bool(consistent[i])
-            track.coherent = bool(coherent[i])
+        # Python values, read once (an element read from an array costs as much as a list).
+        for track, position, covariance, size, resolved_, consistent_, coherent_ in zip(
+            tracks,
+            solution.position,
+            solution.covariance,
+            sizes.tolist(),
+            resolved.tolist(),
+            consistent.tolist(),
+            coherent.tolist(),
+            strict=True,
+        ):
+            track.position = position
+            track.covariance = covariance
+            track.size = size
+            track.resolved = resolved_
+            track.consistent = consistent_
+            track.coherent = coherent_
 
     def _coherent(
         self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray

@@ -268,7 +268,9 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
         (free_rho + _CONFLICT * rho_sigma < rho_low) | (free_rho - _CONFLICT * rho_sigma > rho_high)
     )
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
-    rho_mean = np.where(conflict, np.clip(free_rho, 1e-3 * own_low, 1e3 * own_high), rho_mean)
+    # numpy.clip as minimum and maximum, here and below: its dispatch costs more than both.
+    kept_rho = np.minimum(np.maximum(free_rho, 1e-3 * own_low), 1e3 * own_high)
+    rho_mean = np.where(conflict, kept_rho, rho_mean)
     rho_variance = np.where(conflict, rho_sigma**2, rho_variance)
     ab = ab + step_ab + slope * (rho_mean - rho)[:, None]
     m = np.concatenate([ab, np.ones((batch, 1))], axis=1)
@@ -313,12 +315,9 @@ def _anchor_basis(anchor_d: np.ndarray) -> np.ndarray:
     # The world axis least aligned with d makes a well-conditioned first axis.
     axis = np.zeros_like(anchor_d)
     axis[np.arange(len(anchor_d)), np.abs(anchor_d).argmin(axis=1)] = 1.0
-    basis = np.empty((len(anchor_d), 3, 3))
-    basis[:, 0] = _cross(anchor_d, axis)
-    basis[:, 0] /= np.sqrt(np.einsum("bi,bi->b", basis[:, 0], basis[:, 0]))[:, None]
-    basis[:, 1] = _cross(anchor_d, basis[:, 0])
-    basis[:, 2] = anchor_d
-    return basis
+    first = _cross(anchor_d, axis)
+    first /= np.sqrt(np.einsum("bi,bi->b", first, first))[:, None]
+    return np.stack([first, _cross(anchor_d, first), anchor_d], axis=1)
 
 
 def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -347,8 +346,7 @@ class _Geometry:
     @classmethod
     def of(cls, directions: np.ndarray, baseline: np.ndarray, rays: RayBatch) -> _Geometry:
         batch, count = rays.valid.shape
-        coupling = np.empty((batch, count, 3))
-        coupling[..., :2] = directions[..., :2]
+        coupling = directions.copy()  # then its third column replaced
         coupling[..., 2] = np.einsum("brj,brj->br", directions, baseline)
         outer = np.zeros((batch, count, 9))
         outer[..., 0] = outer[..., 4] = 1.0
@@ -377,15 +375,17 @@ class _Geometry:
         C_k C_l |v|^2) / s^2`` and ``J_k . r = (w_k - C_k |v|^2) / s``, ``w = (v_x, v_y,
         b . v)``."""
         batch = len(rho)
-        u = self.baseline * rho[:, None, None]
-        u[..., :2] += ab[:, None, :]
-        u[..., 2] += 1.0
+        # u = rho b + m, m added whole (an in-place add to two of the three columns costs
+        # twice the whole product here).
+        m = np.empty((batch, 1, 3))
+        m[:, 0, :2] = ab
+        m[:, 0, 2] = 1.0
+        u = self.baseline * rho[:, None, None] + m
         along = np.einsum("brj,brj->br", self.directions, u)
         valid = self.valid & (along > 1e-9)
         s = np.where(valid, along, 1.0)
         v = u / s[..., None]
-        projected = np.empty_like(v)
-        projected[..., :2] = v[..., :2]
+        projected = v.copy()  # then its third column replaced (cheaper than two copied)
         projected[..., 2] = np.einsum("brj,brj->br", self.baseline, v)
         vv = np.einsum("brj,brj->br", v, v)
         # The point's range along ray i is s / rho: its drift variance as an angle.
@@ -511,7 +511,7 @@ def truncated_normal_moments(
     out_variance = scale**2 * np.maximum(spread, 0.0)
     out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
     out_variance = np.where(uniform, width**2 / 12.0, out_variance)
-    return np.clip(out_mean, low, high), np.minimum(out_variance, width**2 / 12.0)
+    return np.minimum(np.maximum(out_mean, low), high), np.minimum(out_variance, width**2 / 12.0)
 
 
 def _information(
