@@ -224,20 +224,33 @@ class _FrameRanges:
         self._sy = reference.height / camera.height
         self._reference = reference
 
-    def surface_range(self, box: tuple[int, int, int, int]) -> np.ndarray:
-        """The surface ranges behind the box's depth pixels (under the mask, if any)."""
+    def surface_ranges(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The surface ranges behind the depth pixels of each of ``boxes`` ((n, 4) of
+        ``x, y, w, h``), under the mask if any (all of a box's where it sets none: the
+        region is smaller than a depth pixel): every box's in raster order, boxes in order,
+        and the box each belongs to. The values :func:`_footprint` gives each region,
+        gathered for all boxes at once (a slice of the depth and the mask per box cost more
+        than the gathering)."""
         reference, sx, sy = self._reference, self._sx, self._sy
-        x, y, w, h = box
-        c0 = min(max(math.floor(x * sx), 0), reference.width - 1)
-        r0 = min(max(math.floor(y * sy), 0), reference.height - 1)
-        c1 = min(max(math.ceil((x + w) * sx), c0 + 1), reference.width)
-        r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
-        ranges = self._depth[r0:r1, c0:c1] * self._stretch[r0:r1, c0:c1]
+        x, y, w, h = boxes.T
+        c0 = np.minimum(np.maximum(np.floor(x * sx), 0), reference.width - 1).astype(np.int64)
+        r0 = np.minimum(np.maximum(np.floor(y * sy), 0), reference.height - 1).astype(np.int64)
+        c1 = np.minimum(np.maximum(np.ceil((x + w) * sx), c0 + 1), reference.width)
+        r1 = np.minimum(np.maximum(np.ceil((y + h) * sy), r0 + 1), reference.height)
+        widths = c1.astype(np.int64) - c0
+        counts = widths * (r1.astype(np.int64) - r0)
+        box = np.repeat(np.arange(len(boxes)), counts)
+        # Each pixel's place in its box, raster order.
+        place = np.arange(len(box)) - np.repeat(np.cumsum(counts) - counts, counts)
+        rows = r0[box] + place // widths[box]
+        cols = c0[box] + place % widths[box]
+        ranges = self._depth[rows, cols] * self._stretch[rows, cols]
         if self._mask is not None:
-            inside = self._mask[np.ix_(self._vi[r0:r1], self._ui[c0:c1])] != 0
-            if inside.any():  # else the region is smaller than a depth pixel: the whole box
-                return ranges[inside]
-        return ranges.ravel()
+            inside = self._mask[self._vi[rows], self._ui[cols]] != 0
+            any_inside = np.bincount(box[inside], minlength=len(boxes)) > 0
+            keep = inside | ~any_inside[box]
+            ranges, box = ranges[keep], box[keep]
+        return ranges, box
 
 
 def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
@@ -251,23 +264,23 @@ def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
     return float(np.partition(surface, k)[k])
 
 
-def surface_bounds(ranges: Sequence[np.ndarray], quantile: float) -> np.ndarray:
-    """:func:`surface_bound` of each array of ``ranges`` at once (NaN where all are space):
-    one sort of all of them, by region and then by value."""
-    if not ranges:
+def surface_bounds(
+    values: np.ndarray, region: np.ndarray, count: int, quantile: float
+) -> np.ndarray:
+    """:func:`surface_bound` of the ``values`` of each of ``count`` regions at once
+    (``region``: the region of each value; NaN where all of a region's are space): one sort
+    of all of them, by region and then by value."""
+    if count == 0:
         return np.zeros(0)
-    values = np.concatenate(ranges)
-    counts = np.array([len(r) for r in ranges])
-    region = np.repeat(np.arange(len(ranges)), counts)
     surface = (values > 0) & (values < np.inf)
     values, region = values[surface], region[surface]
-    sizes = np.bincount(region, minlength=len(ranges))
+    sizes = np.bincount(region, minlength=count)
     ordered = values[np.lexsort((values, region))]
     starts = np.cumsum(sizes) - sizes
     k = np.minimum(np.floor(quantile * (sizes - 1)).astype(np.int64), sizes - 1)
     found = sizes > 0
     picked = ordered[np.where(found, starts + np.maximum(k, 0), 0)] if ordered.size else None
-    return np.where(found, picked, np.nan) if picked is not None else np.full(len(ranges), np.nan)
+    return np.where(found, picked, np.nan) if picked is not None else np.full(count, np.nan)
 
 
 def region_rays(
@@ -407,22 +420,23 @@ def observe(
     each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
-    kept, ranges, extent, edge, scores, pixels = [], [], [], [], [], []
+    kept, boxes, scores, pixels = [], [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
-        ranges.append(frame.surface_range(region.box))
         kept.append(index)
-        x, y, w, h = region.box
-        extent.append(max(w, h))
-        across_x = w if x <= 0 or x + w >= camera.width else 0
-        across_y = h if y <= 0 or y + h >= camera.height else 0
-        edge.append((across_x, across_y))
+        boxes.append(region.box)
         scores.append(region.score)
         pixels.append(region.centroid)
-    bound = surface_bounds(ranges, surface_quantile)
+    box_array = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    values, owner = frame.surface_ranges(box_array)
+    bound = surface_bounds(values, owner, len(kept), surface_quantile)
+    x, y, w, h = box_array.T
+    # Each box's side across the image edges it touches.
+    across_x = np.where((x <= 0) | (x + w >= camera.width), w, 0.0)
+    across_y = np.where((y <= 0) | (y + h >= camera.height), h, 0.0)
     surface = ~np.isnan(bound)
     # A region before a surface nearer than min_range keeps a range interval of one point.
     high = np.where(surface, np.maximum(np.minimum(bound, max_range), min_range), max_range)
@@ -435,8 +449,8 @@ def observe(
         low=np.full(len(kept), float(min_range)),
         high=high.astype(np.float64),
         over_surface=surface,
-        extent_px=np.asarray(extent, dtype=np.float64),
-        edge_px=np.asarray(edge, dtype=np.float64).reshape(-1, 2),
+        extent_px=np.maximum(w, h),
+        edge_px=np.stack([across_x, across_y], axis=1),
         scores=np.asarray(scores, dtype=np.float64),
         indices=np.asarray(kept, dtype=np.int64),
     )
