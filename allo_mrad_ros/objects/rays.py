@@ -63,6 +63,12 @@ class RegionRays:
 def depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> CameraIntrinsics:
     """The intrinsics of ``camera`` at the depth image's size (the reference's scaling:
     per axis, the size ratio, with pixel edges kept)."""
+    # Cached per camera and size: the tracker asks twice a frame for the same one.
+    return _depth_camera(camera, tuple(depth_shape))
+
+
+@lru_cache(maxsize=16)
+def _depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> CameraIntrinsics:
     if len(depth_shape) != 2 or min(depth_shape) < 1:
         raise ObjectsError(f"depth must be a 2-D image, got shape {tuple(depth_shape)}")
     height, width = int(depth_shape[0]), int(depth_shape[1])
@@ -122,14 +128,10 @@ def checked_depth(depth: object) -> np.ndarray:
 
 def camera_rays(camera: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(n, 3) unit rays of pixels ``(u, v)`` in ``camera``'s optical frame."""
-    rays = np.stack(
-        [
-            (np.asarray(u, float) - camera.cx) / camera.fx,
-            (np.asarray(v, float) - camera.cy) / camera.fy,
-        ],
-        axis=-1,
-    )
-    rays = np.concatenate([rays, np.ones((*rays.shape[:-1], 1))], axis=-1)
+    u = np.asarray(u, float)
+    rays = np.ones((*u.shape, 3))  # z = 1, x and y written in
+    rays[..., 0] = (u - camera.cx) / camera.fx
+    rays[..., 1] = (np.asarray(v, float) - camera.cy) / camera.fy
     return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
 
@@ -433,10 +435,10 @@ def observe(
     box_array = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     values, owner = frame.surface_ranges(box_array)
     bound = surface_bounds(values, owner, len(kept), surface_quantile)
-    x, y, w, h = box_array.T
-    # Each box's side across the image edges it touches.
-    across_x = np.where((x <= 0) | (x + w >= camera.width), w, 0.0)
-    across_y = np.where((y <= 0) | (y + h >= camera.height), h, 0.0)
+    corner, side = box_array[:, :2], box_array[:, 2:]
+    # Each box's side across the image edges it touches: x at the left or right, y at the
+    # top or bottom.
+    touches = (corner <= 0) | (corner + side >= (camera.width, camera.height))
     surface = ~np.isnan(bound)
     # A region before a surface nearer than min_range keeps a range interval of one point.
     high = np.where(surface, np.maximum(np.minimum(bound, max_range), min_range), max_range)
@@ -447,10 +449,10 @@ def observe(
         directions=directions.reshape(-1, 3),
         pixels=pixel_array,
         low=np.full(len(kept), float(min_range)),
-        high=high.astype(np.float64),
+        high=np.asarray(high, dtype=np.float64),
         over_surface=surface,
-        extent_px=np.maximum(w, h),
-        edge_px=np.stack([across_x, across_y], axis=1),
+        extent_px=side.max(axis=1),
+        edge_px=np.where(touches, side, 0.0),
         scores=np.asarray(scores, dtype=np.float64),
         indices=np.asarray(kept, dtype=np.int64),
     )

@@ -64,6 +64,7 @@ _SPACE_FAR = 1e3
 # Columns of a track's ray table (_Track.rays): origin 0:3, direction 3:6, then these.
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -200,10 +201,6 @@ class _Track:
         self.rays[i] = row
         self.head = (i + 1) % len(self.rays)
         self.count = min(self.count + 1, len(self.rays))
-
-    @property
-    def newest(self) -> int:
-        return (self.head - 1) % len(self.rays)
 
 
 class ObjectTracker:
@@ -426,7 +423,7 @@ class ObjectTracker:
         age = stamp - np.array([t.last_hit for t in tracks])
         size = np.array([t.size for t in tracks])
         drift = (params.drift_speed * np.maximum(age, 0.0)) ** 2
-        covariance = covariance + drift[:, None, None] * np.eye(3)
+        covariance = covariance + drift[:, None, None] * _EYE3
         rotation = pose[:3, :3]
         local = (position - pose[:3, 3]) @ rotation  # camera frame
         z = local[:, 2]
@@ -499,9 +496,10 @@ class ObjectTracker:
         batch = len(tracks)
         packed = np.array([t.rays for t in tracks])
         stamps = packed[..., _STAMP]
-        counts = np.array([t.count for t in tracks])
+        rings = np.array([(t.count, t.head) for t in tracks]).reshape(-1, 2)
+        counts = rings[:, 0]
         filled = np.arange(capacity)[None, :] < counts[:, None]
-        anchor = np.array([t.newest for t in tracks])
+        anchor = (rings[:, 1] - 1) % capacity  # each ring's newest ray
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True

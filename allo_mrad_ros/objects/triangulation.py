@@ -274,7 +274,8 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     rho_variance = np.where(conflict, rho_sigma**2, rho_variance)
     ab = ab + step_ab + slope * (rho_mean - rho)[:, None]
     m = np.concatenate([ab, np.ones((batch, 1))], axis=1)
-    position = anchor_c + np.einsum("bji,bj->bi", basis, m) / rho_mean[:, None]
+    offset = np.einsum("bji,bj->bi", basis, m)  # E^T m
+    position = anchor_c + offset / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
     # truncated normal's; mapped through X = c_a + E^T m / rho.
     a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
@@ -290,7 +291,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     jacobian = np.empty((batch, 3, 3))
     jacobian[:, :, 0] = basis[:, 0] / rho_mean[:, None]
     jacobian[:, :, 1] = basis[:, 1] / rho_mean[:, None]
-    jacobian[:, :, 2] = -np.einsum("bji,bj->bi", basis, m) / rho_mean[:, None] ** 2
+    jacobian[:, :, 2] = -offset / rho_mean[:, None] ** 2
     covariance = jacobian @ theta @ jacobian.transpose(0, 2, 1)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
     ranges = np.where(valid, _along(position, d, origin_along), 0.0)
