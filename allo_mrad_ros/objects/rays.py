@@ -91,8 +91,8 @@ def checked_pose(pose: object) -> np.ndarray:
     if matrix.shape == (4, 4):
         rotation = matrix[:3, :3]
         # numpy.allclose(a, b, atol): |a - b| <= atol + 1e-5 |b|
-        row_ok = np.abs(matrix[3] - _LAST_ROW) <= 1e-9 + 1e-5 * _LAST_ROW
-        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= 1e-6 + 1e-5 * _EYE3
+        row_ok = np.abs(matrix[3] - _LAST_ROW) <= _ROW_TOLERANCE
+        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= _GRAM_TOLERANCE
         if np.isfinite(matrix).all() and row_ok.all() and gram_ok.all():
             (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
             if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0:
@@ -105,6 +105,9 @@ def checked_pose(pose: object) -> np.ndarray:
 
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EYE3 = np.eye(3)
+# checked_pose's tolerances (numpy.allclose's, atol 1e-9 and 1e-6), computed once.
+_ROW_TOLERANCE = 1e-9 + 1e-5 * _LAST_ROW
+_GRAM_TOLERANCE = 1e-6 + 1e-5 * _EYE3
 
 
 def depth_array(depth: object) -> np.ndarray:
