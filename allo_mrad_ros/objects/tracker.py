@@ -35,6 +35,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import Literal
 
 import numpy as np
@@ -391,7 +392,7 @@ class ObjectTracker:
         records = [
             self._record(t, bool(view.get(t.id, True)), matched_region.get(t.id)) for t in live
         ]
-        return tuple(sorted(records + ended, key=lambda o: o.id))
+        return tuple(sorted(records + ended, key=attrgetter("id")))
 
     # ------------------------------------------------------------------ steps
     def _pixel_variances(self, observations: Observations) -> np.ndarray:
@@ -504,7 +505,8 @@ class ObjectTracker:
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True
         high = packed[..., _HIGH]
-        rays = RayBatch(
+        # Shaped by the ring tables and with each anchor valid (set above): unchecked.
+        rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
             directions=packed[..., 3:6],
             angular_variance=np.where(valid, packed[..., _VARIANCE], 1.0),

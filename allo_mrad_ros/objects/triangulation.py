@@ -109,6 +109,15 @@ class RayBatch:
             raise ObjectsError("each object's anchor must be one of its valid rays")
 
     @classmethod
+    def unchecked(cls, **arrays: np.ndarray) -> RayBatch:
+        """The batch of ``arrays`` (every field, by name) without the checks of its
+        constructor: for arrays right by construction (the tracker's own ray tables, every
+        frame)."""
+        batch = object.__new__(cls)
+        batch.__dict__.update(arrays)
+        return batch
+
+    @classmethod
     def single(
         cls,
         origins: np.ndarray,
