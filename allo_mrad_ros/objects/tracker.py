@@ -363,10 +363,11 @@ class ObjectTracker:
             updated.append(track)
         self._refine(updated, stamp)
 
-        view = dict(zip((t.id for t in tracks), in_view, strict=False))
+        # In view as associated; a new object is (its region is in the image).
+        visible = in_view + [True] * (len(tracks) - len(in_view))
         live: list[_Track] = []
-        for track in tracks:
-            seen = track.id in matched_region
+        records: list[TrackedObject] = []
+        for track, seen in zip(tracks, visible, strict=True):
             if track.misses >= params.end_misses or (
                 track.state == "tentative" and stamp - track.last_hit > params.tentative_timeout_s
             ):
@@ -379,19 +380,17 @@ class ObjectTracker:
                 and track.coherent
             ):
                 track.state = "confirmed"
+            record = self._record(track, seen, matched_region.get(track.id))
             if track.state == "ended":
-                ended.append(
-                    self._record(
-                        track, bool(view.get(track.id, seen)), matched_region.get(track.id)
-                    )
-                )
+                ended.append(record)
             else:
                 live.append(track)
-        live = self._within_capacity(live, ended, stamp)
-        self._tracks = live
-        records = [
-            self._record(t, bool(view.get(t.id, True)), matched_region.get(t.id)) for t in live
-        ]
+                records.append(record)
+        kept = self._within_capacity(live, ended, stamp)
+        if len(kept) < len(live):  # the records of those it ended are in ended
+            ids = {t.id for t in kept}
+            records = [r for r in records if r.id in ids]
+        self._tracks = kept
         return tuple(sorted(records + ended, key=attrgetter("id")))
 
     # ------------------------------------------------------------------ steps
