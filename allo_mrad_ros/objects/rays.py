@@ -425,17 +425,17 @@ def observe(
     each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
-    kept, boxes, scores, pixels = [], [], [], []
+    kept, shapes, scores = [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
         kept.append(index)
-        boxes.append(region.box)
+        shapes.append((*region.box, *region.centroid))  # one array of both below
         scores.append(region.score)
-        pixels.append(region.centroid)
-    box_array = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    shape_array = np.asarray(shapes, dtype=np.float64).reshape(-1, 6)
+    box_array, pixel_array = shape_array[:, :4], shape_array[:, 4:]
     values, owner = frame.surface_ranges(box_array)
     bound = surface_bounds(values, owner, len(kept), surface_quantile)
     corner, side = box_array[:, :2], box_array[:, 2:]
@@ -445,7 +445,6 @@ def observe(
     surface = ~np.isnan(bound)
     # A region before a surface nearer than min_range keeps a range interval of one point.
     high = np.where(surface, np.maximum(np.minimum(bound, max_range), min_range), max_range)
-    pixel_array = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     directions = camera_rays(camera, pixel_array[:, 0], pixel_array[:, 1]) @ pose[:3, :3].T
     return Observations(
         origin=pose[:3, 3].copy(),

@@ -420,8 +420,8 @@ class ObjectTracker:
         camera = self.camera
         position = np.array([t.position for t in tracks])
         covariance = np.array([t.covariance for t in tracks])
-        age = stamp - np.array([t.last_hit for t in tracks])
-        size = np.array([t.size for t in tracks])
+        last_hit, size = np.array([(t.last_hit, t.size) for t in tracks]).T
+        age = stamp - last_hit
         drift = (params.drift_speed * np.maximum(age, 0.0)) ** 2
         covariance = covariance + drift[:, None, None] * _EYE3
         rotation = pose[:3, :3]

@@ -64,6 +64,7 @@ _SQRT2 = math.sqrt(2.0)
 # from its exponential limit.
 _FAR_TAIL = 30.0
 _SQRT_2_PI = math.sqrt(2.0 / math.pi)
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -531,7 +532,7 @@ def _information(
     ``b = sum w (I - d d^T) c`` (matrix products, no per-ray 3x3 projector)."""
     # Batched matrix products over the rays (numpy's einsum and 3-D sums are slower here).
     a = (
-        weights.sum(axis=1)[:, None, None] * np.eye(3)
+        weights.sum(axis=1)[:, None, None] * _EYE3
         - (d.transpose(0, 2, 1) * weights[:, None, :]) @ d
     )
     b = (weights[:, None, :] @ c)[:, 0] - ((weights * origin_along)[:, None, :] @ d)[:, 0]
