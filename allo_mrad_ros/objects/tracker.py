@@ -342,9 +342,9 @@ class ObjectTracker:
             matched_region[track.id] = indices[j]
             updated.append(track)
         matched_rows = {row for row, _ in matches}
-        in_view = in_view.tolist()  # Python bools: read once per object below
+        visible = in_view.tolist()  # Python bools: read once per object below
         for row, track in enumerate(tracks):
-            if row not in matched_rows and in_view[row]:
+            if row not in matched_rows and visible[row]:
                 track.push(False, 0.0)
                 track.misses += 1
         taken = {j for _, j in matches}
@@ -363,8 +363,8 @@ class ObjectTracker:
             updated.append(track)
         self._refine(updated, stamp)
 
-        # In view as associated; a new object is (its region is in the image).
-        visible = in_view + [True] * (len(tracks) - len(in_view))
+        # A new object is in view (its region is in the image).
+        visible += [True] * (len(tracks) - len(visible))
         live: list[_Track] = []
         records: list[TrackedObject] = []
         for track, seen in zip(tracks, visible, strict=True):
