@@ -456,16 +456,14 @@ def _feasible(
         + directions[..., 1] * ab[:, 1, None]
     )
     h = geometry.coupling[..., 2]
-    lower = rays.low - h  # rho * lower <= g
-    upper = rays.high - h  # rho * upper >= g
-    valid = rays.valid
+    # rho * lower <= g and rho * upper >= g; padding's coefficients 0 (it bounds nothing).
+    lower = np.where(rays.valid, rays.low - h, 0.0)
+    upper = np.where(rays.valid, rays.high - h, 0.0)
     # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
-    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=valid & (lower > 0))
-    above = np.minimum(
-        above, np.divide(g, upper, out=np.full_like(g, np.inf), where=valid & (upper < 0))
-    )
-    below = np.divide(g, upper, out=np.zeros_like(g), where=valid & (upper > 0))
-    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=valid & (lower < 0)))
+    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=lower > 0)
+    above = np.minimum(above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper < 0))
+    below = np.divide(g, upper, out=np.zeros_like(g), where=upper > 0)
+    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=lower < 0))
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
     rho_low = np.maximum(below.max(axis=1), own_low)
     rho_high = np.minimum(above.min(axis=1), own_high)
@@ -497,10 +495,11 @@ def truncated_normal_moments(
     mirror = a + b < 0
     a, b = np.where(mirror, -b, a), np.where(mirror, -a, b)
     a = np.maximum(a, -10.0)
-    decay = np.exp(-0.5 * (b - a) * (b + a))
+    exponent = -0.5 * (b - a) * (b + a)
+    decay = np.exp(exponent)
     tail = erfcx(a / _SQRT2) - decay * erfcx(b / _SQRT2)
     tail = np.where(tail > 0, tail, 1.0)
-    kept = np.maximum(-np.expm1(-0.5 * (b - a) * (b + a)), 1e-300)  # 1 - D
+    kept = np.maximum(-np.expm1(exponent), 1e-300)  # 1 - D
     shift = _SQRT_2_PI * kept / tail
     far_term = np.where(np.isinf(b), 0.0, b * decay)
     # 1 + sqrt(2/pi) (a - b D) / E - shift^2, arranged so that far in a tail (shift ~ a,
@@ -521,8 +520,9 @@ def truncated_normal_moments(
     out_mean = mean + np.where(mirror, -shift, shift) * scale
     out_variance = scale**2 * np.maximum(spread, 0.0)
     out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
-    out_variance = np.where(uniform, width**2 / 12.0, out_variance)
-    return np.minimum(np.maximum(out_mean, low), high), np.minimum(out_variance, width**2 / 12.0)
+    uniform_variance = width**2 / 12.0
+    out_variance = np.where(uniform, uniform_variance, out_variance)
+    return np.minimum(np.maximum(out_mean, low), high), np.minimum(out_variance, uniform_variance)
 
 
 def _information(
