@@ -63,6 +63,12 @@ class RegionRays:
 def depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> CameraIntrinsics:
     """The intrinsics of ``camera`` at the depth image's size (the reference's scaling:
     per axis, the size ratio, with pixel edges kept)."""
+    # Cached per camera and size: the tracker asks twice a frame for the same one.
+    return _depth_camera(camera, tuple(depth_shape))
+
+
+@lru_cache(maxsize=16)
+def _depth_camera(camera: CameraIntrinsics, depth_shape: tuple[int, ...]) -> CameraIntrinsics:
     if len(depth_shape) != 2 or min(depth_shape) < 1:
         raise ObjectsError(f"depth must be a 2-D image, got shape {tuple(depth_shape)}")
     height, width = int(depth_shape[0]), int(depth_shape[1])
@@ -85,8 +91,8 @@ def checked_pose(pose: object) -> np.ndarray:
     if matrix.shape == (4, 4):
         rotation = matrix[:3, :3]
         # numpy.allclose(a, b, atol): |a - b| <= atol + 1e-5 |b|
-        row_ok = np.abs(matrix[3] - _LAST_ROW) <= 1e-9 + 1e-5 * _LAST_ROW
-        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= 1e-6 + 1e-5 * _EYE3
+        row_ok = np.abs(matrix[3] - _LAST_ROW) <= _ROW_TOLERANCE
+        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= _GRAM_TOLERANCE
         if np.isfinite(matrix).all() and row_ok.all() and gram_ok.all():
             (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
             if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0:
@@ -99,6 +105,9 @@ def checked_pose(pose: object) -> np.ndarray:
 
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EYE3 = np.eye(3)
+# checked_pose's tolerances (numpy.allclose's, atol 1e-9 and 1e-6), computed once.
+_ROW_TOLERANCE = 1e-9 + 1e-5 * _LAST_ROW
+_GRAM_TOLERANCE = 1e-6 + 1e-5 * _EYE3
 
 
 def depth_array(depth: object) -> np.ndarray:
@@ -122,14 +131,10 @@ def checked_depth(depth: object) -> np.ndarray:
 
 def camera_rays(camera: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(n, 3) unit rays of pixels ``(u, v)`` in ``camera``'s optical frame."""
-    rays = np.stack(
-        [
-            (np.asarray(u, float) - camera.cx) / camera.fx,
-            (np.asarray(v, float) - camera.cy) / camera.fy,
-        ],
-        axis=-1,
-    )
-    rays = np.concatenate([rays, np.ones((*rays.shape[:-1], 1))], axis=-1)
+    u = np.asarray(u, float)
+    rays = np.ones((*u.shape, 3))  # z = 1, x and y written in
+    rays[..., 0] = (u - camera.cx) / camera.fx
+    rays[..., 1] = (np.asarray(v, float) - camera.cy) / camera.fy
     return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
 
@@ -224,20 +229,33 @@ class _FrameRanges:
         self._sy = reference.height / camera.height
         self._reference = reference
 
-    def surface_range(self, box: tuple[int, int, int, int]) -> np.ndarray:
-        """The surface ranges behind the box's depth pixels (under the mask, if any)."""
+    def surface_ranges(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The surface ranges behind the depth pixels of each of ``boxes`` ((n, 4) of
+        ``x, y, w, h``), under the mask if any (all of a box's where it sets none: the
+        region is smaller than a depth pixel): every box's in raster order, boxes in order,
+        and the box each belongs to. The values :func:`_footprint` gives each region,
+        gathered for all boxes at once (a slice of the depth and the mask per box cost more
+        than the gathering)."""
         reference, sx, sy = self._reference, self._sx, self._sy
-        x, y, w, h = box
-        c0 = min(max(math.floor(x * sx), 0), reference.width - 1)
-        r0 = min(max(math.floor(y * sy), 0), reference.height - 1)
-        c1 = min(max(math.ceil((x + w) * sx), c0 + 1), reference.width)
-        r1 = min(max(math.ceil((y + h) * sy), r0 + 1), reference.height)
-        ranges = self._depth[r0:r1, c0:c1] * self._stretch[r0:r1, c0:c1]
+        x, y, w, h = boxes.T
+        c0 = np.minimum(np.maximum(np.floor(x * sx), 0), reference.width - 1).astype(np.int64)
+        r0 = np.minimum(np.maximum(np.floor(y * sy), 0), reference.height - 1).astype(np.int64)
+        c1 = np.minimum(np.maximum(np.ceil((x + w) * sx), c0 + 1), reference.width)
+        r1 = np.minimum(np.maximum(np.ceil((y + h) * sy), r0 + 1), reference.height)
+        widths = c1.astype(np.int64) - c0
+        counts = widths * (r1.astype(np.int64) - r0)
+        box = np.repeat(np.arange(len(boxes)), counts)
+        # Each pixel's place in its box, raster order.
+        place = np.arange(len(box)) - np.repeat(np.cumsum(counts) - counts, counts)
+        rows = r0[box] + place // widths[box]
+        cols = c0[box] + place % widths[box]
+        ranges = self._depth[rows, cols] * self._stretch[rows, cols]
         if self._mask is not None:
-            inside = self._mask[np.ix_(self._vi[r0:r1], self._ui[c0:c1])] != 0
-            if inside.any():  # else the region is smaller than a depth pixel: the whole box
-                return ranges[inside]
-        return ranges.ravel()
+            inside = self._mask[self._vi[rows], self._ui[cols]] != 0
+            any_inside = np.bincount(box[inside], minlength=len(boxes)) > 0
+            keep = inside | ~any_inside[box]
+            ranges, box = ranges[keep], box[keep]
+        return ranges, box
 
 
 def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
@@ -251,23 +269,23 @@ def surface_bound(surface_range: np.ndarray, quantile: float) -> float | None:
     return float(np.partition(surface, k)[k])
 
 
-def surface_bounds(ranges: Sequence[np.ndarray], quantile: float) -> np.ndarray:
-    """:func:`surface_bound` of each array of ``ranges`` at once (NaN where all are space):
-    one sort of all of them, by region and then by value."""
-    if not ranges:
+def surface_bounds(
+    values: np.ndarray, region: np.ndarray, count: int, quantile: float
+) -> np.ndarray:
+    """:func:`surface_bound` of the ``values`` of each of ``count`` regions at once
+    (``region``: the region of each value; NaN where all of a region's are space): one sort
+    of all of them, by region and then by value."""
+    if count == 0:
         return np.zeros(0)
-    values = np.concatenate(ranges)
-    counts = np.array([len(r) for r in ranges])
-    region = np.repeat(np.arange(len(ranges)), counts)
     surface = (values > 0) & (values < np.inf)
     values, region = values[surface], region[surface]
-    sizes = np.bincount(region, minlength=len(ranges))
+    sizes = np.bincount(region, minlength=count)
     ordered = values[np.lexsort((values, region))]
     starts = np.cumsum(sizes) - sizes
     k = np.minimum(np.floor(quantile * (sizes - 1)).astype(np.int64), sizes - 1)
     found = sizes > 0
     picked = ordered[np.where(found, starts + np.maximum(k, 0), 0)] if ordered.size else None
-    return np.where(found, picked, np.nan) if picked is not None else np.full(len(ranges), np.nan)
+    return np.where(found, picked, np.nan) if picked is not None else np.full(count, np.nan)
 
 
 def region_rays(
@@ -407,36 +425,36 @@ def observe(
     each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
-    kept, ranges, extent, edge, scores, pixels = [], [], [], [], [], []
+    kept, shapes, scores = [], [], []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
-        ranges.append(frame.surface_range(region.box))
         kept.append(index)
-        x, y, w, h = region.box
-        extent.append(max(w, h))
-        across_x = w if x <= 0 or x + w >= camera.width else 0
-        across_y = h if y <= 0 or y + h >= camera.height else 0
-        edge.append((across_x, across_y))
+        shapes.append((*region.box, *region.centroid))  # one array of both below
         scores.append(region.score)
-        pixels.append(region.centroid)
-    bound = surface_bounds(ranges, surface_quantile)
+    shape_array = np.asarray(shapes, dtype=np.float64).reshape(-1, 6)
+    box_array, pixel_array = shape_array[:, :4], shape_array[:, 4:]
+    values, owner = frame.surface_ranges(box_array)
+    bound = surface_bounds(values, owner, len(kept), surface_quantile)
+    corner, side = box_array[:, :2], box_array[:, 2:]
+    # Each box's side across the image edges it touches: x at the left or right, y at the
+    # top or bottom.
+    touches = (corner <= 0) | (corner + side >= (camera.width, camera.height))
     surface = ~np.isnan(bound)
     # A region before a surface nearer than min_range keeps a range interval of one point.
     high = np.where(surface, np.maximum(np.minimum(bound, max_range), min_range), max_range)
-    pixel_array = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     directions = camera_rays(camera, pixel_array[:, 0], pixel_array[:, 1]) @ pose[:3, :3].T
     return Observations(
         origin=pose[:3, 3].copy(),
         directions=directions.reshape(-1, 3),
         pixels=pixel_array,
         low=np.full(len(kept), float(min_range)),
-        high=high.astype(np.float64),
+        high=np.asarray(high, dtype=np.float64),
         over_surface=surface,
-        extent_px=np.asarray(extent, dtype=np.float64),
-        edge_px=np.asarray(edge, dtype=np.float64).reshape(-1, 2),
+        extent_px=side.max(axis=1),
+        edge_px=np.where(touches, side, 0.0),
         scores=np.asarray(scores, dtype=np.float64),
         indices=np.asarray(kept, dtype=np.int64),
     )

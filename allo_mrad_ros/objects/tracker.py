@@ -35,6 +35,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import Literal
 
 import numpy as np
@@ -64,6 +65,7 @@ _SPACE_FAR = 1e3
 # Columns of a track's ray table (_Track.rays): origin 0:3, direction 3:6, then these.
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,21 @@ class TrackedObject:
     hits: int
     first_stamp: float
     last_hit_stamp: float
+
+
+def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) -> np.ndarray:
+    """(n, _COLUMNS) each observation's ray as a row of a track's ray table: built once a
+    frame, so that adding a ray to a track is one row copy (a write per column per track
+    cost a twentieth of the frame)."""
+    rows = np.empty((len(observations), _COLUMNS))
+    rows[:, 0:3] = observations.origin
+    rows[:, 3:6] = observations.directions
+    rows[:, _VARIANCE] = variance
+    rows[:, _STAMP] = stamp
+    rows[:, _LOW] = observations.low
+    rows[:, _HIGH] = observations.high
+    rows[:, _EXTENT] = observations.extent_px
+    return rows
 
 
 def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -229,22 +246,12 @@ class _Track:
         self.window_hits += hit
         self.window_score += score
 
-    def add_ray(self, observations: Observations, j: int, variance: float, stamp: float) -> None:
+    def add_ray(self, row: np.ndarray) -> None:
+        """Store one ray's row (:func:`_ray_rows`) in the ring."""
         i = self.head
-        row = self.rays[i]
-        row[0:3] = observations.origin
-        row[3:6] = observations.directions[j]
-        row[_VARIANCE] = variance
-        row[_STAMP] = stamp
-        row[_LOW] = observations.low[j]
-        row[_HIGH] = observations.high[j]
-        row[_EXTENT] = observations.extent_px[j]
+        self.rays[i] = row
         self.head = (i + 1) % len(self.rays)
         self.count = min(self.count + 1, len(self.rays))
-
-    @property
-    def newest(self) -> int:
-        return (self.head - 1) % len(self.rays)
 
 
 class ObjectTracker:
@@ -378,44 +385,49 @@ class ObjectTracker:
         )
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
-        variance = pixel_variance.max(axis=1) / self._focal**2
+        ray_rows = _ray_rows(observations, pixel_variance.max(axis=1) / self._focal**2, stamp)
+        scores = observations.scores.tolist()
+        indices = observations.indices.tolist()
         for row, j in matches:
             track = tracks[row]
-            track.add_ray(observations, j, variance[j], stamp)
-            track.push(True, float(observations.scores[j]))
+            track.add_ray(ray_rows[j])
+            track.push(True, scores[j])
             track.misses = 0
             track.hits += 1
             track.last_hit = stamp
-            matched_region[track.id] = int(observations.indices[j])
+            matched_region[track.id] = indices[j]
             updated.append(track)
         matched_rows = {row for row, _ in matches}
+        visible = in_view.tolist()  # Python bools: read once per object below
         for row, track in enumerate(tracks):
-            if row not in matched_rows and in_view[row]:
+            if row not in matched_rows and visible[row]:
                 track.push(False, 0.0)
                 track.misses += 1
         taken = {j for _, j in matches}
         for j in range(len(observations)):
             # Only a region scoring min_region_score starts an object; a fainter one (down to
             # hit_region_score) only continues one.
-            if j in taken or observations.scores[j] < params.min_region_score:
+            if j in taken or scores[j] < params.min_region_score:
                 continue
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1
-            track.add_ray(observations, j, variance[j], stamp)
-            track.push(True, float(observations.scores[j]))
+            track.add_ray(ray_rows[j])
+            track.push(True, scores[j])
             track.hits = 1
-            matched_region[track.id] = int(observations.indices[j])
+            matched_region[track.id] = indices[j]
             tracks.append(track)
             updated.append(track)
         self._refine(updated, stamp)
 
-        view = dict(zip((t.id for t in tracks), in_view, strict=False))
+        # A new object is in view (its region is in the image).
+        visible += [True] * (len(tracks) - len(visible))
         live: list[_Track] = []
+        records: list[TrackedObject] = []
         confirmed = [t for t in tracks if t.state == "confirmed"]
         camera = pose[:3, 3]
         self._lost = [lost for lost in self._lost if stamp - lost[1] <= params.reacquire_s]
-        for track in tracks:
-            seen = track.id in matched_region
+        for track, seen in zip(tracks, visible, strict=True):
+            region = matched_region.get(track.id)  # before a reacquired object's id changes
             if track.misses >= params.end_misses or (
                 track.state == "tentative" and stamp - track.last_hit > params.tentative_timeout_s
             ):
@@ -438,20 +450,18 @@ class ObjectTracker:
                     # Its tentative id ends; the object it is goes on under its old one.
                     ended.append(self._record(track, False, None, state="ended"))
                     track.id = lost_id
+            record = self._record(track, seen, region)
             if track.state == "ended":
-                ended.append(
-                    self._record(
-                        track, bool(view.get(track.id, seen)), matched_region.get(track.id)
-                    )
-                )
+                ended.append(record)
             else:
                 live.append(track)
-        live = self._within_capacity(live, ended, stamp)
-        self._tracks = live
-        records = [
-            self._record(t, bool(view.get(t.id, True)), matched_region.get(t.id)) for t in live
-        ]
-        return tuple(sorted(records + ended, key=lambda o: o.id))
+                records.append(record)
+        kept = self._within_capacity(live, ended, stamp)
+        if len(kept) < len(live):  # the records of those it ended are in ended
+            ids = {t.id for t in kept}
+            records = [r for r in records if r.id in ids]
+        self._tracks = kept
+        return tuple(sorted(records + ended, key=attrgetter("id")))
 
     # ------------------------------------------------------------------ steps
     def _pixel_variances(self, observations: Observations) -> np.ndarray:
@@ -480,10 +490,11 @@ class ObjectTracker:
         camera = self.camera
         position = np.array([t.position for t in tracks])
         covariance = np.array([t.covariance for t in tracks])
+        # One list per field (numpy reads a list of tuples at twice the cost).
         age = stamp - np.array([t.last_hit for t in tracks])
         size = np.array([t.size for t in tracks])
         drift = (params.drift_speed * np.maximum(age, 0.0)) ** 2
-        covariance = covariance + drift[:, None, None] * np.eye(3)
+        covariance = covariance + drift[:, None, None] * _EYE3
         rotation = pose[:3, :3]
         local = (position - pose[:3, 3]) @ rotation  # camera frame
         z = local[:, 2]
@@ -504,8 +515,13 @@ class ObjectTracker:
         )
         # Hidden: beyond the surface at its pixel by the margin and 3 sigma of its depth.
         sx, sy = reference.width / camera.width, reference.height / camera.height
-        cols = np.clip(np.floor((u + 0.5) * sx).astype(np.int64), 0, reference.width - 1)
-        rows = np.clip(np.floor((v + 0.5) * sy).astype(np.int64), 0, reference.height - 1)
+        # Clipped with minimum and maximum (numpy.clip's dispatch costs more than both).
+        cols = np.minimum(
+            np.maximum(np.floor((u + 0.5) * sx).astype(np.int64), 0), reference.width - 1
+        )
+        rows = np.minimum(
+            np.maximum(np.floor((v + 0.5) * sy).astype(np.int64), 0), reference.height - 1
+        )
         surface = np.where(inside, depth[rows, cols], 0.0)
         axis = rotation[:, 2]
         depth_sigma = np.sqrt(np.maximum(np.einsum("i,bij,j->b", axis, covariance, axis), 0.0))
@@ -537,11 +553,9 @@ class ObjectTracker:
         candidates = np.flatnonzero(gate.any(axis=1))
         cost = np.where(gate[candidates], distance2[candidates], _FORBIDDEN)
         rows_, cols_ = linear_sum_assignment(cost)
-        matches = [
-            (int(candidates[r]), int(c))
-            for r, c in zip(rows_, cols_, strict=True)
-            if gate[candidates[r], c]
-        ]
+        objects = candidates[rows_]
+        kept = gate[objects, cols_]
+        matches = list(zip(objects[kept].tolist(), cols_[kept].tolist(), strict=True))
         return in_view, matches
 
     def _refine(self, tracks: list[_Track], stamp: float) -> None:
@@ -555,12 +569,13 @@ class ObjectTracker:
         stamps = packed[..., _STAMP]
         counts = np.array([t.count for t in tracks])
         filled = np.arange(capacity)[None, :] < counts[:, None]
-        anchor = np.array([t.newest for t in tracks])
+        anchor = (np.array([t.head for t in tracks]) - 1) % capacity  # each ring's newest ray
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True
         high = packed[..., _HIGH]
-        rays = RayBatch(
+        # Shaped by the ring tables and with each anchor valid (set above): unchecked.
+        rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
             directions=packed[..., 3:6],
             angular_variance=np.where(valid, packed[..., _VARIANCE], 1.0),
@@ -584,13 +599,23 @@ class ObjectTracker:
             coherent[candidates] = self._coherent(solution, rays, counts, candidates)
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
-        for i, track in enumerate(tracks):
-            track.position = solution.position[i]
-            track.covariance = solution.covariance[i]
-            track.size = float(sizes[i])
-            track.resolved = bool(resolved[i])
-            track.consistent = bool(consistent[i])
-            track.coherent = bool(coherent[i])
+        # Python values, read once (an element read from an array costs as much as a list).
+        for track, position, covariance, size, resolved_, consistent_, coherent_ in zip(
+            tracks,
+            solution.position,
+            solution.covariance,
+            sizes.tolist(),
+            resolved.tolist(),
+            consistent.tolist(),
+            coherent.tolist(),
+            strict=True,
+        ):
+            track.position = position
+            track.covariance = covariance
+            track.size = size
+            track.resolved = resolved_
+            track.consistent = consistent_
+            track.coherent = coherent_
 
     def _coherent(
         self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray

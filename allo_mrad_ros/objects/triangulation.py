@@ -64,6 +64,7 @@ _SQRT2 = math.sqrt(2.0)
 # from its exponential limit.
 _FAR_TAIL = 30.0
 _SQRT_2_PI = math.sqrt(2.0 / math.pi)
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,15 @@ class RayBatch:
             raise ObjectsError(f"anchor must have shape {(batch,)}")
         if batch and not np.all(self.valid[np.arange(batch), self.anchor]):
             raise ObjectsError("each object's anchor must be one of its valid rays")
+
+    @classmethod
+    def unchecked(cls, **arrays: np.ndarray) -> RayBatch:
+        """The batch of ``arrays`` (every field, by name) without the checks of its
+        constructor: for arrays right by construction (the tracker's own ray tables, every
+        frame)."""
+        batch = object.__new__(cls)
+        batch.__dict__.update(arrays)
+        return batch
 
     @classmethod
     def single(
@@ -268,11 +278,14 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
         (free_rho + _CONFLICT * rho_sigma < rho_low) | (free_rho - _CONFLICT * rho_sigma > rho_high)
     )
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
-    rho_mean = np.where(conflict, np.clip(free_rho, 1e-3 * own_low, 1e3 * own_high), rho_mean)
+    # numpy.clip as minimum and maximum, here and below: its dispatch costs more than both.
+    kept_rho = np.minimum(np.maximum(free_rho, 1e-3 * own_low), 1e3 * own_high)
+    rho_mean = np.where(conflict, kept_rho, rho_mean)
     rho_variance = np.where(conflict, rho_sigma**2, rho_variance)
     ab = ab + step_ab + slope * (rho_mean - rho)[:, None]
     m = np.concatenate([ab, np.ones((batch, 1))], axis=1)
-    position = anchor_c + np.einsum("bji,bj->bi", basis, m) / rho_mean[:, None]
+    offset = np.einsum("bji,bj->bi", basis, m)  # E^T m
+    position = anchor_c + offset / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
     # truncated normal's; mapped through X = c_a + E^T m / rho.
     a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
@@ -288,7 +301,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     jacobian = np.empty((batch, 3, 3))
     jacobian[:, :, 0] = basis[:, 0] / rho_mean[:, None]
     jacobian[:, :, 1] = basis[:, 1] / rho_mean[:, None]
-    jacobian[:, :, 2] = -np.einsum("bji,bj->bi", basis, m) / rho_mean[:, None] ** 2
+    jacobian[:, :, 2] = -offset / rho_mean[:, None] ** 2
     covariance = jacobian @ theta @ jacobian.transpose(0, 2, 1)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
     ranges = np.where(valid, _along(position, d, origin_along), 0.0)
@@ -313,12 +326,9 @@ def _anchor_basis(anchor_d: np.ndarray) -> np.ndarray:
     # The world axis least aligned with d makes a well-conditioned first axis.
     axis = np.zeros_like(anchor_d)
     axis[np.arange(len(anchor_d)), np.abs(anchor_d).argmin(axis=1)] = 1.0
-    basis = np.empty((len(anchor_d), 3, 3))
-    basis[:, 0] = _cross(anchor_d, axis)
-    basis[:, 0] /= np.sqrt(np.einsum("bi,bi->b", basis[:, 0], basis[:, 0]))[:, None]
-    basis[:, 1] = _cross(anchor_d, basis[:, 0])
-    basis[:, 2] = anchor_d
-    return basis
+    first = _cross(anchor_d, axis)
+    first /= np.sqrt(np.einsum("bi,bi->b", first, first))[:, None]
+    return np.stack([first, _cross(anchor_d, first), anchor_d], axis=1)
 
 
 def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -347,8 +357,7 @@ class _Geometry:
     @classmethod
     def of(cls, directions: np.ndarray, baseline: np.ndarray, rays: RayBatch) -> _Geometry:
         batch, count = rays.valid.shape
-        coupling = np.empty((batch, count, 3))
-        coupling[..., :2] = directions[..., :2]
+        coupling = directions.copy()  # then its third column replaced
         coupling[..., 2] = np.einsum("brj,brj->br", directions, baseline)
         outer = np.zeros((batch, count, 9))
         outer[..., 0] = outer[..., 4] = 1.0
@@ -377,15 +386,17 @@ class _Geometry:
         C_k C_l |v|^2) / s^2`` and ``J_k . r = (w_k - C_k |v|^2) / s``, ``w = (v_x, v_y,
         b . v)``."""
         batch = len(rho)
-        u = self.baseline * rho[:, None, None]
-        u[..., :2] += ab[:, None, :]
-        u[..., 2] += 1.0
+        # u = rho b + m, m added whole (an in-place add to two of the three columns costs
+        # twice the whole product here).
+        m = np.empty((batch, 1, 3))
+        m[:, 0, :2] = ab
+        m[:, 0, 2] = 1.0
+        u = self.baseline * rho[:, None, None] + m
         along = np.einsum("brj,brj->br", self.directions, u)
         valid = self.valid & (along > 1e-9)
         s = np.where(valid, along, 1.0)
         v = u / s[..., None]
-        projected = np.empty_like(v)
-        projected[..., :2] = v[..., :2]
+        projected = v.copy()  # then its third column replaced (cheaper than two copied)
         projected[..., 2] = np.einsum("brj,brj->br", self.baseline, v)
         vv = np.einsum("brj,brj->br", v, v)
         # The point's range along ray i is s / rho: its drift variance as an angle.
@@ -445,16 +456,14 @@ def _feasible(
         + directions[..., 1] * ab[:, 1, None]
     )
     h = geometry.coupling[..., 2]
-    lower = rays.low - h  # rho * lower <= g
-    upper = rays.high - h  # rho * upper >= g
-    valid = rays.valid
+    # rho * lower <= g and rho * upper >= g; padding's coefficients 0 (it bounds nothing).
+    lower = np.where(rays.valid, rays.low - h, 0.0)
+    upper = np.where(rays.valid, rays.high - h, 0.0)
     # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
-    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=valid & (lower > 0))
-    above = np.minimum(
-        above, np.divide(g, upper, out=np.full_like(g, np.inf), where=valid & (upper < 0))
-    )
-    below = np.divide(g, upper, out=np.zeros_like(g), where=valid & (upper > 0))
-    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=valid & (lower < 0)))
+    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=lower > 0)
+    above = np.minimum(above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper < 0))
+    below = np.divide(g, upper, out=np.zeros_like(g), where=upper > 0)
+    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=lower < 0))
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
     rho_low = np.maximum(below.max(axis=1), own_low)
     rho_high = np.minimum(above.min(axis=1), own_high)
@@ -486,10 +495,11 @@ def truncated_normal_moments(
     mirror = a + b < 0
     a, b = np.where(mirror, -b, a), np.where(mirror, -a, b)
     a = np.maximum(a, -10.0)
-    decay = np.exp(-0.5 * (b - a) * (b + a))
+    exponent = -0.5 * (b - a) * (b + a)
+    decay = np.exp(exponent)
     tail = erfcx(a / _SQRT2) - decay * erfcx(b / _SQRT2)
     tail = np.where(tail > 0, tail, 1.0)
-    kept = np.maximum(-np.expm1(-0.5 * (b - a) * (b + a)), 1e-300)  # 1 - D
+    kept = np.maximum(-np.expm1(exponent), 1e-300)  # 1 - D
     shift = _SQRT_2_PI * kept / tail
     far_term = np.where(np.isinf(b), 0.0, b * decay)
     # 1 + sqrt(2/pi) (a - b D) / E - shift^2, arranged so that far in a tail (shift ~ a,
@@ -510,8 +520,9 @@ def truncated_normal_moments(
     out_mean = mean + np.where(mirror, -shift, shift) * scale
     out_variance = scale**2 * np.maximum(spread, 0.0)
     out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
-    out_variance = np.where(uniform, width**2 / 12.0, out_variance)
-    return np.clip(out_mean, low, high), np.minimum(out_variance, width**2 / 12.0)
+    uniform_variance = width**2 / 12.0
+    out_variance = np.where(uniform, uniform_variance, out_variance)
+    return np.minimum(np.maximum(out_mean, low), high), np.minimum(out_variance, uniform_variance)
 
 
 def _information(
@@ -521,7 +532,7 @@ def _information(
     ``b = sum w (I - d d^T) c`` (matrix products, no per-ray 3x3 projector)."""
     # Batched matrix products over the rays (numpy's einsum and 3-D sums are slower here).
     a = (
-        weights.sum(axis=1)[:, None, None] * np.eye(3)
+        weights.sum(axis=1)[:, None, None] * _EYE3
         - (d.transpose(0, 2, 1) * weights[:, None, :]) @ d
     )
     b = (weights[:, None, :] @ c)[:, 0] - ((weights * origin_along)[:, None, :] @ d)[:, 0]

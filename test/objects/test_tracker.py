@@ -634,6 +634,7 @@ def test_an_object_confirmed_again_where_one_was_lost_keeps_its_id():
         k for k, objects in enumerate(history) if k > 19 and objects and objects[0].id == 1
     )
     assert [(o.id, o.state) for o in history[again]] == [(1, "confirmed"), (2, "ended")]
+    assert history[again][0].region == 0 and history[again][0].in_view
     assert all(o.id == 2 and o.state == "tentative" for k in range(20, again) for o in history[k])
 
 

@@ -3,6 +3,7 @@ vectorised batch against a slow float64 oracle."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -192,6 +193,19 @@ def test_a_malformed_batch_is_refused_naming_the_array():
             rays.valid,
             rays.anchor,
         )
+
+
+def test_an_unchecked_batch_holds_the_arrays_given_and_triangulates_as_a_checked_one():
+    rng = np.random.default_rng(5)
+    point = np.array([1.0, 2.0, 12.0])
+    checked = rays_through(point, point + rng.normal(size=(6, 3)) * 3.0, variance=1e-5)
+    arrays = {field.name: getattr(checked, field.name) for field in dataclasses.fields(RayBatch)}
+    unchecked = RayBatch.unchecked(**arrays)
+    for name, array in arrays.items():
+        assert getattr(unchecked, name) is array
+    ours, theirs = triangulate(unchecked), triangulate(checked)
+    for field in dataclasses.fields(ours):
+        np.testing.assert_array_equal(getattr(ours, field.name), getattr(theirs, field.name))
 
 
 def test_the_truncated_normal_moments_match_scipy_and_its_tail_limit():
