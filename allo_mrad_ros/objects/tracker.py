@@ -36,7 +36,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from operator import attrgetter
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -66,6 +66,8 @@ _SPACE_FAR = 1e3
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
 _EYE3 = np.eye(3)
+# A distance below which an estimate is taken to be at the camera (no direction).
+_TINY = 1e-12
 
 
 @dataclass(frozen=True)
@@ -138,28 +140,24 @@ def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def same_object(
-    first: tuple[np.ndarray, np.ndarray, float, float],
-    second: tuple[np.ndarray, np.ndarray, float, float],
+    one: tuple[np.ndarray, np.ndarray, float, float],
+    others: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     camera: np.ndarray,
     limit: float,
-) -> bool:
-    """Whether two estimates may be one thing, seen from the ``camera`` position.
-
-    They are when their extents meet in the image and parallax cannot yet tell their ranges
-    apart. In the image: the angle between them less half their summed angular sizes (the
-    gap between their extents) is at most zero, or its square within ``limit`` times the
-    summed variances of their directions (their regions' centroid noise: a thing the
-    detection splits leaves a few pixels between its parts). In range: the range gap less
-    half their summed sizes is at most zero, or its square within ``limit`` times its
-    variance (the two covariances along their lines of sight). Two things apart in the
-    image are two however uncertain their ranges: the image tells them apart where the
-    triangulation cannot yet.
+) -> np.ndarray:
+    """Which of ``others`` may be one thing with ``one``, seen from the ``camera`` position:
+    their extents meet in the image (:func:`meet_in_image`) and in range
+    (:func:`meet_in_range`). Two things apart in the image are two however uncertain their
+    ranges: the image tells them apart where the triangulation cannot yet.
 
     Parameters
     ----------
-    first, second : tuple
-        Of each: position (3,) and covariance (3, 3) in the station frame, size across
-        (metres) and the standard deviation of its direction (radians).
+    one : tuple
+        Position (3,) and covariance (3, 3) in the station frame, size across (metres) and
+        the standard deviation of its direction (radians).
+    others : tuple
+        The same for ``n`` estimates: positions (n, 3), covariances (n, 3, 3), sizes (n,)
+        and direction noises (n,).
     camera : numpy.ndarray
         The camera's position (3,), station frame.
     limit : float
@@ -167,24 +165,80 @@ def same_object(
 
     Returns
     -------
-    bool
+    numpy.ndarray
+        (n,) bool.
     """
-    ranges, directions = [], []
-    for position, *_ in (first, second):
-        line = np.asarray(position, dtype=np.float64) - camera
-        distance = float(np.linalg.norm(line))
-        ranges.append(distance)
-        directions.append(line / distance if distance > 0 else line)
-    (_, covariance_a, size_a, noise_a), (_, covariance_b, size_b, noise_b) = first, second
-    cosine = float(np.clip(directions[0] @ directions[1], -1.0, 1.0))
-    image_gap = math.acos(cosine) - 0.5 * (size_a / ranges[0] + size_b / ranges[1])
-    if image_gap > 0.0 and image_gap**2 > limit * (noise_a**2 + noise_b**2):
-        return False
-    range_gap = abs(ranges[0] - ranges[1]) - 0.5 * (size_a + size_b)
-    variance = float(
-        directions[0] @ covariance_a @ directions[0] + directions[1] @ covariance_b @ directions[1]
+    position, covariance, size, noise = one
+    positions, covariances, sizes, noises = others
+    image = meet_in_image((position, size, noise), (positions, sizes, noises), camera, limit)
+    in_range = meet_in_range(
+        (position, covariance, size), (positions, covariances, sizes), camera, limit
     )
-    return bool(range_gap <= 0.0 or range_gap**2 <= limit * variance)
+    return image & in_range
+
+
+def meet_in_image(
+    one: tuple[np.ndarray, float, float],
+    others: tuple[np.ndarray, np.ndarray, np.ndarray],
+    camera: np.ndarray,
+    limit: float,
+) -> np.ndarray:
+    """Which of ``others`` (positions (n, 3), sizes (n,), direction noises (n,)) have an
+    extent that meets ``one``'s (position, size, direction noise) in the image from
+    ``camera``: the angle between them less half their summed angular sizes is at most
+    zero, or its square within ``limit`` times the summed variances of their directions (a
+    thing the detection splits leaves a few pixels between its parts)."""
+    position, size, noise = one
+    positions, sizes, noises = (np.asarray(a, dtype=np.float64) for a in others)
+    distance, direction = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
+    distances, directions = _line_of_sight(positions, camera)
+    return _meet_in_image(
+        (direction[0], float(distance[0]), size, noise),
+        (directions, distances, sizes, noises),
+        limit,
+    )
+
+
+def _meet_in_image(
+    one: tuple[np.ndarray, float, float, float],
+    others: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    limit: float,
+) -> np.ndarray:
+    """:func:`meet_in_image` from lines of sight: direction, distance, size and direction
+    noise of ``one``, the same as arrays for ``others``."""
+    direction, distance, size, noise = one
+    directions, distances, sizes, noises = others
+    angles = np.arccos(np.clip(directions @ direction, -1.0, 1.0))
+    gap = angles - 0.5 * (size / distance + sizes / distances)
+    return (gap <= 0.0) | (gap**2 <= limit * (noise**2 + noises**2))
+
+
+def meet_in_range(
+    one: tuple[np.ndarray, np.ndarray, float],
+    others: tuple[np.ndarray, np.ndarray, np.ndarray],
+    camera: np.ndarray,
+    limit: float,
+) -> np.ndarray:
+    """Which of ``others`` (positions (n, 3), covariances (n, 3, 3), sizes (n,)) have an
+    extent that meets ``one``'s (position, covariance, size) in range from ``camera``: the
+    range gap less half their summed sizes is at most zero, or its square within ``limit``
+    times its variance (the two covariances along their lines of sight)."""
+    position, covariance, size = one
+    positions, covariances, sizes = (np.asarray(a, dtype=np.float64) for a in others)
+    distance, direction = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
+    distances, directions = _line_of_sight(positions, camera)
+    gap = np.abs(distances - distance[0]) - 0.5 * (size + sizes)
+    variance = direction[0] @ covariance @ direction[0] + np.einsum(
+        "ni,nij,nj->n", directions, covariances, directions
+    )
+    return (gap <= 0.0) | (gap**2 <= limit * variance)
+
+
+def _line_of_sight(positions: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (n,) of ``positions`` (n, 3) from ``camera`` and their unit directions."""
+    lines = positions - camera
+    distances = np.maximum(np.sqrt(np.einsum("ni,ni->n", lines, lines)), _TINY)
+    return distances, lines / distances[:, None]
 
 
 class _Track:
@@ -425,6 +479,8 @@ class ObjectTracker:
         records: list[TrackedObject] = []
         confirmed = [t for t in tracks if t.state == "confirmed"]
         camera = pose[:3, 3]
+        # What the second-track test compares a candidate with (built when first asked).
+        confirmed_seen: tuple[np.ndarray, ...] | None = None
         self._lost = [lost for lost in self._lost if stamp - lost[1] <= params.reacquire_s]
         for track, seen in zip(tracks, visible, strict=True):
             region = matched_region.get(track.id)  # before a reacquired object's id changes
@@ -441,15 +497,18 @@ class ObjectTracker:
                 and track.resolved
                 and track.consistent
                 and track.coherent
-                and not self._duplicate(track, confirmed, camera)
             ):
-                track.state = "confirmed"
-                confirmed.append(track)
-                lost_id = self._reacquired(track, camera)
-                if lost_id is not None:
-                    # Its tentative id ends; the object it is goes on under its old one.
-                    ended.append(self._record(track, False, None, state="ended"))
-                    track.id = lost_id
+                if confirmed_seen is None:
+                    confirmed_seen = self._seen(confirmed, camera)
+                if not self._duplicate(track, confirmed, confirmed_seen, camera):
+                    track.state = "confirmed"
+                    confirmed.append(track)
+                    confirmed_seen = None  # one more: built again when next asked
+                    lost_id = self._reacquired(track, camera)
+                    if lost_id is not None:
+                        # Its tentative id ends; the object it is goes on under its old one.
+                        ended.append(self._record(track, False, None, state="ended"))
+                        track.id = lost_id
             record = self._record(track, seen, region)
             if track.state == "ended":
                 ended.append(record)
@@ -648,52 +707,88 @@ class ObjectTracker:
         limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
         return (dof < 1) | (terms.sum(axis=1) <= limit)
 
-    def _duplicate(self, track: _Track, confirmed: Sequence[_Track], camera: np.ndarray) -> bool:
-        """Whether ``track`` is a second track of one of the ``confirmed`` objects, seen from
-        the ``camera`` position (:func:`same_object`, each direction as noisy as a region
-        of its angular size). A detection that splits one thing into regions the gate keeps
-        apart (a blanket's folds, a wrench's head and handle) starts a second track of it;
-        confirmed, it would be a second object where there is one."""
-        if self.params.duplicate_quantile == 0.0:
+    def _duplicate(
+        self,
+        track: _Track,
+        confirmed: Sequence[_Track],
+        seen: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        camera: np.ndarray,
+    ) -> bool:
+        """Whether ``track`` is a second track of one of the ``confirmed`` objects (``seen``:
+        their :meth:`_seen`), seen from the ``camera`` position
+        (:func:`same_object`; the range test only for those that meet it in the image). A
+        detection that splits one thing into regions the gate keeps apart (a blanket's
+        folds, a wrench's head and handle) starts a second track of it; confirmed, it would
+        be a second object where there is one."""
+        if self.params.duplicate_quantile == 0.0 or not confirmed:
             return False
-        return any(
-            same_object(
-                self._estimate(track, camera),
-                self._estimate(other, camera),
-                camera,
-                self._duplicate_limit,
-            )
-            for other in confirmed
-        )
+        position, covariance, size, noise = self._estimate(track, camera)
+        limit = self._duplicate_limit
+        positions, directions, distances, sizes, noises = seen
+        line = position - camera
+        distance = max(math.sqrt(float(line @ line)), _TINY)
+        one = (line / distance, distance, size, noise)
+        near = np.flatnonzero(_meet_in_image(one, (directions, distances, sizes, noises), limit))
+        if not len(near):
+            return False
+        others = (positions[near], np.array([confirmed[i].covariance for i in near]), sizes[near])
+        return bool(meet_in_range((position, covariance, size), others, camera, limit).any())
 
     def _reacquired(self, track: _Track, camera: np.ndarray) -> int | None:
         """The id of the object lost within ``reacquire_s`` that ``track`` is
         (:func:`same_object` against its last estimate; the most recently lost first), taken
         off the lost list; None if none."""
-        candidate = self._estimate(track, camera)
-        for k in range(len(self._lost) - 1, -1, -1):
-            lost_id, _, (position, covariance, size) = self._lost[k]
-            lost = self._estimate_at(position, covariance, size, camera)
-            if same_object(candidate, lost, camera, self._duplicate_limit):
-                del self._lost[k]
-                return lost_id
-        return None
+        if not self._lost:
+            return None
+        lost = self._estimates([estimate for _, _, estimate in self._lost], camera)
+        one = self._estimate(track, camera)
+        found = np.flatnonzero(same_object(one, lost, camera, self._duplicate_limit))
+        if not len(found):
+            return None
+        lost_id = self._lost[found[-1]][0]
+        del self._lost[found[-1]]
+        return lost_id
 
     def _estimate(
         self, track: _Track, camera: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, float, float]:
         """``track``'s position, covariance, size and the angular noise of a region of its
         angular size seen from ``camera`` (the association's centroid noise)."""
-        return self._estimate_at(track.position, track.covariance, track.size, camera)
+        distance = max(math.dist(track.position, camera), _TINY)
+        return (
+            track.position,
+            track.covariance,
+            track.size,
+            self._direction_noise(track.size / distance),
+        )
 
-    def _estimate_at(
-        self, position: np.ndarray, covariance: np.ndarray, size: float, camera: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    def _estimates(
+        self, estimates: Sequence[tuple[np.ndarray, np.ndarray, float]], camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Of each of ``estimates`` (position, covariance, size) as arrays: positions,
+        covariances, sizes and direction noises from ``camera`` (:meth:`_estimate`)."""
+        positions = np.array([e[0] for e in estimates]).reshape(-1, 3)
+        sizes = np.array([e[2] for e in estimates])
+        distances, _ = _line_of_sight(positions, camera)
+        noises = self._direction_noise(sizes / distances)
+        return positions, np.array([e[1] for e in estimates]), sizes, noises
+
+    def _seen(
+        self, tracks: Sequence[_Track], camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, directions and distances from ``camera``, sizes and direction noises
+        of ``tracks``."""
+        positions = np.array([t.position for t in tracks]).reshape(-1, 3)
+        sizes = np.array([t.size for t in tracks])
+        distances, directions = _line_of_sight(positions, camera)
+        return positions, directions, distances, sizes, self._direction_noise(sizes / distances)
+
+    def _direction_noise(self, angular_size: Any) -> Any:
+        """The standard deviation, radians, of the direction of a region ``angular_size``
+        across (radians): the association's centroid noise."""
         params = self.params
-        distance = float(np.linalg.norm(position - camera))
-        extent_px = self._focal * size / distance if distance > 0 else 0.0
-        noise_px = math.hypot(params.pixel_sigma, params.extent_sigma_fraction * extent_px)
-        return position, covariance, size, noise_px / self._focal
+        extent_px = self._focal * angular_size
+        return np.hypot(params.pixel_sigma, params.extent_sigma_fraction * extent_px) / self._focal
 
     def _range_checks(
         self, solution: Triangulation, rays: RayBatch

@@ -573,6 +573,50 @@ def test_two_objects_apart_in_the_image_are_both_confirmed():
     assert [(o.id, o.state) for o in objects] == [(1, "confirmed"), (2, "confirmed")]
 
 
+def same_object_naive(one, other, camera, limit):
+    """The rule of ``same_object`` for one pair, written out in float64 scalars."""
+    ranges, directions = [], []
+    for position in (one[0], other[0]):
+        line = [float(position[i]) - float(camera[i]) for i in range(3)]
+        distance = math.sqrt(sum(c * c for c in line))
+        ranges.append(distance)
+        directions.append([c / distance for c in line])
+    cosine = sum(a * b for a, b in zip(*directions, strict=True))
+    angle = math.acos(max(-1.0, min(1.0, cosine)))
+    image_gap = angle - 0.5 * (one[2] / ranges[0] + other[2] / ranges[1])
+    if image_gap > 0 and image_gap**2 > limit * (one[3] ** 2 + other[3] ** 2):
+        return False
+    range_gap = abs(ranges[0] - ranges[1]) - 0.5 * (one[2] + other[2])
+    variance = 0.0
+    for (_, covariance, _, _), u in zip((one, other), directions, strict=True):
+        variance += sum(u[i] * covariance[i][j] * u[j] for i in range(3) for j in range(3))
+    return range_gap <= 0 or range_gap**2 <= limit * variance
+
+
+def _batch(*estimates):
+    return tuple(np.array([e[k] for e in estimates]) for k in range(4))
+
+
+def test_same_object_matches_the_scalar_oracle_on_random_estimates():
+    rng = np.random.default_rng(5)
+    limit = chi2.ppf(0.999, 1)
+    camera = rng.normal(0.0, 1.0, 3)
+    agreed = set()
+    for _ in range(200):
+
+        def estimate():
+            root = rng.normal(0.0, 0.3, (3, 3))
+            position = camera + np.array([0.0, 0.0, 8.0]) + rng.normal(0.0, 0.6, 3)
+            return position, root @ root.T, rng.uniform(0.05, 1.0), rng.uniform(0.0, 0.02)
+
+        one, others = estimate(), [estimate() for _ in range(5)]
+        got = same_object(one, _batch(*others), camera, limit)
+        expected = [same_object_naive(one, other, camera, limit) for other in others]
+        assert got.tolist() == expected
+        agreed.update(expected)
+    assert agreed == {True, False}  # both outcomes drawn
+
+
 @pytest.mark.parametrize(("sigmas", "one"), [(3.0, True), (3.5, False)])
 def test_overlapping_estimates_are_one_while_their_ranges_agree_within_the_limit(sigmas, one):
     # Two estimates on one line of sight from the camera, 2 m apart in range, 0.2 m across:
@@ -583,11 +627,11 @@ def test_overlapping_estimates_are_one_while_their_ranges_agree_within_the_limit
     covariance = np.eye(3) * (1.8 / sigmas) ** 2 / 2.0
     near = (np.array([0.0, 0.0, 10.0]), covariance, 0.2, 0.0)
     far = (np.array([0.0, 0.0, 12.0]), covariance, 0.2, 0.0)
-    assert same_object(near, far, camera, limit) is one
-    assert same_object(far, near, camera, limit) is one
+    assert same_object(near, _batch(far), camera, limit).tolist() == [one]
+    assert same_object(far, _batch(near), camera, limit).tolist() == [one]
     # Overlapping extents in range: one, however certain.
     touching = (np.array([0.0, 0.0, 10.15]), np.eye(3) * 1e-12, 0.2, 0.0)
-    assert same_object(near, touching, camera, limit) is True
+    assert same_object(near, _batch(touching), camera, limit).tolist() == [True]
 
 
 @pytest.mark.parametrize(("sigmas", "one"), [(3.0, True), (3.5, False)])
@@ -601,13 +645,9 @@ def test_estimates_apart_in_the_image_are_two_beyond_their_directions_noise(sigm
     gap = angle - 0.5 * (0.2 / 10.0 + 0.2 / math.hypot(0.5, 10.0))
     noise = gap / sigmas / math.sqrt(2.0)
     here = (np.array([0.0, 0.0, 10.0]), np.eye(3) * 100.0, 0.2, noise)
-    aside = (
-        10.0 * np.array([math.sin(angle), 0.0, math.cos(angle)]),
-        np.eye(3) * 100.0,
-        0.2,
-        noise,
-    )
-    assert same_object(here, aside, camera, limit) is one
+    where = 10.0 * np.array([math.sin(angle), 0.0, math.cos(angle)])
+    aside = (where, np.eye(3) * 100.0, 0.2, noise)
+    assert same_object(here, _batch(aside), camera, limit).tolist() == [one]
 
 
 def _lost_and_found(tracker, gap_frames):
