@@ -502,7 +502,7 @@ def _decided(
             decided.full_mask, decided.score, decided.raw, decided.mask, work_query, params
         )
         area = int(cv2.countNonZero(full_mask))
-        frame_score = image_score(score, decision.area, params)
+        frame_score = image_score(score, area, params)
     return DetectionResult(
         work_score=score,
         raw_score=raw,

@@ -222,6 +222,18 @@ def test_the_frame_decision_reads_the_cell_statistics_alone(cue, rule, frame_map
     assert "decision_mask" in on.timings_ms and "decision_mask" not in off.timings_ms
 
 
+def test_with_a_cue_the_area_image_score_is_the_published_masks():
+    # The image score ranks frames by what the detector shows (the cue's mask), the verdict
+    # by the cue-free decision.
+    query, reference, _, _ = _busy_cell_scene(12)
+    params = MradParams(
+        process_scale=1.0, grid=4, colour_transfer="none", local_radius=1, image_score="area"
+    )
+    off = detect(query, reference, params)
+    on = detect(query, reference, params.replace(local_weight=1.0))
+    assert on.image_score == float(on.area) > off.image_score == float(off.area)
+
+
 def test_weights_zero_leave_the_detection_unchanged():
     query, reference, _, _ = _busy_cell_scene(14)
     params = MradParams(process_scale=0.5, local_weight=0.0)
