@@ -501,7 +501,7 @@ def _decided(
         decision = frame_decision(
             decided.full_mask, decided.score, decided.raw, decided.mask, work_query, params
         )
-        area = int(cv2.countNonZero(full_mask))
+        area = decision.area if verdict is None else int(cv2.countNonZero(full_mask))
         frame_score = image_score(score, area, params)
     return DetectionResult(
         work_score=score,
