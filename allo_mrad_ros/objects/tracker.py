@@ -339,7 +339,7 @@ class ObjectTracker:
             if params.residual_quantile >= 1.0
             else chi2.ppf(params.residual_quantile, np.maximum(degrees, 1))
         )
-        # The squared range gap, in variances, within which two estimates are one object.
+        # A squared gap (in the image or in range), in variances, within which extents meet.
         self._duplicate_limit = float(chi2.ppf(params.duplicate_quantile, 1))
         self._tracks: list[_Track] = []
         # Confirmed objects that ended, for reacquire_s: id, end stamp and last estimate.
