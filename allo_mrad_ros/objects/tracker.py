@@ -115,6 +115,18 @@ class TrackedObject:
     last_hit_stamp: float
 
 
+@dataclass(frozen=True)
+class _Sightings:
+    """Estimates seen from one camera position: distances (n,) and unit directions (n, 3),
+    sizes (n,), direction noises (n,) and covariances (n of (3, 3), gathered as needed)."""
+
+    distances: np.ndarray
+    directions: np.ndarray
+    sizes: np.ndarray
+    noises: np.ndarray
+    covariances: Sequence[np.ndarray]
+
+
 def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) -> np.ndarray:
     """(n, _COLUMNS) each observation's ray as a row of a track's ray table: built once a
     frame, so that adding a ray to a track is one row copy (a write per column per track
@@ -169,12 +181,12 @@ def same_object(
         (n,) bool.
     """
     position, covariance, size, noise = one
-    positions, covariances, sizes, noises = others
-    image = meet_in_image((position, size, noise), (positions, sizes, noises), camera, limit)
-    in_range = meet_in_range(
-        (position, covariance, size), (positions, covariances, sizes), camera, limit
+    positions, covariances, sizes, noises = (np.asarray(a, dtype=np.float64) for a in others)
+    sight = _sight_of(position, camera)
+    sights = _line_of_sight(positions, camera)
+    return _meet_in_image(sight, size, noise, sights, sizes, noises, limit) & _meet_in_range(
+        sight, covariance, size, sights, covariances, sizes, limit
     )
-    return image & in_range
 
 
 def meet_in_image(
@@ -190,27 +202,8 @@ def meet_in_image(
     thing the detection splits leaves a few pixels between its parts)."""
     position, size, noise = one
     positions, sizes, noises = (np.asarray(a, dtype=np.float64) for a in others)
-    distance, direction = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
-    distances, directions = _line_of_sight(positions, camera)
-    return _meet_in_image(
-        (direction[0], float(distance[0]), size, noise),
-        (directions, distances, sizes, noises),
-        limit,
-    )
-
-
-def _meet_in_image(
-    one: tuple[np.ndarray, float, float, float],
-    others: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    limit: float,
-) -> np.ndarray:
-    """:func:`meet_in_image` from lines of sight: direction, distance, size and direction
-    noise of ``one``, the same as arrays for ``others``."""
-    direction, distance, size, noise = one
-    directions, distances, sizes, noises = others
-    angles = np.arccos(np.clip(directions @ direction, -1.0, 1.0))
-    gap = angles - 0.5 * (size / distance + sizes / distances)
-    return (gap <= 0.0) | (gap**2 <= limit * (noise**2 + noises**2))
+    sights = _line_of_sight(positions, camera)
+    return _meet_in_image(_sight_of(position, camera), size, noise, sights, sizes, noises, limit)
 
 
 def meet_in_range(
@@ -225,16 +218,58 @@ def meet_in_range(
     times its variance (the two covariances along their lines of sight)."""
     position, covariance, size = one
     positions, covariances, sizes = (np.asarray(a, dtype=np.float64) for a in others)
-    distance, direction = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
-    distances, directions = _line_of_sight(positions, camera)
-    gap = np.abs(distances - distance[0]) - 0.5 * (size + sizes)
-    variance = direction[0] @ covariance @ direction[0] + np.einsum(
+    sights = _line_of_sight(positions, camera)
+    return _meet_in_range(
+        _sight_of(position, camera), covariance, size, sights, covariances, sizes, limit
+    )
+
+
+# A line of sight: distance from the camera and unit direction, of one estimate (a float
+# and (3,)) or of n (arrays (n,) and (n, 3)).
+_Sight = tuple[Any, np.ndarray]
+
+
+def _meet_in_image(
+    sight: _Sight,
+    size: float,
+    noise: float,
+    sights: _Sight,
+    sizes: np.ndarray,
+    noises: np.ndarray,
+    limit: float,
+) -> np.ndarray:
+    """:func:`meet_in_image` from lines of sight."""
+    (distance, direction), (distances, directions) = sight, sights
+    angles = np.arccos(np.clip(directions @ direction, -1.0, 1.0))
+    gap = angles - 0.5 * (size / distance + sizes / distances)
+    return (gap <= 0.0) | (gap**2 <= limit * (noise**2 + noises**2))
+
+
+def _meet_in_range(
+    sight: _Sight,
+    covariance: np.ndarray,
+    size: float,
+    sights: _Sight,
+    covariances: np.ndarray,
+    sizes: np.ndarray,
+    limit: float,
+) -> np.ndarray:
+    """:func:`meet_in_range` from lines of sight."""
+    (distance, direction), (distances, directions) = sight, sights
+    gap = np.abs(distances - distance) - 0.5 * (size + sizes)
+    variance = direction @ covariance @ direction + np.einsum(
         "ni,nij,nj->n", directions, covariances, directions
     )
     return (gap <= 0.0) | (gap**2 <= limit * variance)
 
 
-def _line_of_sight(positions: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _sight_of(position: np.ndarray, camera: np.ndarray) -> _Sight:
+    """The line of sight of one ``position`` (3,) from ``camera``."""
+    distances, directions = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
+    return float(distances[0]), directions[0]
+
+
+def _line_of_sight(positions: np.ndarray, camera: np.ndarray) -> _Sight:
     """Distances (n,) of ``positions`` (n, 3) from ``camera`` and their unit directions."""
     lines = positions - camera
     distances = np.maximum(np.sqrt(np.einsum("ni,ni->n", lines, lines)), _TINY)
@@ -479,8 +514,8 @@ class ObjectTracker:
         records: list[TrackedObject] = []
         confirmed = [t for t in tracks if t.state == "confirmed"]
         camera = pose[:3, 3]
-        # What the second-track test compares a candidate with (built when first asked).
-        confirmed_seen: tuple[np.ndarray, ...] | None = None
+        # The confirmed objects' lines of sight (built when a candidate first asks).
+        confirmed_sights: _Sightings | None = None
         self._lost = [lost for lost in self._lost if stamp - lost[1] <= params.reacquire_s]
         for track, seen in zip(tracks, visible, strict=True):
             region = matched_region.get(track.id)  # before a reacquired object's id changes
@@ -498,12 +533,12 @@ class ObjectTracker:
                 and track.consistent
                 and track.coherent
             ):
-                if confirmed_seen is None:
-                    confirmed_seen = self._seen(confirmed, camera)
-                if not self._duplicate(track, confirmed, confirmed_seen, camera):
+                if confirmed_sights is None:
+                    confirmed_sights = self._sightings(confirmed, camera)
+                if not self._duplicate(track, confirmed_sights, camera):
                     track.state = "confirmed"
                     confirmed.append(track)
-                    confirmed_seen = None  # one more: built again when next asked
+                    confirmed_sights = None  # one more: built again when next asked
                     lost_id = self._reacquired(track, camera)
                     if lost_id is not None:
                         # Its tentative id ends; the object it is goes on under its old one.
@@ -526,9 +561,8 @@ class ObjectTracker:
     def _pixel_variances(self, observations: Observations) -> np.ndarray:
         """(n, 2) each observation's centroid variance along the image's x and y, pixels^2:
         the image edge's share only along the axis across the edge it touches."""
-        params = self.params
-        base = params.pixel_sigma**2 + (params.extent_sigma_fraction * observations.extent_px) ** 2
-        return base[:, None] + (params.edge_sigma_fraction * observations.edge_px) ** 2
+        base = self._centroid_variance(observations.extent_px)
+        return base[:, None] + (self.params.edge_sigma_fraction * observations.edge_px) ** 2
 
     def _associate(
         self,
@@ -707,32 +741,15 @@ class ObjectTracker:
         limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
         return (dof < 1) | (terms.sum(axis=1) <= limit)
 
-    def _duplicate(
-        self,
-        track: _Track,
-        confirmed: Sequence[_Track],
-        seen: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-        camera: np.ndarray,
-    ) -> bool:
-        """Whether ``track`` is a second track of one of the ``confirmed`` objects (``seen``:
-        their :meth:`_seen`), seen from the ``camera`` position
-        (:func:`same_object`; the range test only for those that meet it in the image). A
-        detection that splits one thing into regions the gate keeps apart (a blanket's
-        folds, a wrench's head and handle) starts a second track of it; confirmed, it would
-        be a second object where there is one."""
-        if self.params.duplicate_quantile == 0.0 or not confirmed:
+    def _duplicate(self, track: _Track, confirmed: _Sightings, camera: np.ndarray) -> bool:
+        """Whether ``track`` is a second track of one of the ``confirmed`` objects, seen from
+        the ``camera`` position (:func:`same_object`). A detection that splits one thing
+        into regions the gate keeps apart (a blanket's folds, a wrench's head and handle)
+        starts a second track of it; confirmed, it would be a second object where there is
+        one."""
+        if self.params.duplicate_quantile == 0.0:
             return False
-        position, covariance, size, noise = self._estimate(track, camera)
-        limit = self._duplicate_limit
-        positions, directions, distances, sizes, noises = seen
-        line = position - camera
-        distance = max(math.sqrt(float(line @ line)), _TINY)
-        one = (line / distance, distance, size, noise)
-        near = np.flatnonzero(_meet_in_image(one, (directions, distances, sizes, noises), limit))
-        if not len(near):
-            return False
-        others = (positions[near], np.array([confirmed[i].covariance for i in near]), sizes[near])
-        return bool(meet_in_range((position, covariance, size), others, camera, limit).any())
+        return bool(self._one_with(track, confirmed, camera).any())
 
     def _reacquired(self, track: _Track, camera: np.ndarray) -> int | None:
         """The id of the object lost within ``reacquire_s`` that ``track`` is
@@ -740,55 +757,69 @@ class ObjectTracker:
         off the lost list; None if none."""
         if not self._lost:
             return None
-        lost = self._estimates([estimate for _, _, estimate in self._lost], camera)
-        one = self._estimate(track, camera)
-        found = np.flatnonzero(same_object(one, lost, camera, self._duplicate_limit))
+        lost = self._sightings([estimate for _, _, estimate in self._lost], camera)
+        found = np.flatnonzero(self._one_with(track, lost, camera))
         if not len(found):
             return None
         lost_id = self._lost[found[-1]][0]
         del self._lost[found[-1]]
         return lost_id
 
-    def _estimate(
-        self, track: _Track, camera: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """``track``'s position, covariance, size and the angular noise of a region of its
-        angular size seen from ``camera`` (the association's centroid noise)."""
-        distance = max(math.dist(track.position, camera), _TINY)
-        return (
-            track.position,
-            track.covariance,
-            track.size,
-            self._direction_noise(track.size / distance),
+    def _one_with(self, track: _Track, others: _Sightings, camera: np.ndarray) -> np.ndarray:
+        """(n,) bool: which of ``others`` ``track`` may be one thing with
+        (:func:`same_object`, each direction as noisy as a region of its angular size); the
+        range test only for those that meet it in the image (their covariances gathered for
+        those alone)."""
+        one = np.zeros(len(others.sizes), dtype=bool)
+        if not len(one):
+            return one
+        limit = self._duplicate_limit
+        sight = _sight_of(track.position, camera)
+        noise = self._direction_noise(track.size / sight[0])
+        sights = (others.distances, others.directions)
+        near = np.flatnonzero(
+            _meet_in_image(sight, track.size, noise, sights, others.sizes, others.noises, limit)
         )
+        if len(near):
+            near_sights = (others.distances[near], others.directions[near])
+            covariances = np.array([others.covariances[i] for i in near])
+            one[near] = _meet_in_range(
+                sight,
+                track.covariance,
+                track.size,
+                near_sights,
+                covariances,
+                others.sizes[near],
+                limit,
+            )
+        return one
 
-    def _estimates(
-        self, estimates: Sequence[tuple[np.ndarray, np.ndarray, float]], camera: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Of each of ``estimates`` (position, covariance, size) as arrays: positions,
-        covariances, sizes and direction noises from ``camera`` (:meth:`_estimate`)."""
-        positions = np.array([e[0] for e in estimates]).reshape(-1, 3)
-        sizes = np.array([e[2] for e in estimates])
-        distances, _ = _line_of_sight(positions, camera)
-        noises = self._direction_noise(sizes / distances)
-        return positions, np.array([e[1] for e in estimates]), sizes, noises
-
-    def _seen(
-        self, tracks: Sequence[_Track], camera: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Positions, directions and distances from ``camera``, sizes and direction noises
-        of ``tracks``."""
-        positions = np.array([t.position for t in tracks]).reshape(-1, 3)
-        sizes = np.array([t.size for t in tracks])
+    def _sightings(
+        self,
+        estimates: Sequence[_Track] | Sequence[tuple[np.ndarray, np.ndarray, float]],
+        camera: np.ndarray,
+    ) -> _Sightings:
+        """The lines of sight from ``camera`` of tracks, or of (position, covariance, size)
+        estimates, with their sizes, direction noises and covariances (kept as given)."""
+        rows = [
+            (e.position, e.covariance, e.size) if isinstance(e, _Track) else e for e in estimates
+        ]
+        positions = np.array([r[0] for r in rows]).reshape(-1, 3)
+        sizes = np.array([r[2] for r in rows], dtype=np.float64)
         distances, directions = _line_of_sight(positions, camera)
-        return positions, directions, distances, sizes, self._direction_noise(sizes / distances)
+        noises = self._direction_noise(sizes / distances)
+        return _Sightings(distances, directions, sizes, noises, [r[1] for r in rows])
 
     def _direction_noise(self, angular_size: Any) -> Any:
         """The standard deviation, radians, of the direction of a region ``angular_size``
-        across (radians): the association's centroid noise."""
+        across (radians): the association's centroid noise (:meth:`_centroid_variance`)."""
+        return np.sqrt(self._centroid_variance(self._focal * angular_size)) / self._focal
+
+    def _centroid_variance(self, extent_px: Any) -> Any:
+        """A region's centroid variance, pixels^2, for its extent (pixels), away from the
+        image's edge: ``pixel_sigma`` and ``extent_sigma_fraction`` of the extent."""
         params = self.params
-        extent_px = self._focal * angular_size
-        return np.hypot(params.pixel_sigma, params.extent_sigma_fraction * extent_px) / self._focal
+        return params.pixel_sigma**2 + (params.extent_sigma_fraction * extent_px) ** 2
 
     def _range_checks(
         self, solution: Triangulation, rays: RayBatch
