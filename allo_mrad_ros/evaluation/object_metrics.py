@@ -231,6 +231,41 @@ def frame_period_s(stamps_ns: Sequence[int]) -> float:
     return float(np.median(np.diff(np.asarray(stamps_ns, dtype=np.int64)))) * 1e-9
 
 
+def match_distances(
+    estimates: Sequence[tuple[int, Sequence[float], np.ndarray]],
+    objects: Sequence[GroundTruthObject],
+    rules: MatchRules,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each estimate's distance from each true object, and the match distance there.
+
+    Parameters
+    ----------
+    estimates : sequence of tuple
+        Per confirmed object: the stamp (ns) of the frame of its estimate, that frame's
+        camera position and the estimate (station frame).
+    objects : sequence of GroundTruthObject
+        The true objects, each where it is at the estimate's stamp.
+    rules : MatchRules
+        ``match_floor_m`` and ``match_fraction``.
+
+    Returns
+    -------
+    distance, tolerance : numpy.ndarray
+        (estimates, objects): ``|estimate - truth|`` and ``max(match_floor_m,
+        match_fraction * range)``, the range from that frame's camera to the truth.
+    """
+    distance = np.zeros((len(estimates), len(objects)))
+    tolerance = np.zeros_like(distance)
+    for r, (stamp_ns, camera_position, estimate) in enumerate(estimates):
+        camera = np.asarray(camera_position, dtype=np.float64)
+        for c, item in enumerate(objects):
+            truth = item.position_at(stamp_ns)
+            distance[r, c] = float(np.linalg.norm(estimate - truth))
+            true_range = float(np.linalg.norm(truth - camera))
+            tolerance[r, c] = max(rules.match_floor_m, rules.match_fraction * true_range)
+    return distance, tolerance
+
+
 def assign(distance: np.ndarray, tolerance: np.ndarray) -> list[tuple[int, int]]:
     """One-to-one pairs ``(row, column)`` with ``distance <= tolerance``: the most pairs,
     then the least total distance (rows: confirmed objects, columns: true objects)."""
@@ -314,16 +349,11 @@ def object_metrics(
             free_trajectories += 1
             totals["free_false"] += len(track_ids)
             free_minutes += len(frames) * period / 60.0
-        distance = np.zeros((len(track_ids), len(true_ids)))
-        tolerance = np.zeros_like(distance)
-        for r, track_id in enumerate(track_ids):
-            i, estimate = last[track_id]
-            camera = np.asarray(truths[i].camera_position, dtype=np.float64)
-            for c, object_id in enumerate(true_ids):
-                truth = by_id[object_id].position_at(truths[i].stamp_ns)
-                distance[r, c] = float(np.linalg.norm(estimate - truth))
-                true_range = float(np.linalg.norm(truth - camera))
-                tolerance[r, c] = max(rules.match_floor_m, rules.match_fraction * true_range)
+        estimates = [
+            (truths[i].stamp_ns, truths[i].camera_position, estimate)
+            for i, estimate in (last[track_id] for track_id in track_ids)
+        ]
+        distance, tolerance = match_distances(estimates, [by_id[o] for o in true_ids], rules)
         pairs = assign(distance, tolerance)
         totals["true"] += len(pairs)
         match_of = {true_ids[c]: track_ids[r] for r, c in pairs}

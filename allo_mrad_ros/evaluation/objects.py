@@ -41,6 +41,7 @@ from allo_mrad_ros.evaluation.object_metrics import (
     ObjectMetrics,
     assign,
     frame_period_s,
+    match_distances,
     object_metrics,
 )
 from allo_mrad_ros.evaluation.parallel import RunClock, run_frames
@@ -501,16 +502,11 @@ def diagnose_objects(
         # The evaluation's one-to-one match (object_metrics), on the last estimates.
         confirmed_ids = sorted(last)
         true_ids = sorted(shown)
-        distance = np.zeros((len(confirmed_ids), len(true_ids)))
-        tolerance = np.zeros_like(distance)
-        for r, track_id in enumerate(confirmed_ids):
-            i, estimate = last[track_id]
-            stamp, camera = run.frames[i].stamp_ns, run.frames[i].pose[:3, 3]
-            for c, object_id in enumerate(true_ids):
-                truth = by_id[object_id].position_at(stamp)
-                distance[r, c] = float(np.linalg.norm(estimate - truth))
-                true_range = float(np.linalg.norm(truth - camera))
-                tolerance[r, c] = max(rules.match_floor_m, rules.match_fraction * true_range)
+        estimates = [
+            (run.frames[i].stamp_ns, run.frames[i].pose[:3, 3], estimate)
+            for i, estimate in (last[track_id] for track_id in confirmed_ids)
+        ]
+        distance, tolerance = match_distances(estimates, [by_id[o] for o in true_ids], rules)
         matched = {true_ids[c] for _, c in assign(distance, tolerance)}
         for c, object_id in enumerate(true_ids):
             item = by_id[object_id]
