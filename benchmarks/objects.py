@@ -31,10 +31,10 @@ import pickle
 import statistics
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from allo_mrad_ros.detector.params import params_from
 from allo_mrad_ros.evaluation.object_metrics import HEADLINE_METRICS
 from allo_mrad_ros.evaluation.objects import (
     ObjectDiagnosis,
@@ -45,6 +45,7 @@ from allo_mrad_ros.evaluation.objects import (
     score_run,
 )
 from allo_mrad_ros.objects import ObjectParams
+from allo_mrad_ros.objects.params import params_from as object_params_from
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.sequence import read_sequence
 from benchmarks import tracker as tracker_bench
@@ -291,20 +292,6 @@ def diagnose(
     return rows
 
 
-def parse_changes(items: list[str]) -> dict[str, float]:
-    """``name=value`` items (numbers) as a dict."""
-    changes: dict[str, float] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"{item!r}: expected name=value")
-        try:
-            changes[name] = float(value)
-        except ValueError:
-            raise SystemExit(f"{item!r}: {value!r} is not a number") from None
-    return changes
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Objects in the station frame, val and test.")
     parser.add_argument("--data", type=Path, default=Path("data/objects"))
@@ -335,10 +322,14 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     ensure_data(args.data, args.width, args.height, args.seed)
-    base = PipelineConfig(methods=("MRAD",))
-    config = replace(base, params=replace(base.params, **parse_changes(args.detector)))
+    try:
+        detector = params_from("default", args.detector)
+        tracker_changes = object_params_from(args.param)
+    except ValueError as error:  # ParamsError, ObjectsError
+        raise SystemExit(str(error)) from None
+    config = PipelineConfig(methods=("MRAD",), params=detector)
     if args.diagnose:
-        params = ObjectParams().replace(**parse_changes(args.param))
+        params = tracker_changes
         diagnose(args.data, args.cache, params, config, args.jobs)
         return
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
@@ -379,7 +370,7 @@ def main(argv: list[str] | None = None) -> None:
         "data": str(args.data),
         "frames": {s: len(r.frames) for s, r in runs.items()},
         "camera": {"width": runs["test"].camera.width, "height": runs["test"].camera.height},
-        "detector_changes": parse_changes(args.detector),
+        "detector_changes": list(args.detector),
         "chosen_params": dict(vars(best_params)),
         "defaults": dict(vars(defaults)),
         "grid": {k: [list(v) if isinstance(v, tuple) else v for v in vs] for k, vs in GRID.items()},

@@ -268,22 +268,13 @@ def object_params(assignments: Sequence[str]) -> object:
     CliError
         For a malformed assignment, an unknown name or a value out of range.
     """
-    from allo_mrad_ros.objects import ObjectParams
+    from allo_mrad_ros.objects import ObjectsError
+    from allo_mrad_ros.objects.params import params_from
 
-    changes: dict[str, float] = {}
-    for text in assignments:
-        name, sep, value = text.partition("=")
-        if not sep or not name.strip():
-            raise CliError(f"--object-set expects NAME=VALUE, got {text!r}")
-        try:
-            number = float(value)
-        except ValueError:
-            raise CliError(f"--object-set {name.strip()}: not a number: {value!r}") from None
-        changes[name.strip()] = int(number) if number.is_integer() else number
     try:
-        return ObjectParams().replace(**changes)
-    except ValueError as error:  # ObjectsError
-        raise CliError(str(error)) from None
+        return params_from(assignments)
+    except ObjectsError as error:
+        raise CliError(f"--object-set: {error}") from None
 
 
 def _evaluate_objects(args: argparse.Namespace) -> str:

@@ -4,6 +4,7 @@ one exception type (:class:`ObjectsError`)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -202,6 +203,29 @@ class ObjectParams:
         if unknown:
             raise ObjectsError(f"unknown object tracker parameter(s): {sorted(unknown)}")
         return replace(self, **changes)
+
+
+def params_from(assignments: Sequence[str]) -> ObjectParams:
+    """:class:`ObjectParams` with ``NAME=VALUE`` texts (numbers; a whole number as an int)
+    over the defaults, for command lines.
+
+    Raises
+    ------
+    ObjectsError
+        For a text that is not ``NAME=VALUE``, a value that is not a number, an unknown
+        name or a value out of range.
+    """
+    changes: dict[str, float | int] = {}
+    for text in assignments:
+        name, sep, value = text.partition("=")
+        if not sep or not name.strip():
+            raise ObjectsError(f"expected NAME=VALUE, got {text!r}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ObjectsError(f"{name.strip()}: not a number: {value!r}") from None
+        changes[name.strip()] = int(number) if number.is_integer() else number
+    return ObjectParams().replace(**changes)
 
 
 def parameter_table() -> list[tuple[str, object, str, str]]:

@@ -713,3 +713,19 @@ def test_the_documented_parameter_table_is_the_parameters_own():
         for name, default, interval, description in parameter_table()
     ]
     assert documented == expected
+
+
+def test_parameters_from_command_line_texts():
+    from allo_mrad_ros.objects.params import params_from
+
+    params = params_from(["confirm_hits=4", " gate_sigma = 2.5"])
+    assert params == ObjectParams(confirm_hits=4, gate_sigma=2.5)
+    assert isinstance(params.confirm_hits, int)
+    for texts, message in (
+        (["gate_sigma"], "NAME=VALUE"),
+        (["gate_sigma=wide"], "not a number"),
+        (["nonsense=1"], "nonsense"),
+        (["confirm_hits=9"], "confirm_hits"),
+    ):
+        with pytest.raises(ObjectsError, match=message):
+            params_from(texts)
