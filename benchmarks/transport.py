@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from benchmarks import add_names_option, finish, machine_facts
+from harness.dds import process_domain
 
 if TYPE_CHECKING:  # the ROS side is imported by the processes that need it, not by the tests
     from harness.feed import CameraFeed
@@ -640,8 +641,7 @@ def bench(
 ) -> dict:
     """Every setting for each mode (settings interleaved within a mode); the report."""
     rows = []
-    # 1..101: the ports of higher domains fall in Linux's ephemeral range.
-    domain_id = 1 + os.getpid() % 101
+    domain_id = process_domain()
     for mode in modes:
         frames = render_frames(mode, work / f"frames_{mode}.npz")
         for setting in settings:

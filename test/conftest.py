@@ -13,6 +13,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, settings
 
 from allo_mrad_ros.ros.node_process import use_loopback_profile
+from harness.dds import process_domain
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -21,10 +22,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 use_loopback_profile(profile=REPO / "config" / "fastdds_loopback.xml")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-# A domain of its own per test run, so parallel runs on one machine do not hear each other;
-# within 1..101, where a Linux host's participant ports stay below its ephemeral range (domain
-# 0 is a real system's default).
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
+# A domain of its own per test run (harness.dds), so parallel runs do not hear each other.
+os.environ.setdefault("ROS_DOMAIN_ID", str(process_domain()))
 
 # Property tests: `make test` draws the same few examples on every run (a CI run must not
 # fail by chance); `make fuzz` (ALLO_FUZZ=1) draws many new ones each time.

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import transport
+from harness.dds import current_domain, domain_apart
 
 REPO = Path(__file__).resolve().parents[2]
 PROFILE = REPO / "config" / "fastdds_large_images.xml"
@@ -215,9 +216,7 @@ print(json.dumps(sorted(sizes.values())))
 
 def _segments(profile: Path | None) -> tuple[list[int], str]:
     env = {k: v for k, v in os.environ.items() if k not in transport.DDS_VARIABLES}
-    # Apart from the test run's own domain, within 1..101 as it is.
-    parent = int(os.environ.get("ROS_DOMAIN_ID", "1") or 1)
-    env["ROS_DOMAIN_ID"] = str(1 + (parent - 1 + 17) % 101)
+    env["ROS_DOMAIN_ID"] = str(domain_apart(current_domain(), 17))  # apart from the run's
     if profile is not None:
         env.update(transport.profile_variables(profile))
     run = subprocess.run(

@@ -28,12 +28,12 @@ sys.path[:0] = [str(HERE), str(HERE.parent), str(HERE.parent.parent)]  # the roo
 REPO = HERE.parent.parent
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 from allo_mrad_ros.ros.node_process import use_loopback_profile  # noqa: E402
+from harness.dds import process_domain  # noqa: E402
 
 use_loopback_profile(profile=REPO / "config" / "fastdds_loopback.xml")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-# 1..101: the ports of higher domains fall in Linux's ephemeral range.
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
+os.environ.setdefault("ROS_DOMAIN_ID", str(process_domain()))
 
 from sweep_verdicts import CLEAN, Outcome, counts, table_text, write_reports  # noqa: E402
 

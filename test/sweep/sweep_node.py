@@ -28,6 +28,7 @@ from sweep_verdicts import CLEAN, CRASH, SILENT, TRACEBACK, UNCLEAR, Outcome, cl
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.geometry import look_at
 from allo_mrad_ros.ros.node_process import start_node, stop_node
+from harness.dds import current_domain, domain_apart
 from harness.feed import CameraFeed
 
 HERE = Path(__file__).resolve().parent
@@ -297,9 +298,7 @@ def run_process(case: ProcessCase) -> Outcome:
     """Run the case's script; its exit status is the verdict, its last line the detail."""
     group = "node process"
     # Neither the domain of the node start cases beside it nor another process case's.
-    # Within 1..101 (the ports of higher domains fall in Linux's ephemeral range).
-    parent = int(os.environ.get("ROS_DOMAIN_ID", "1") or 1)
-    domain = 1 + (parent - 1 + 17 * next(_DOMAINS)) % 101
+    domain = domain_apart(current_domain(), 17 * next(_DOMAINS))
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
     # The tree under test where PYTHONPATH names one, else this one.
     env["PYTHONPATH"] = os.pathsep.join(

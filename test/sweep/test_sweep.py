@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 from sweep_verdicts import CLEAN, UNCLEAR, classify_exit, error_lines
 
+from harness.dds import current_domain, domain_apart
+
 SWEEP = Path(__file__).resolve().parent / "sweep.py"
 
 
@@ -20,10 +22,8 @@ SWEEP = Path(__file__).resolve().parent / "sweep.py"
 @pytest.mark.slow
 def test_quick_sweep_is_all_clean(tmp_path):
     pytest.importorskip("rclpy")  # the node's cases need it (absent from make test-distro)
-    # A DDS domain of its own: a node left by another test must not answer for the sweep's
-    # (within 1..101, as the test run's own).
-    parent = int(os.environ.get("ROS_DOMAIN_ID", "1") or 1)
-    env = {**os.environ, "ROS_DOMAIN_ID": str(1 + (parent - 1 + 17) % 101)}
+    # A DDS domain of its own: a node left by another test must not answer for the sweep's.
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain_apart(current_domain(), 17))}
     done = subprocess.run(
         [sys.executable, str(SWEEP), "--quick", "--out", str(tmp_path)],
         capture_output=True,
