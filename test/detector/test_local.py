@@ -155,6 +155,15 @@ def _busy_cell_scene(seed):
     return np.clip(query, 0, 255).astype(np.uint8), reference, disc > 0, cable
 
 
+def _busy_cell_params(**changes):
+    # The busy-cell scene's detector: full resolution, 4 x 4 cells, no colour transfer, the
+    # cues off and, when on, at radius 1 (at the default's 3 the cable's grey lies within
+    # the window: the shadow strip).
+    return MradParams(
+        process_scale=1.0, grid=4, colour_transfer="none", local_weight=0.0, local_radius=1
+    ).replace(**changes)
+
+
 def _separation(result, target):
     # Share of the target's pixels above the 99th percentile of the pixels far from it.
     far = ~cv2.dilate(target.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
@@ -165,15 +174,7 @@ def _separation(result, target):
 @pytest.mark.parametrize("cue", ["local_weight", "dark_weight"])
 def test_cues_rank_a_dark_object_in_a_busy_cell_higher(cue):
     query, reference, disc, _ = _busy_cell_scene(12)
-    # Radius 1: at the default's 3 the cable's grey lies within the window (the shadow strip).
-    base = MradParams(
-        process_scale=1.0,
-        grid=4,
-        colour_transfer="none",
-        score_sigma=0.0,
-        local_weight=0.0,
-        local_radius=1,
-    )
+    base = _busy_cell_params(score_sigma=0.0)
     off = detect(query, reference, base)
     on = detect(query, reference, base.replace(**{cue: 1.0}))
     assert "local" in on.timings_ms and "local" not in off.timings_ms
@@ -182,15 +183,7 @@ def test_cues_rank_a_dark_object_in_a_busy_cell_higher(cue):
 
 def test_colour_cue_ranks_a_thin_cable_higher():
     query, reference, _, cable = _busy_cell_scene(13)
-    # Radius 1: at the default's 3 the cable's grey lies within the window (the shadow strip).
-    base = MradParams(
-        process_scale=1.0,
-        grid=4,
-        colour_transfer="none",
-        score_sigma=0.0,
-        local_weight=0.0,
-        local_radius=1,
-    )
+    base = _busy_cell_params(score_sigma=0.0)
     off = detect(query, reference, base)
     on = detect(query, reference, base.replace(local_weight=1.0))
     assert _separation(on, cable) > _separation(off, cable) + 0.3
@@ -205,15 +198,7 @@ def test_the_frame_decision_reads_the_cell_statistics_alone(cue, rule, frame_map
     # point was calibrated without it: the verdict and the anomaly score stay the cue-free
     # detector's to the bit, while the mask and the regions take the cue's evidence.
     query, reference, disc, _ = _busy_cell_scene(12)
-    base = MradParams(
-        process_scale=1.0,
-        grid=4,
-        colour_transfer="none",
-        local_radius=1,
-        frame_rule=rule,
-        frame_map=frame_map,
-        area_threshold=1e-4,
-    )
+    base = _busy_cell_params(frame_rule=rule, frame_map=frame_map, area_threshold=1e-4)
     off = detect(query, reference, base)
     on = detect(query, reference, base.replace(**{cue: 1.0}))
     assert on.mask[disc].sum() > off.mask[disc].sum()
@@ -226,9 +211,7 @@ def test_with_a_cue_the_area_image_score_is_the_published_masks():
     # The image score ranks frames by what the detector shows (the cue's mask), the verdict
     # by the cue-free decision.
     query, reference, _, _ = _busy_cell_scene(12)
-    params = MradParams(
-        process_scale=1.0, grid=4, colour_transfer="none", local_radius=1, image_score="area"
-    )
+    params = _busy_cell_params(image_score="area")
     off = detect(query, reference, params)
     on = detect(query, reference, params.replace(local_weight=1.0))
     assert on.image_score == float(on.area) > off.image_score == float(off.area)
