@@ -236,8 +236,10 @@ data/bench_dark/frames.csv: | $(STAMP)
 	$(PY) -m allo_mrad_ros.synth.entry generate --preset bench-dark --seed 0 --out data/bench_dark --overwrite
 
 # Objects in the station frame (docs/objects.md): generates data/objects if missing, chooses
-# the tracker's parameters on val, reports val and test; reports/bench_objects.json.
-bench-objects: $(STAMP)
+# the tracker's parameters on val, reports val and test, and the test split of another station
+# with path-traced queries (data/objects_pt, generated with Cycles if missing);
+# reports/bench_objects.json.
+bench-objects: $(CYCLES_STAMP)
 	$(PY) -m benchmarks.objects --out reports/bench_objects.json
 
 # The object tracker's cost per frame: 20 regions, 50 objects.

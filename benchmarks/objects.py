@@ -14,6 +14,11 @@
 4. Tracks the test split with the chosen parameters and the shipped defaults, times the
    tracker alone (``benchmarks.tracker``: 20 regions, 50 objects) and writes
    ``reports/bench_objects.json``.
+5. Tracks, with the same two parameter sets, a second station whose queries are path-traced
+   (``--path-traced``: the ``objects-pt`` preset, a test split only, on the outpost
+   ``--path-traced-mesh``; generated unless it is there, which needs Blender's ``bpy``,
+   ``make cycles-setup``): the queries share neither the reference's materials nor its
+   lamps, and nothing is chosen on them. ``--path-traced ''`` leaves it out.
 
 ``--diagnose`` instead follows every ground-truth object of the val split through the
 detection, association, confirmation and matching with the shipped defaults (or the
@@ -49,6 +54,7 @@ from allo_mrad_ros.objects.params import params_from as object_params_from
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.sequence import read_sequence
 from benchmarks import tracker as tracker_bench
+from benchmarks.stations import write_outposts
 
 # The grid searched on val (the rest of ObjectParams stays at its defaults).
 GRID: dict[str, tuple[Any, ...]] = {
@@ -155,6 +161,61 @@ def ensure_data(path: Path, width: int | None, height: int | None, seed: int) ->
         command += ["--width", str(width)]
     if height is not None:
         command += ["--height", str(height)]
+    print("generating:", " ".join(command[2:]), flush=True)
+    subprocess.run(command, check=True)
+
+
+PT_SPLIT = "test, path-traced"
+"""How the path-traced station's test split is named in the printed tables."""
+
+
+def path_traced_result(
+    path: Path | None,
+    mesh: Path,
+    run: ObjectRun | None,
+    reports: dict[str, dict[str, Any]],
+) -> dict[str, Any]:
+    """The report's entries of the path-traced station (none when it was left out)."""
+    if path is None or run is None:
+        return {}
+    chosen, defaults = reports.values()
+    return {
+        "path_traced": {
+            "data": str(path),
+            "station": mesh.stem,
+            "frames": len(run.frames),
+            "camera": {"width": run.camera.width, "height": run.camera.height},
+        },
+        "test_path_traced": chosen,
+        "test_path_traced_defaults": defaults,
+        "targets_met_test_path_traced": met(chosen),
+    }
+
+
+def ensure_path_traced(path: Path, mesh: Path, seed: int) -> None:
+    """Generate the ``objects-pt`` preset on ``mesh`` into ``path`` unless a sequence is
+    there (``mesh`` itself is written with the other outposts when it is missing)."""
+    if (path / "sequence.yaml").is_file():
+        return
+    if not mesh.is_file():
+        write_outposts(mesh.parent)
+        if not mesh.is_file():
+            raise SystemExit(f"--path-traced-mesh {mesh}: no such outpost model was written")
+    command = [
+        sys.executable,
+        "-m",
+        "allo_mrad_ros.synth.entry",
+        "generate",
+        "--preset",
+        "objects-pt",
+        "--seed",
+        str(seed),
+        "--mesh",
+        str(mesh),
+        "--out",
+        str(path),
+        "--quiet",
+    ]
     print("generating:", " ".join(command[2:]), flush=True)
     subprocess.run(command, check=True)
 
@@ -302,6 +363,20 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="detection worker processes")
     parser.add_argument("--out", type=Path, default=Path("reports/bench_objects.json"))
     parser.add_argument(
+        "--path-traced",
+        default="data/objects_pt",
+        help="the path-traced second station's sequence (objects-pt preset); '' leaves it out",
+    )
+    parser.add_argument(
+        "--path-traced-mesh",
+        type=Path,
+        default=Path("data/stations_pt/outpost_spine.glb"),
+        help="when generating it: the station model (default the outpost spine)",
+    )
+    parser.add_argument(
+        "--path-traced-seed", type=int, default=7, help="when generating it (default 7)"
+    )
+    parser.add_argument(
         "--diagnose",
         action="store_true",
         help="follow each val object through detection, tracking and matching; no grid",
@@ -334,6 +409,12 @@ def main(argv: list[str] | None = None) -> None:
         return
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
     coverage = coverage_of(args.data, runs)
+    path_traced = Path(args.path_traced) if args.path_traced else None
+    pt_run = None
+    if path_traced is not None:
+        ensure_path_traced(path_traced, args.path_traced_mesh, args.path_traced_seed)
+        pt_run = detections(path_traced, args.cache, "test", config, args.jobs)
+        coverage[PT_SPLIT] = coverage_of(path_traced, {"test": pt_run})["test"]
     print(coverage_table(coverage))
 
     defaults = ObjectParams()
@@ -358,11 +439,24 @@ def main(argv: list[str] | None = None) -> None:
         "val (defaults)": val_defaults,
         "test (defaults)": test_defaults,
     }
+    pt_reports: dict[str, dict[str, Any]] = {}
+    if pt_run is not None:
+        pt_reports = {
+            f"{PT_SPLIT} (chosen)": report_of(pt_run, best_params),
+            f"{PT_SPLIT} (defaults)": report_of(pt_run, defaults),
+        }
+        for report in pt_reports.values():
+            report["tracker_ms_per_frame"] = tracker_ms
+        reports.update(pt_reports)
     print(table(reports))
-    for split, report in (("val", best_val), ("test", test_chosen)):
+    groups = [("val", best_val), ("test", test_chosen)]
+    groups += [(name.removesuffix(" (chosen)"), r) for name, r in pt_reports.items()][:1]
+    for split, report in groups:
         for key in ("per_type", "per_placement"):
             print(f"\n{split}, chosen parameters:\n{group_table(report, key)}")
     print(f"\ntargets met on test (chosen): {met(test_chosen)}")
+    for name, report in pt_reports.items():
+        print(f"targets met on {name}: {met(report)}")
     print(f"tracker: 20 regions, {live} objects: median {tracker_ms:.3f} ms per frame")
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -379,6 +473,7 @@ def main(argv: list[str] | None = None) -> None:
         "val_defaults": val_defaults,
         "test_defaults": test_defaults,
         "targets_met_test": met(test_chosen),
+        **path_traced_result(path_traced, args.path_traced_mesh, pt_run, pt_reports),
         "detection_coverage": coverage,
         "grid_results": [
             {

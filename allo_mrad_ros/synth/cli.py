@@ -148,7 +148,7 @@ def add_generate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         "--trajectory-frames",
         type=_positive_int,
         metavar="N",
-        help="frames per arm trajectory (presets objects and objects-normal only)",
+        help="frames per arm trajectory (presets objects, objects-normal and objects-pt only)",
     )
     parser.add_argument(
         "--clean", action="store_true", help="no camera effects or material variation (debugging)"
@@ -174,8 +174,8 @@ def _run_generate(args: argparse.Namespace) -> int:
         if args.trajectory_frames is not None:
             if config.trajectory is None:
                 raise SynthError(
-                    f"--trajectory-frames needs a trajectory preset (objects, objects-normal), "
-                    f"not {args.preset}"
+                    "--trajectory-frames needs a trajectory preset (objects, objects-normal, "
+                    f"objects-pt), not {args.preset}"
                 )
             trajectory = replace(config.trajectory, frames=args.trajectory_frames)
             config = config.with_overrides(trajectory=trajectory)

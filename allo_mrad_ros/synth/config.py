@@ -514,6 +514,31 @@ def _objects() -> SynthConfig:
     )
 
 
+def _objects_pt() -> SynthConfig:
+    # The objects trajectories with the extended path-traced bench's queries (Cycles; the
+    # query's own roughness, specular strength, Earth-shine, area lamp and a Sun disc; a view
+    # transform and a camera response of our own), for another station model (``--mesh``): a
+    # test split only, at 5 Hz over the same 8 s as ``objects`` and at 640x360, so that it
+    # renders in under an hour on two cores. Nothing is chosen on it.
+    pt = _bench_pt()
+    return _objects().with_overrides(
+        name="objects-pt",
+        splits={"test": SplitSpec(2, 4, 6)},
+        width=640,
+        height=360,
+        rate_hz=5.0,
+        trajectory=TrajectoryConfig(frames=40),
+        query_renderer="cycles",
+        cycles_samples=pt.cycles_samples,
+        cycles_view_transforms=pt.cycles_view_transforms,
+        cycles_exposure_ev=pt.cycles_exposure_ev,
+        jpeg_quality=pt.jpeg_quality,
+        camera_effects=True,
+        realism=pt.realism,
+        cycles_light=pt.cycles_light,
+    )
+
+
 def _objects_normal() -> SynthConfig:
     # Anomaly-free trajectories only: false objects per minute, glare, bodies and shadows.
     return _objects().with_overrides(
@@ -534,6 +559,7 @@ PRESETS = MappingProxyType(
         "bench-dark": _bench_dark,
         "objects": _objects,
         "objects-normal": _objects_normal,
+        "objects-pt": _objects_pt,
     }
 )
 """Preset name to a function returning its :class:`SynthConfig`."""
@@ -556,7 +582,9 @@ def preset(name: str) -> SynthConfig:
         ``bench-dark`` (val 32 and test 32 at 1920x1080: the opt-in dark visor against
         dark station parts) or ``objects`` (arm trajectories at 960x540 and 10 Hz, 80
         frames each: per split 6 past objects and 3 anomaly-free) or ``objects-normal``
-        (6 anomaly-free trajectories per split).
+        (6 anomaly-free trajectories per split) or ``objects-pt`` (test: 4 past objects and
+        2 anomaly-free, 640x360 at 5 Hz, 40 frames each, with ``bench-pt``'s Cycles queries;
+        for another station model, ``--mesh``; needs the optional bpy).
 
     Returns
     -------

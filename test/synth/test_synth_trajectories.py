@@ -268,3 +268,20 @@ def test_cli_generates_an_anomaly_free_trajectory_sequence(tmp_path, capsys):
     demo = ["generate", "--preset", "demo", "--trajectory-frames", "3", "--quiet"]
     assert main([*demo, "--out", str(tmp_path / "demo")]) == 1
     assert "needs a trajectory preset" in capsys.readouterr().err
+
+
+def test_the_path_traced_objects_preset_has_the_path_traced_benchs_queries():
+    # The objects bench's second station must not share the reference's light model or
+    # materials: its queries take the extended path-traced bench's departures (Cycles, the
+    # query's own lamps and materials, a camera response), over the objects trajectories'
+    # 8 s at a lower rate, in a test split only (nothing is chosen on it).
+    objects, pt_bench, pt = preset("objects"), preset("bench-pt"), preset("objects-pt")
+    assert list(pt.splits) == ["test"]
+    assert pt.query_renderer == "cycles" and pt.camera_effects
+    assert pt.cycles_light == pt_bench.cycles_light and pt.cycles_light.area_lamp
+    assert pt.realism == pt_bench.realism
+    assert pt.cycles_view_transforms == pt_bench.cycles_view_transforms
+    assert pt.cycles_samples == pt_bench.cycles_samples
+    duration = pt.trajectory.frames / pt.rate_hz
+    assert duration == objects.trajectory.frames / objects.rate_hz
+    assert pt.trajectory.speed_m_s == objects.trajectory.speed_m_s
