@@ -263,6 +263,28 @@ def _meet_in_range(
     return (gap <= 0.0) | (gap**2 <= limit * variance)
 
 
+# The margins by which a pair must pass the same-object test in scalars
+# (ObjectTracker._meets_again) to stand for the vectorised test: far above what rounding
+# can move either (an angle from arccos near 0 carries about 1e-8 rad of it; the rest is
+# relative, about 1e-15).
+_ANGLE_MARGIN = 1e-6  # radians
+_RELATIVE_MARGIN = 1e-6
+
+
+def _surely_within(gap: float, margin: float, bound: float) -> bool:
+    """Whether ``gap <= 0 or gap**2 <= bound`` holds however ``gap`` moves by ``margin``
+    and ``bound`` by its relative margin (the test of :func:`_meet_in_image` and
+    :func:`_meet_in_range`, passed with room to spare)."""
+    return gap + margin <= 0.0 or (abs(gap) + margin) ** 2 <= bound * (1.0 - _RELATIVE_MARGIN)
+
+
+def _scalar_sight(position: np.ndarray, camera: np.ndarray) -> tuple[float, list[float]]:
+    """:func:`_sight_of` in Python floats: the distance and unit direction."""
+    line = [p - c for p, c in zip(position.tolist(), camera.tolist(), strict=True)]
+    distance = max(math.sqrt(sum(x * x for x in line)), _TINY)
+    return distance, [x / distance for x in line]
+
+
 def _sight_of(position: np.ndarray, camera: np.ndarray) -> _Sight:
     """The line of sight of one ``position`` (3,) from ``camera``."""
     distances, directions = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
@@ -289,10 +311,12 @@ class _Track:
         "hits",
         "id",
         "last_hit",
+        "met",
         "misses",
         "position",
         "rays",
         "resolved",
+        "score",
         "size",
         "state",
         "window",
@@ -319,8 +343,11 @@ class _Track:
         self.window: deque[tuple[bool, float]] = deque(maxlen=window)
         self.window_hits = 0  # the window's hits and scores summed (kept with it)
         self.window_score = 0.0
+        self.score = 0.0  # its record's score, from window_score (changes with it only)
         self.misses = 0
         self.hits = 0
+        # The confirmed object it was last found a second track of (None: none).
+        self.met: _Track | None = None
         self.first_stamp = stamp
         self.last_hit = stamp
 
@@ -334,6 +361,7 @@ class _Track:
         window.append((hit, score))
         self.window_hits += hit
         self.window_score += score
+        self.score = min(1.0, max(self.window_score, 0.0) / window.maxlen)
 
     def add_ray(self, row: np.ndarray) -> None:
         """Store one ray's row (:func:`_ray_rows`) in the ring."""
@@ -533,9 +561,14 @@ class ObjectTracker:
                 and track.consistent
                 and track.coherent
             ):
-                if confirmed_sights is None:
-                    confirmed_sights = self._sightings(confirmed, camera)
-                if not self._duplicate(track, confirmed_sights, camera):
+                # A track held back as a second track is most often held back by the same
+                # object frame after frame: that one is asked first, alone.
+                duplicate = self._meets_again(track, confirmed, camera)
+                if not duplicate:
+                    if confirmed_sights is None:
+                        confirmed_sights = self._sightings(confirmed, camera)
+                    duplicate = self._duplicate(track, confirmed, confirmed_sights, camera)
+                if not duplicate:
                     track.state = "confirmed"
                     confirmed.append(track)
                     confirmed_sights = None  # one more: built again when next asked
@@ -741,15 +774,65 @@ class ObjectTracker:
         limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
         return (dof < 1) | (terms.sum(axis=1) <= limit)
 
-    def _duplicate(self, track: _Track, confirmed: _Sightings, camera: np.ndarray) -> bool:
-        """Whether ``track`` is a second track of one of the ``confirmed`` objects, seen from
-        the ``camera`` position (:func:`same_object`). A detection that splits one thing
-        into regions the gate keeps apart (a blanket's folds, a wrench's head and handle)
-        starts a second track of it; confirmed, it would be a second object where there is
-        one."""
+    def _duplicate(
+        self,
+        track: _Track,
+        confirmed: list[_Track],
+        sights: _Sightings,
+        camera: np.ndarray,
+    ) -> bool:
+        """Whether ``track`` is a second track of one of the ``confirmed`` objects (their
+        ``sights``), seen from the ``camera`` position (:func:`same_object`); the first it
+        meets is kept as ``track.met``. A detection that splits one thing into regions the
+        gate keeps apart (a blanket's folds, a wrench's head and handle) starts a second
+        track of it; confirmed, it would be a second object where there is one."""
+        track.met = None
         if self.params.duplicate_quantile == 0.0:
             return False
-        return bool(self._one_with(track, confirmed, camera).any())
+        met = np.flatnonzero(self._one_with(track, sights, camera))
+        if not len(met):
+            return False
+        track.met = confirmed[met[0]]
+        return True
+
+    def _meets_again(self, track: _Track, confirmed: list[_Track], camera: np.ndarray) -> bool:
+        """Whether ``track`` is still a second track of ``track.met``, the confirmed object
+        :meth:`_duplicate` found it one of, when that is still among the ``confirmed``: by
+        :func:`same_object`'s rule for this one pair in scalars, passed with margins that the
+        rounding of the vectorised test cannot cross (so it answers as that test would).
+        False where not so sure: the full test decides."""
+        other = track.met
+        if other is None or self.params.duplicate_quantile == 0.0 or other not in confirmed:
+            return False
+        limit = self._duplicate_limit
+        sights = [_scalar_sight(estimate.position, camera) for estimate in (track, other)]
+        (distance, direction), (other_distance, other_direction) = sights
+        # In the image: the angle between them less half their angular sizes.
+        cosine = sum(a * b for a, b in zip(direction, other_direction, strict=True))
+        angle = math.acos(min(max(cosine, -1.0), 1.0))
+        gap = angle - 0.5 * (track.size / distance + other.size / other_distance)
+        # Both directions' noise, as _direction_noise gives it, squared.
+        focal2 = self._focal**2
+        noise2 = (
+            self._centroid_variance(self._focal * track.size / distance)
+            + self._centroid_variance(self._focal * other.size / other_distance)
+        ) / focal2
+        if not _surely_within(gap, _ANGLE_MARGIN, limit * noise2):
+            return False
+        # In range: the range gap less half their sizes, against the variance along both
+        # lines of sight (less a bound on its rounding).
+        range_gap = abs(other_distance - distance) - 0.5 * (track.size + other.size)
+        variance = 0.0
+        rounding = 0.0
+        for covariance, unit in (
+            (track.covariance, direction),
+            (other.covariance, other_direction),
+        ):
+            rows = covariance.tolist()
+            variance += sum(unit[i] * rows[i][j] * unit[j] for i in range(3) for j in range(3))
+            rounding += sum(abs(value) for row in rows for value in row)
+        margin = _RELATIVE_MARGIN * (distance + other_distance)
+        return _surely_within(range_gap, margin, limit * (variance - _RELATIVE_MARGIN * rounding))
 
     def _reacquired(self, track: _Track, camera: np.ndarray) -> int | None:
         """The id of the object lost within ``reacquire_s`` that ``track`` is
@@ -863,7 +946,6 @@ class ObjectTracker:
     def _record(
         self, track: _Track, in_view: bool, region: int | None, state: State | None = None
     ) -> TrackedObject:
-        window = self.params.confirm_window
         # Filled without the frozen dataclass's __init__ (a setattr per field): fifty
         # objects a frame made that a tenth of the tracker's time. The fields are the same.
         record = object.__new__(TrackedObject)
@@ -873,7 +955,7 @@ class ObjectTracker:
             position=track.position,
             covariance=track.covariance,
             size=track.size,
-            score=min(1.0, max(track.window_score, 0.0) / window),
+            score=track.score,
             range_resolved=track.resolved,
             in_view=in_view,
             region=region,

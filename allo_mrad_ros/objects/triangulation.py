@@ -178,10 +178,23 @@ class Triangulation:
     position: np.ndarray
     covariance: np.ndarray
     ranges: np.ndarray
-    free_range: np.ndarray
-    free_range_sigma: np.ndarray
     inverse_range: np.ndarray
     inverse_range_sigma: np.ndarray
+
+    # The free range and its spread follow from the inverse range: computed when read (the
+    # tracker reads the inverse range only).
+    @property
+    def free_range(self) -> np.ndarray:
+        """(B,) ``1 / inverse_range`` (inf at 0): see the class text."""
+        rho = self.inverse_range
+        return np.divide(1.0, rho, out=np.full(len(rho), np.inf), where=rho != 0)
+
+    @property
+    def free_range_sigma(self) -> np.ndarray:
+        """(B,) the free range's standard deviation (inf where the inverse range's is)."""
+        rho, sigma = self.inverse_range, self.inverse_range_sigma
+        informed = np.isfinite(sigma)  # where the rays determine the inverse range
+        return np.divide(sigma, rho**2, out=np.full(len(rho), np.inf), where=informed & (rho != 0))
 
     def free_inverse_range(self) -> tuple[np.ndarray, np.ndarray]:
         """(B,) inverse range along the anchor from parallax alone and its standard
@@ -214,7 +227,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     if batch == 0:
         empty = np.zeros((0,))
         return Triangulation(
-            np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, count)), empty, empty, empty, empty
+            np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, count)), empty, empty
         )
     index = np.arange(batch)
     c, d, valid = rays.origins, rays.directions, rays.valid
@@ -305,17 +318,10 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     covariance = jacobian @ theta @ jacobian.transpose(0, 2, 1)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
     ranges = np.where(valid, _along(position, d, origin_along), 0.0)
-    nonzero = free_rho != 0
-    free_range = np.divide(1.0, free_rho, out=np.full(batch, np.inf), where=nonzero)
-    free_sigma = np.divide(
-        rho_sigma, free_rho**2, out=np.full(batch, np.inf), where=informed & nonzero
-    )
     return Triangulation(
         position=position,
         covariance=covariance,
         ranges=ranges,
-        free_range=free_range,
-        free_range_sigma=free_sigma,
         inverse_range=free_rho,
         inverse_range_sigma=rho_sigma,
     )
@@ -324,20 +330,27 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
 def _anchor_basis(anchor_d: np.ndarray) -> np.ndarray:
     """(B, 3, 3) rows ``e1, e2, d``: an orthonormal frame whose third axis is the anchor."""
     # The world axis least aligned with d makes a well-conditioned first axis.
-    axis = np.zeros_like(anchor_d)
-    axis[np.arange(len(anchor_d)), np.abs(anchor_d).argmin(axis=1)] = 1.0
+    axis = _EYE3.take(np.abs(anchor_d).argmin(axis=1), axis=0)
     first = _cross(anchor_d, axis)
     first /= np.sqrt(np.einsum("bi,bi->b", first, first))[:, None]
-    return np.stack([first, _cross(anchor_d, first), anchor_d], axis=1)
+    # Written row by row into one array (numpy.stack costs more than the three writes).
+    basis = np.empty((len(anchor_d), 3, 3))
+    basis[:, 0] = first
+    basis[:, 1] = _cross(anchor_d, first)
+    basis[:, 2] = anchor_d
+    return basis
+
+
+# Component k of a cross product is x[k + 1] y[k + 2] - x[k + 2] y[k + 1] (indices mod 3).
+_NEXT = np.array([1, 2, 0])
+_AFTER = np.array([2, 0, 1])
 
 
 def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of (B, 3) arrays (numpy.cross costs more for small B)."""
-    out = np.empty_like(x)
-    out[:, 0] = x[:, 1] * y[:, 2] - x[:, 2] * y[:, 1]
-    out[:, 1] = x[:, 2] * y[:, 0] - x[:, 0] * y[:, 2]
-    out[:, 2] = x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]
-    return out
+    """Row-wise cross products of (B, 3) arrays, each component as numpy.cross forms it
+    (numpy.cross, or a write per component, costs more for small B)."""
+    x_next, x_after = x.take(_NEXT, axis=1), x.take(_AFTER, axis=1)
+    return x_next * y.take(_AFTER, axis=1) - x_after * y.take(_NEXT, axis=1)
 
 
 @dataclass(frozen=True)
