@@ -135,7 +135,8 @@ def camera_rays(camera: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.nd
     rays = np.ones((*u.shape, 3))  # z = 1, x and y written in
     rays[..., 0] = (u - camera.cx) / camera.fx
     rays[..., 1] = (np.asarray(v, float) - camera.cy) / camera.fy
-    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+    # numpy.linalg.norm's own sum (the same values, without its checks).
+    return rays / np.sqrt(np.add.reduce(rays * rays, axis=-1, keepdims=True))
 
 
 @dataclass(frozen=True)
@@ -244,11 +245,12 @@ class _FrameRanges:
         r1 = np.minimum(np.maximum(np.ceil((y + h) * sy), r0 + 1), reference.height)
         widths = c1.astype(np.int64) - c0
         counts = widths * (r1.astype(np.int64) - r0)
-        box = np.repeat(np.arange(len(boxes)), counts)
-        # Each pixel's place in its box, raster order.
-        place = np.arange(len(box)) - np.repeat(np.cumsum(counts) - counts, counts)
-        rows = r0[box] + place // widths[box]
-        cols = c0[box] + place % widths[box]
+        box = np.arange(len(boxes)).repeat(counts)
+        # Each pixel's place in its box, raster order: its row and column there.
+        place = np.arange(len(box)) - (counts.cumsum() - counts).repeat(counts)
+        row_in_box, col_in_box = np.divmod(place, widths[box])
+        rows = r0[box] + row_in_box
+        cols = c0[box] + col_in_box
         ranges = self._depth[rows, cols] * self._stretch[rows, cols]
         if self._mask is not None:
             inside = self._mask[self._vi[rows], self._ui[cols]] != 0
@@ -281,7 +283,7 @@ def surface_bounds(
     values, region = values[surface], region[surface]
     sizes = np.bincount(region, minlength=count)
     ordered = values[np.lexsort((values, region))]
-    starts = np.cumsum(sizes) - sizes
+    starts = sizes.cumsum() - sizes
     k = np.minimum(np.floor(quantile * (sizes - 1)).astype(np.int64), sizes - 1)
     found = sizes > 0
     picked = ordered[np.where(found, starts + np.maximum(k, 0), 0)] if ordered.size else None

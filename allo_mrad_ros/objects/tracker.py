@@ -145,6 +145,10 @@ def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) ->
 def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Each row's median over its ``valid`` entries (each row has one at least): what
     ``numpy.nanmedian`` gives with the others set to NaN, without its masked-array cost."""
+    if valid.all():  # every row full (a full ring): its middle columns
+        ordered = np.sort(values, axis=1)
+        middle = values.shape[1]
+        return (ordered[:, (middle - 1) // 2] + ordered[:, middle // 2]) / 2.0
     ordered = np.sort(np.where(valid, values, np.inf), axis=1)
     count = valid.sum(axis=1)
     rows = np.arange(len(values))
@@ -676,7 +680,7 @@ class ObjectTracker:
         )
         if not gate.any():
             return in_view, []
-        candidates = np.flatnonzero(gate.any(axis=1))
+        candidates = gate.any(axis=1).nonzero()[0]
         cost = np.where(gate[candidates], distance2[candidates], _FORBIDDEN)
         rows_, cols_ = linear_sum_assignment(cost)
         objects = candidates[rows_]

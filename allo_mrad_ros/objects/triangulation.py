@@ -248,7 +248,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
         valid, 1.0 / (rays.angular_variance * seed_ranges**2 + rays.extra_variance), 0.0
     )
     a_rays, b_rays = _information(weights, c, d, origin_along)
-    floor = _NULL * np.trace(a_rays, axis1=1, axis2=2)
+    floor = _NULL * a_rays.trace(axis1=1, axis2=2)
     seed = prior_point + _solve(a_rays, b_rays - _apply(a_rays, prior_point), floor)
     local = np.einsum("bij,bj->bi", basis, seed - anchor_c)
     rho_floor, rho_ceiling = 0.1 / anchor_high, 10.0 / anchor_low
@@ -280,9 +280,13 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     rho_variance = np.where(informed, rho_sigma, 0.0) ** 2
     cut = ~informed | (free_rho - _TRUNCATED * rho_sigma < rho_low)
     cut |= free_rho + _TRUNCATED * rho_sigma > rho_high
-    if cut.any():
-        rho_mean[cut], rho_variance[cut] = truncated_normal_moments(
-            np.where(informed[cut], free_rho[cut], 0.0), rho_sigma[cut], rho_low[cut], rho_high[cut]
+    where_cut = cut.nonzero()[0]  # indices: read and written by five arrays each
+    if len(where_cut):
+        rho_mean[where_cut], rho_variance[where_cut] = truncated_normal_moments(
+            np.where(informed[where_cut], free_rho[where_cut], 0.0),
+            rho_sigma[where_cut],
+            rho_low[where_cut],
+            rho_high[where_cut],
         )
     # Rays that meet beyond the intervals (or nearer) by more than _CONFLICT sigma contradict
     # them (glare, the Moon over a module): the rays' own estimate, so that the next region
@@ -353,7 +357,7 @@ def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return x_next * y.take(_AFTER, axis=1) - x_after * y.take(_NEXT, axis=1)
 
 
-@dataclass(frozen=True)
+@dataclass  # not frozen: built every frame, and a frozen field costs a call to set
 class _Geometry:
     """Per ray, what the Gauss-Newton steps of :func:`triangulate` need, in the anchor's
     frame: the direction ``D``, the baseline ``b = c_a - c_i``, ``C = (D_x, D_y, D . b)``
@@ -474,7 +478,11 @@ def _feasible(
     upper = np.where(rays.valid, rays.high - h, 0.0)
     # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
     above = np.divide(g, lower, out=np.full_like(g, np.inf), where=lower > 0)
-    above = np.minimum(above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper < 0))
+    upper_negative = upper < 0
+    if upper_negative.any():  # none in most batches (their bound is inf: changes nothing)
+        above = np.minimum(
+            above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper_negative)
+        )
     below = np.divide(g, upper, out=np.zeros_like(g), where=upper > 0)
     below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=lower < 0))
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
@@ -502,7 +510,8 @@ def truncated_normal_moments(
     """
     width = np.maximum(high - low, 0.0)
     uniform = ~np.isfinite(sigma) | (sigma <= 0)
-    scale = np.where(uniform, 1.0, sigma)
+    any_uniform = bool(uniform.any())  # else the blends below change nothing: skipped
+    scale = np.where(uniform, 1.0, sigma) if any_uniform else sigma
     a = (low - mean) / scale
     b = (high - mean) / scale
     mirror = a + b < 0
@@ -532,9 +541,10 @@ def truncated_normal_moments(
         spread = np.where(far, tail_spread, spread)
     out_mean = mean + np.where(mirror, -shift, shift) * scale
     out_variance = scale**2 * np.maximum(spread, 0.0)
-    out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
     uniform_variance = width**2 / 12.0
-    out_variance = np.where(uniform, uniform_variance, out_variance)
+    if any_uniform:
+        out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
+        out_variance = np.where(uniform, uniform_variance, out_variance)
     return np.minimum(np.maximum(out_mean, low), high), np.minimum(out_variance, uniform_variance)
 
 
@@ -566,7 +576,7 @@ def _well_posed(matrix: np.ndarray, floor: np.ndarray) -> np.ndarray:
     surely exceeds ``floor``: the least is at least ``4 det / trace^2`` (the other two
     multiply to at most a quarter of the trace squared); twice the floor leaves room for
     the determinant's rounding."""
-    trace = np.trace(matrix, axis1=1, axis2=2)
+    trace = matrix.trace(axis1=1, axis2=2)
     return 4.0 * np.linalg.det(matrix) > 2.0 * floor * trace**2
 
 
