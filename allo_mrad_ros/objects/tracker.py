@@ -758,31 +758,37 @@ class ObjectTracker:
             anchor=anchor,
         )
         solution = triangulate(rays)
-        resolved, consistent = self._range_checks(solution, rays)
-        # The residual test gates confirmation only: run where the rest would confirm.
-        coherent = np.ones(batch, dtype=bool)
-        candidates = np.flatnonzero(
-            [t.state == "tentative" and t.window_hits >= params.confirm_hits for t in tracks]
-            & resolved
-            & consistent
-        )
-        if len(candidates):
-            coherent[candidates] = self._coherent(solution, rays, counts, candidates)
+        # Python values, read once (an element read from an array costs as much as a list).
+        resolved, consistent = (checks.tolist() for checks in self._range_checks(solution, rays))
+        # The residual test gates confirmation only: run where the rest would confirm (a
+        # few objects, found in Python).
+        coherent = [True] * batch
+        candidates = [
+            i
+            for i, track in enumerate(tracks)
+            if track.state == "tentative"
+            and track.window_hits >= params.confirm_hits
+            and resolved[i]
+            and consistent[i]
+        ]
+        if candidates:
+            tested = self._coherent(solution, rays, counts, np.array(candidates))
+            for i, coherent_ in zip(candidates, tested.tolist(), strict=True):
+                coherent[i] = coherent_
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
-        table = self._table
-        table.position[rows] = solution.position
-        table.covariance[rows] = solution.covariance
-        table.size[rows] = sizes
-        # Python values, read once (an element read from an array costs as much as a list).
+        table, rows_ = self._table, np.array(rows)  # an index array once, read three times
+        table.position[rows_] = solution.position
+        table.covariance[rows_] = solution.covariance
+        table.size[rows_] = sizes
         for track, position, covariance, size, resolved_, consistent_, coherent_ in zip(
             tracks,
             solution.position,
             solution.covariance,
             sizes.tolist(),
-            resolved.tolist(),
-            consistent.tolist(),
-            coherent.tolist(),
+            resolved,
+            consistent,
+            coherent,
             strict=True,
         ):
             track.position = position
