@@ -427,14 +427,17 @@ def observe(
     each is :func:`region_rays`'s."""
     reference = depth_camera(camera, depth.shape)
     frame = _FrameRanges(camera, depth, reference, mask)
-    kept, shapes, scores = [], [], []
+    kept: list[int] = []
+    shapes: list[float] = []
+    scores: list[float] = []
     for index, region in enumerate(regions):
         if not isinstance(region, Region):
             raise ObjectsError(f"region {index} must be a detector Region, got {type(region)}")
         if region.score < min_score:
             continue
         kept.append(index)
-        shapes.append((*region.box, *region.centroid))  # one array of both below
+        # One flat list for both below (numpy reads a list of tuples at twice the cost).
+        shapes += (*region.box, *region.centroid)
         scores.append(region.score)
     shape_array = np.asarray(shapes, dtype=np.float64).reshape(-1, 6)
     box_array, pixel_array = shape_array[:, :4], shape_array[:, 4:]

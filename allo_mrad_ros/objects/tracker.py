@@ -127,17 +127,21 @@ class _Sightings:
     covariances: Sequence[np.ndarray]
 
 
-def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) -> np.ndarray:
+def _ray_rows(
+    observations: Observations, variance: np.ndarray, stamp: float, max_range: float
+) -> np.ndarray:
     """(n, _COLUMNS) each observation's ray as a row of a track's ray table: built once a
     frame, so that adding a ray to a track is one row copy (a write per column per track
-    cost a twentieth of the frame)."""
+    cost a twentieth of the frame). A ray seen against space (its interval up to
+    ``max_range``) bounds the range at ``_SPACE_FAR`` times that (set here, once a ray)."""
     rows = np.empty((len(observations), _COLUMNS))
     rows[:, 0:3] = observations.origin
     rows[:, 3:6] = observations.directions
     rows[:, _VARIANCE] = variance
     rows[:, _STAMP] = stamp
     rows[:, _LOW] = observations.low
-    rows[:, _HIGH] = observations.high
+    high = observations.high
+    rows[:, _HIGH] = np.where(high >= max_range, max_range * _SPACE_FAR, high)
     rows[:, _EXTENT] = observations.extent_px
     return rows
 
@@ -542,7 +546,9 @@ class ObjectTracker:
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
         updated_rows: list[int] = []  # their rows in the table
-        ray_rows = _ray_rows(observations, pixel_variance.max(axis=1) / self._focal**2, stamp)
+        ray_rows = _ray_rows(
+            observations, pixel_variance.max(axis=1) / self._focal**2, stamp, params.max_range
+        )
         scores = observations.scores.tolist()
         indices = observations.indices.tolist()
         for row, j in matches:
@@ -744,7 +750,6 @@ class ObjectTracker:
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True
-        high = packed[..., _HIGH]
         # Shaped by the ring tables and with each anchor valid (set above): unchecked.
         rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
@@ -753,7 +758,7 @@ class ObjectTracker:
             extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2
             + params.position_sigma**2,
             low=packed[..., _LOW],
-            high=np.where(high >= params.max_range, params.max_range * _SPACE_FAR, high),
+            high=packed[..., _HIGH],  # beyond max_range against space (_ray_rows)
             valid=valid,
             anchor=anchor,
         )
