@@ -62,7 +62,7 @@ _FORBIDDEN = 1e12
 # at max_range would drift off their next region (a new id every few frames). max_range
 # still decides confirmation (range_resolved).
 _SPACE_FAR = 1e3
-# Columns of a track's ray table (_Track.rays): origin 0:3, direction 3:6, then these.
+# Columns of a track's ring of rays (_Table.rays): origin 0:3, direction 3:6, then these.
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
 _EYE3 = np.eye(3)
@@ -310,6 +310,7 @@ class _Track:
     """An object's state: a ring of its newest rays and what was derived from them."""
 
     __slots__ = (
+        "capacity",
         "coherent",
         "consistent",
         "count",
@@ -322,7 +323,6 @@ class _Track:
         "met",
         "misses",
         "position",
-        "rays",
         "resolved",
         "score",
         "size",
@@ -335,12 +335,11 @@ class _Track:
     def __init__(self, track_id: int, capacity: int, window: int, stamp: float) -> None:
         self.id = track_id
         self.state: State = "tentative"
-        # One row per ray: origin (3), direction (3), angular variance, stamp, low, high,
-        # extent (columns _ORIGIN.._EXTENT), so that a batch stacks one array per object.
-        self.rays = np.zeros((capacity, _COLUMNS))
-        self.rays[:, _LOW] = self.rays[:, _HIGH] = 1.0
+        # Its rays are its ring in the table (_Table.rays): how many it holds and where the
+        # next goes.
+        self.capacity = capacity
         self.count = 0
-        self.head = 0  # where the next ray goes
+        self.head = 0
         self.position = np.zeros(3)
         self.covariance = np.eye(3)
         self.size = 0.0
@@ -371,22 +370,28 @@ class _Track:
         self.window_score += score
         self.score = min(1.0, max(self.window_score, 0.0) / window.maxlen)
 
-    def add_ray(self, row: np.ndarray) -> None:
-        """Store one ray's row (:func:`_ray_rows`) in the ring."""
-        i = self.head
-        self.rays[i] = row
-        self.head = (i + 1) % len(self.rays)
-        self.count = min(self.count + 1, len(self.rays))
+    def next_slot(self) -> int:
+        """The place in its ring for one more ray, taken (the oldest ray's once full)."""
+        slot = self.head
+        self.head = (slot + 1) % self.capacity
+        self.count = min(self.count + 1, self.capacity)
+        return slot
 
 
 class _Table:
-    """The live objects' estimates as arrays, a row per object in the tracker's order: what
-    the association reads of every object each frame, written row by row as objects change
-    (gathered from fifty objects each frame, they cost a fortieth of the frame)."""
+    """The live objects' rays and estimates as arrays, a row per object in the tracker's
+    order: what the association and the triangulation read of every object each frame,
+    written row by row as objects change (gathered from fifty objects each frame, they cost
+    a twentieth of the frame; a frame's new rays are one write).
 
-    __slots__ = ("covariance", "last_hit", "position", "size")
+    ``rays`` holds each object's ring of its newest ``capacity`` rays, one row of
+    _COLUMNS per ray (:func:`_ray_rows`; an empty place has a range interval of 1)."""
 
-    def __init__(self) -> None:
+    __slots__ = ("capacity", "covariance", "last_hit", "position", "rays", "size")
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.rays = np.zeros((0, capacity, _COLUMNS))
         self.position = np.zeros((0, 3))
         self.covariance = np.zeros((0, 3, 3))
         self.size = np.zeros(0)
@@ -396,6 +401,9 @@ class _Table:
         """Rows for new ``tracks``, at the end."""
         if not tracks:
             return
+        rings = np.zeros((len(tracks), self.capacity, _COLUMNS))
+        rings[..., _LOW] = rings[..., _HIGH] = 1.0
+        self.rays = np.concatenate([self.rays, rings])
         self.position = np.concatenate([self.position, [t.position for t in tracks]])
         self.covariance = np.concatenate([self.covariance, [t.covariance for t in tracks]])
         self.size = np.concatenate([self.size, [t.size for t in tracks]])
@@ -404,6 +412,7 @@ class _Table:
     def keep(self, rows: Sequence[bool]) -> None:
         """Only the ``rows`` set (the objects that go on)."""
         kept = np.asarray(rows, dtype=bool)
+        self.rays = self.rays[kept]
         self.position = self.position[kept]
         self.covariance = self.covariance[kept]
         self.size = self.size[kept]
@@ -444,7 +453,7 @@ class ObjectTracker:
         # A squared gap (in the image or in range), in variances, within which extents meet.
         self._duplicate_limit = float(chi2.ppf(params.duplicate_quantile, 1))
         self._tracks: list[_Track] = []
-        self._table = _Table()  # the estimates of _tracks, row by row
+        self._table = _Table(params.max_rays)  # the rays and estimates of _tracks
         # Confirmed objects that ended, for reacquire_s: id, end stamp and last estimate.
         self._lost: list[tuple[int, float, tuple[np.ndarray, np.ndarray, float]]] = []
         self._next_id = 1
@@ -453,7 +462,7 @@ class ObjectTracker:
     def reset(self) -> None:
         """Forget every object (ids keep counting up)."""
         self._tracks = []
-        self._table = _Table()
+        self._table = _Table(self.params.max_rays)
         self._lost = []
         self._last_stamp = None
 
@@ -531,7 +540,7 @@ class ObjectTracker:
         if self._last_stamp is not None and stamp < self._last_stamp:
             ended = [self._record(t, False, None, state="ended") for t in self._tracks]
             self._tracks = []
-            self._table = _Table()
+            self._table = _Table(self.params.max_rays)
             self._lost = []
         self._last_stamp = stamp
 
@@ -546,6 +555,8 @@ class ObjectTracker:
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
         updated_rows: list[int] = []  # their rows in the table
+        slots: list[int] = []  # where each one's new ray goes in its ring
+        new_rays: list[int] = []  # and which observation that is
         ray_rows = _ray_rows(
             observations, pixel_variance.max(axis=1) / self._focal**2, stamp, params.max_range
         )
@@ -553,7 +564,8 @@ class ObjectTracker:
         indices = observations.indices.tolist()
         for row, j in matches:
             track = tracks[row]
-            track.add_ray(ray_rows[j])
+            slots.append(track.next_slot())
+            new_rays.append(j)
             track.push(True, scores[j])
             track.misses = 0
             track.hits += 1
@@ -577,7 +589,8 @@ class ObjectTracker:
                 continue
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1
-            track.add_ray(ray_rows[j])
+            slots.append(track.next_slot())
+            new_rays.append(j)
             track.push(True, scores[j])
             track.hits = 1
             matched_region[track.id] = indices[j]
@@ -585,6 +598,7 @@ class ObjectTracker:
             updated.append(track)
         table.append(tracks[first_new:])
         updated_rows += range(first_new, len(tracks))
+        table.rays[updated_rows, slots] = ray_rows[new_rays]
         self._refine(updated, updated_rows, stamp)
 
         # A new object is in view (its region is in the image).
@@ -742,7 +756,8 @@ class ObjectTracker:
         params = self.params
         capacity = params.max_rays
         batch = len(tracks)
-        packed = np.array([t.rays for t in tracks])
+        table, rows_ = self._table, np.array(rows)  # an index array once, read four times
+        packed = table.rays[rows_]
         stamps = packed[..., _STAMP]
         counts = np.array([t.count for t in tracks])
         filled = np.arange(capacity)[None, :] < counts[:, None]
@@ -782,7 +797,6 @@ class ObjectTracker:
                 coherent[i] = coherent_
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
-        table, rows_ = self._table, np.array(rows)  # an index array once, read three times
         table.position[rows_] = solution.position
         table.covariance[rows_] = solution.covariance
         table.size[rows_] = sizes
