@@ -300,7 +300,9 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     rho_mean = np.where(conflict, kept_rho, rho_mean)
     rho_variance = np.where(conflict, rho_sigma**2, rho_variance)
     ab = ab + step_ab + slope * (rho_mean - rho)[:, None]
-    m = np.concatenate([ab, np.ones((batch, 1))], axis=1)
+    m = np.empty((batch, 3))  # (alpha, beta, 1), written in (numpy.concatenate costs more)
+    m[:, :2] = ab
+    m[:, 2] = 1.0
     offset = np.einsum("bji,bj->bi", basis, m)  # E^T m
     position = anchor_c + offset / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
@@ -316,8 +318,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     theta[:, :2, 2] = theta[:, 2, :2] = slope * rho_variance[:, None]
     theta[:, 2, 2] = rho_variance
     jacobian = np.empty((batch, 3, 3))
-    jacobian[:, :, 0] = basis[:, 0] / rho_mean[:, None]
-    jacobian[:, :, 1] = basis[:, 1] / rho_mean[:, None]
+    jacobian[:, :, :2] = basis[:, :2].transpose(0, 2, 1) / rho_mean[:, None, None]
     jacobian[:, :, 2] = -offset / rho_mean[:, None] ** 2
     covariance = jacobian @ theta @ jacobian.transpose(0, 2, 1)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
