@@ -760,8 +760,8 @@ def test_the_recheck_of_a_held_back_second_track_answers_as_the_full_test():
         size = rng.uniform(0.05, 0.8)
         first = track_at(centre, root @ root.T, size)
 
-        def other_at(scale, covariance=root @ root.T * 0.5, size=size):
-            return track_at(centre + scale * offset, covariance, size * 0.7)
+        def other_at(scale, centre=centre, offset=offset, covariance=root @ root.T / 2, size=size):
+            return track_at(centre + scale * offset, covariance, 0.7 * size)
 
         again, full = answers(first, other_at(1.0))
         assert full or not again
