@@ -286,11 +286,25 @@ def _surely_within(gap: float, margin: float, bound: float) -> bool:
     return gap + margin <= 0.0 or (abs(gap) + margin) ** 2 <= bound * (1.0 - _RELATIVE_MARGIN)
 
 
-def _scalar_sight(position: np.ndarray, camera: np.ndarray) -> tuple[float, list[float]]:
+def _scalar_sight(
+    position: np.ndarray, camera: np.ndarray
+) -> tuple[float, tuple[float, float, float]]:
     """:func:`_sight_of` in Python floats: the distance and unit direction."""
-    line = [p - c for p, c in zip(position.tolist(), camera.tolist(), strict=True)]
-    distance = max(math.sqrt(sum(x * x for x in line)), _TINY)
-    return distance, [x / distance for x in line]
+    (x, y, z), (cx, cy, cz) = position.tolist(), camera.tolist()
+    x, y, z = x - cx, y - cy, z - cz
+    distance = max(math.sqrt(x * x + y * y + z * z), _TINY)
+    return distance, (x / distance, y / distance, z / distance)
+
+
+def _scalar_variance(
+    unit: tuple[float, float, float], covariance: np.ndarray
+) -> tuple[float, float]:
+    """``unit . covariance . unit`` in Python floats, and the sum of the covariance's
+    magnitudes (the scale of that product's rounding)."""
+    (a, b, c), (d, e, f), (g, h, i) = covariance.tolist()
+    x, y, z = unit
+    value = x * (a * x + b * y + c * z) + y * (d * x + e * y + f * z) + z * (g * x + h * y + i * z)
+    return value, sum(map(abs, (a, b, c, d, e, f, g, h, i)))
 
 
 def _sight_of(position: np.ndarray, camera: np.ndarray) -> _Sight:
@@ -882,7 +896,8 @@ class ObjectTracker:
         sights = [_scalar_sight(estimate.position, camera) for estimate in (track, other)]
         (distance, direction), (other_distance, other_direction) = sights
         # In the image: the angle between them less half their angular sizes.
-        cosine = sum(a * b for a, b in zip(direction, other_direction, strict=True))
+        (x, y, z), (ox, oy, oz) = direction, other_direction
+        cosine = x * ox + y * oy + z * oz
         angle = math.acos(min(max(cosine, -1.0), 1.0))
         gap = angle - 0.5 * (track.size / distance + other.size / other_distance)
         # Both directions' noise, as _direction_noise gives it, squared.
@@ -896,15 +911,10 @@ class ObjectTracker:
         # In range: the range gap less half their sizes, against the variance along both
         # lines of sight (less a bound on its rounding).
         range_gap = abs(other_distance - distance) - 0.5 * (track.size + other.size)
-        variance = 0.0
-        rounding = 0.0
-        for covariance, unit in (
-            (track.covariance, direction),
-            (other.covariance, other_direction),
-        ):
-            rows = covariance.tolist()
-            variance += sum(unit[i] * rows[i][j] * unit[j] for i in range(3) for j in range(3))
-            rounding += sum(abs(value) for row in rows for value in row)
+        variance, rounding = _scalar_variance(direction, track.covariance)
+        other_variance, other_rounding = _scalar_variance(other_direction, other.covariance)
+        variance += other_variance
+        rounding += other_rounding
         margin = _RELATIVE_MARGIN * (distance + other_distance)
         return _surely_within(range_gap, margin, limit * (variance - _RELATIVE_MARGIN * rounding))
 
