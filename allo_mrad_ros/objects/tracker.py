@@ -321,7 +321,8 @@ def _line_of_sight(positions: np.ndarray, camera: np.ndarray) -> _Sight:
 
 
 class _Track:
-    """An object's state: a ring of its newest rays and what was derived from them."""
+    """An object's state: where its ring of newest rays stands (the rays are in the
+    tracker's :class:`_Table`) and what was derived from them."""
 
     __slots__ = (
         "capacity",
@@ -396,7 +397,7 @@ class _Table:
     """The live objects' rays and estimates as arrays, a row per object in the tracker's
     order: what the association and the triangulation read of every object each frame,
     written row by row as objects change (gathered from fifty objects each frame, they cost
-    a twentieth of the frame; a frame's new rays are one write).
+    a thirtieth of the frame; a frame's new rays are one write).
 
     ``rays`` holds each object's ring of its newest ``capacity`` rays, one row of
     _COLUMNS per ray (:func:`_ray_rows`; an empty place has a range interval of 1)."""
