@@ -62,7 +62,7 @@ _FORBIDDEN = 1e12
 # at max_range would drift off their next region (a new id every few frames). max_range
 # still decides confirmation (range_resolved).
 _SPACE_FAR = 1e3
-# Columns of a track's ray table (_Track.rays): origin 0:3, direction 3:6, then these.
+# Columns of a track's ring of rays (_Table.rays): origin 0:3, direction 3:6, then these.
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
 _EYE3 = np.eye(3)
@@ -127,17 +127,21 @@ class _Sightings:
     covariances: Sequence[np.ndarray]
 
 
-def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) -> np.ndarray:
+def _ray_rows(
+    observations: Observations, variance: np.ndarray, stamp: float, max_range: float
+) -> np.ndarray:
     """(n, _COLUMNS) each observation's ray as a row of a track's ray table: built once a
     frame, so that adding a ray to a track is one row copy (a write per column per track
-    cost a twentieth of the frame)."""
+    cost a twentieth of the frame). A ray seen against space (its interval up to
+    ``max_range``) bounds the range at ``_SPACE_FAR`` times that (set here, once a ray)."""
     rows = np.empty((len(observations), _COLUMNS))
     rows[:, 0:3] = observations.origin
     rows[:, 3:6] = observations.directions
     rows[:, _VARIANCE] = variance
     rows[:, _STAMP] = stamp
     rows[:, _LOW] = observations.low
-    rows[:, _HIGH] = observations.high
+    high = observations.high
+    rows[:, _HIGH] = np.where(high >= max_range, max_range * _SPACE_FAR, high)
     rows[:, _EXTENT] = observations.extent_px
     return rows
 
@@ -145,6 +149,10 @@ def _ray_rows(observations: Observations, variance: np.ndarray, stamp: float) ->
 def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Each row's median over its ``valid`` entries (each row has one at least): what
     ``numpy.nanmedian`` gives with the others set to NaN, without its masked-array cost."""
+    if valid.all():  # every row full (a full ring): its middle columns
+        ordered = np.sort(values, axis=1)
+        middle = values.shape[1]
+        return (ordered[:, (middle - 1) // 2] + ordered[:, middle // 2]) / 2.0
     ordered = np.sort(np.where(valid, values, np.inf), axis=1)
     count = valid.sum(axis=1)
     rows = np.arange(len(values))
@@ -263,6 +271,42 @@ def _meet_in_range(
     return (gap <= 0.0) | (gap**2 <= limit * variance)
 
 
+# The margins by which a pair must pass the same-object test in scalars
+# (ObjectTracker._meets_again) to stand for the vectorised test: far above what rounding
+# can move either (an angle from arccos near 0 carries about 1e-8 rad of it; the rest is
+# relative, about 1e-15).
+_ANGLE_MARGIN = 1e-6  # radians
+_RELATIVE_MARGIN = 1e-6
+
+
+def _surely_within(gap: float, margin: float, bound: float) -> bool:
+    """Whether ``gap <= 0 or gap**2 <= bound`` holds however ``gap`` moves by ``margin``
+    and ``bound`` by its relative margin (the test of :func:`_meet_in_image` and
+    :func:`_meet_in_range`, passed with room to spare)."""
+    return gap + margin <= 0.0 or (abs(gap) + margin) ** 2 <= bound * (1.0 - _RELATIVE_MARGIN)
+
+
+def _scalar_sight(
+    position: np.ndarray, camera: np.ndarray
+) -> tuple[float, tuple[float, float, float]]:
+    """:func:`_sight_of` in Python floats: the distance and unit direction."""
+    (x, y, z), (cx, cy, cz) = position.tolist(), camera.tolist()
+    x, y, z = x - cx, y - cy, z - cz
+    distance = max(math.sqrt(x * x + y * y + z * z), _TINY)
+    return distance, (x / distance, y / distance, z / distance)
+
+
+def _scalar_variance(
+    unit: tuple[float, float, float], covariance: np.ndarray
+) -> tuple[float, float]:
+    """``unit . covariance . unit`` in Python floats, and the sum of the covariance's
+    magnitudes (the scale of that product's rounding)."""
+    (a, b, c), (d, e, f), (g, h, i) = covariance.tolist()
+    x, y, z = unit
+    value = x * (a * x + b * y + c * z) + y * (d * x + e * y + f * z) + z * (g * x + h * y + i * z)
+    return value, sum(map(abs, (a, b, c, d, e, f, g, h, i)))
+
+
 def _sight_of(position: np.ndarray, camera: np.ndarray) -> _Sight:
     """The line of sight of one ``position`` (3,) from ``camera``."""
     distances, directions = _line_of_sight(np.asarray(position, dtype=np.float64)[None], camera)
@@ -277,9 +321,11 @@ def _line_of_sight(positions: np.ndarray, camera: np.ndarray) -> _Sight:
 
 
 class _Track:
-    """An object's state: a ring of its newest rays and what was derived from them."""
+    """An object's state: where its ring of newest rays stands (the rays are in the
+    tracker's :class:`_Table`) and what was derived from them."""
 
     __slots__ = (
+        "capacity",
         "coherent",
         "consistent",
         "count",
@@ -289,10 +335,11 @@ class _Track:
         "hits",
         "id",
         "last_hit",
+        "met",
         "misses",
         "position",
-        "rays",
         "resolved",
+        "score",
         "size",
         "state",
         "window",
@@ -303,12 +350,11 @@ class _Track:
     def __init__(self, track_id: int, capacity: int, window: int, stamp: float) -> None:
         self.id = track_id
         self.state: State = "tentative"
-        # One row per ray: origin (3), direction (3), angular variance, stamp, low, high,
-        # extent (columns _ORIGIN.._EXTENT), so that a batch stacks one array per object.
-        self.rays = np.zeros((capacity, _COLUMNS))
-        self.rays[:, _LOW] = self.rays[:, _HIGH] = 1.0
+        # Its rays are its ring in the table (_Table.rays): how many it holds and where the
+        # next goes.
+        self.capacity = capacity
         self.count = 0
-        self.head = 0  # where the next ray goes
+        self.head = 0
         self.position = np.zeros(3)
         self.covariance = np.eye(3)
         self.size = 0.0
@@ -319,8 +365,11 @@ class _Track:
         self.window: deque[tuple[bool, float]] = deque(maxlen=window)
         self.window_hits = 0  # the window's hits and scores summed (kept with it)
         self.window_score = 0.0
+        self.score = 0.0  # its record's score, from window_score (changes with it only)
         self.misses = 0
         self.hits = 0
+        # The confirmed object it was last found a second track of (None: none).
+        self.met: _Track | None = None
         self.first_stamp = stamp
         self.last_hit = stamp
 
@@ -334,13 +383,55 @@ class _Track:
         window.append((hit, score))
         self.window_hits += hit
         self.window_score += score
+        self.score = min(1.0, max(self.window_score, 0.0) / window.maxlen)
 
-    def add_ray(self, row: np.ndarray) -> None:
-        """Store one ray's row (:func:`_ray_rows`) in the ring."""
-        i = self.head
-        self.rays[i] = row
-        self.head = (i + 1) % len(self.rays)
-        self.count = min(self.count + 1, len(self.rays))
+    def next_slot(self) -> int:
+        """The place in its ring for one more ray, taken (the oldest ray's once full)."""
+        slot = self.head
+        self.head = (slot + 1) % self.capacity
+        self.count = min(self.count + 1, self.capacity)
+        return slot
+
+
+class _Table:
+    """The live objects' rays and estimates as arrays, a row per object in the tracker's
+    order: what the association and the triangulation read of every object each frame,
+    written row by row as objects change (gathered from fifty objects each frame, they cost
+    a thirtieth of the frame; a frame's new rays are one write).
+
+    ``rays`` holds each object's ring of its newest ``capacity`` rays, one row of
+    _COLUMNS per ray (:func:`_ray_rows`; an empty place has a range interval of 1)."""
+
+    __slots__ = ("capacity", "covariance", "last_hit", "position", "rays", "size")
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.rays = np.zeros((0, capacity, _COLUMNS))
+        self.position = np.zeros((0, 3))
+        self.covariance = np.zeros((0, 3, 3))
+        self.size = np.zeros(0)
+        self.last_hit = np.zeros(0)
+
+    def append(self, tracks: Sequence[_Track]) -> None:
+        """Rows for new ``tracks``, at the end."""
+        if not tracks:
+            return
+        rings = np.zeros((len(tracks), self.capacity, _COLUMNS))
+        rings[..., _LOW] = rings[..., _HIGH] = 1.0
+        self.rays = np.concatenate([self.rays, rings])
+        self.position = np.concatenate([self.position, [t.position for t in tracks]])
+        self.covariance = np.concatenate([self.covariance, [t.covariance for t in tracks]])
+        self.size = np.concatenate([self.size, [t.size for t in tracks]])
+        self.last_hit = np.concatenate([self.last_hit, [t.last_hit for t in tracks]])
+
+    def keep(self, rows: Sequence[bool]) -> None:
+        """Only the ``rows`` set (the objects that go on)."""
+        kept = np.asarray(rows, dtype=bool)
+        self.rays = self.rays[kept]
+        self.position = self.position[kept]
+        self.covariance = self.covariance[kept]
+        self.size = self.size[kept]
+        self.last_hit = self.last_hit[kept]
 
 
 class ObjectTracker:
@@ -377,6 +468,7 @@ class ObjectTracker:
         # A squared gap (in the image or in range), in variances, within which extents meet.
         self._duplicate_limit = float(chi2.ppf(params.duplicate_quantile, 1))
         self._tracks: list[_Track] = []
+        self._table = _Table(params.max_rays)  # the rays and estimates of _tracks
         # Confirmed objects that ended, for reacquire_s: id, end stamp and last estimate.
         self._lost: list[tuple[int, float, tuple[np.ndarray, np.ndarray, float]]] = []
         self._next_id = 1
@@ -385,6 +477,7 @@ class ObjectTracker:
     def reset(self) -> None:
         """Forget every object (ids keep counting up)."""
         self._tracks = []
+        self._table = _Table(self.params.max_rays)
         self._lost = []
         self._last_stamp = None
 
@@ -462,37 +555,48 @@ class ObjectTracker:
         if self._last_stamp is not None and stamp < self._last_stamp:
             ended = [self._record(t, False, None, state="ended") for t in self._tracks]
             self._tracks = []
+            self._table = _Table(self.params.max_rays)
             self._lost = []
         self._last_stamp = stamp
 
         tracks = self._tracks
+        table = self._table
         # The centroids' variances along x and y (the association's) and their larger, as an
         # angle (the triangulation's).
         pixel_variance = self._pixel_variances(observations)
         in_view, matches = self._associate(
-            tracks, observations, pixel_variance, pose, depth, reference, stamp
+            table, observations, pixel_variance, pose, depth, reference, stamp
         )
         matched_region: dict[int, int] = {}
         updated: list[_Track] = []
-        ray_rows = _ray_rows(observations, pixel_variance.max(axis=1) / self._focal**2, stamp)
+        updated_rows: list[int] = []  # their rows in the table
+        slots: list[int] = []  # where each one's new ray goes in its ring
+        new_rays: list[int] = []  # and which observation that is
+        ray_rows = _ray_rows(
+            observations, pixel_variance.max(axis=1) / self._focal**2, stamp, params.max_range
+        )
         scores = observations.scores.tolist()
         indices = observations.indices.tolist()
         for row, j in matches:
             track = tracks[row]
-            track.add_ray(ray_rows[j])
+            slots.append(track.next_slot())
+            new_rays.append(j)
             track.push(True, scores[j])
             track.misses = 0
             track.hits += 1
             track.last_hit = stamp
             matched_region[track.id] = indices[j]
             updated.append(track)
-        matched_rows = {row for row, _ in matches}
+            updated_rows.append(row)
+        table.last_hit[updated_rows] = stamp
+        matched_rows = set(updated_rows)
         visible = in_view.tolist()  # Python bools: read once per object below
         for row, track in enumerate(tracks):
             if row not in matched_rows and visible[row]:
                 track.push(False, 0.0)
                 track.misses += 1
         taken = {j for _, j in matches}
+        first_new = len(tracks)
         for j in range(len(observations)):
             # Only a region scoring min_region_score starts an object; a fainter one (down to
             # hit_region_score) only continues one.
@@ -500,13 +604,17 @@ class ObjectTracker:
                 continue
             track = _Track(self._next_id, params.max_rays, params.confirm_window, stamp)
             self._next_id += 1
-            track.add_ray(ray_rows[j])
+            slots.append(track.next_slot())
+            new_rays.append(j)
             track.push(True, scores[j])
             track.hits = 1
             matched_region[track.id] = indices[j]
             tracks.append(track)
             updated.append(track)
-        self._refine(updated, stamp)
+        table.append(tracks[first_new:])
+        updated_rows += range(first_new, len(tracks))
+        table.rays[updated_rows, slots] = ray_rows[new_rays]
+        self._refine(updated, updated_rows, stamp)
 
         # A new object is in view (its region is in the image).
         visible += [True] * (len(tracks) - len(visible))
@@ -533,9 +641,14 @@ class ObjectTracker:
                 and track.consistent
                 and track.coherent
             ):
-                if confirmed_sights is None:
-                    confirmed_sights = self._sightings(confirmed, camera)
-                if not self._duplicate(track, confirmed_sights, camera):
+                # A track held back as a second track is most often held back by the same
+                # object frame after frame: that one is asked first, alone.
+                duplicate = self._meets_again(track, confirmed, camera)
+                if not duplicate:
+                    if confirmed_sights is None:
+                        confirmed_sights = self._sightings(confirmed, camera)
+                    duplicate = self._duplicate(track, confirmed, confirmed_sights, camera)
+                if not duplicate:
                     track.state = "confirmed"
                     confirmed.append(track)
                     confirmed_sights = None  # one more: built again when next asked
@@ -554,6 +667,8 @@ class ObjectTracker:
         if len(kept) < len(live):  # the records of those it ended are in ended
             ids = {t.id for t in kept}
             records = [r for r in records if r.id in ids]
+        if len(kept) < len(tracks):
+            table.keep([t.state != "ended" for t in tracks])
         self._tracks = kept
         return tuple(sorted(records + ended, key=attrgetter("id")))
 
@@ -566,7 +681,7 @@ class ObjectTracker:
 
     def _associate(
         self,
-        tracks: list[_Track],
+        table: _Table,
         observations: Observations,
         pixel_variance: np.ndarray,
         pose: np.ndarray,
@@ -574,18 +689,15 @@ class ObjectTracker:
         reference: CameraIntrinsics,
         stamp: float,
     ) -> tuple[np.ndarray, list[tuple[int, int]]]:
-        """Which objects are in view, and the (object row, observation) pairs matched
-        (``pixel_variance``: :meth:`_pixel_variances` of the observations)."""
+        """Which objects (the ``table``'s) are in view, and the (object row, observation)
+        pairs matched (``pixel_variance``: :meth:`_pixel_variances` of the observations)."""
         params = self.params
-        count = len(tracks)
+        count = len(table.size)
         if count == 0:
             return np.zeros(0, dtype=bool), []
         camera = self.camera
-        position = np.array([t.position for t in tracks])
-        covariance = np.array([t.covariance for t in tracks])
-        # One list per field (numpy reads a list of tuples at twice the cost).
-        age = stamp - np.array([t.last_hit for t in tracks])
-        size = np.array([t.size for t in tracks])
+        position, covariance, size = table.position, table.covariance, table.size
+        age = stamp - table.last_hit
         drift = (params.drift_speed * np.maximum(age, 0.0)) ** 2
         covariance = covariance + drift[:, None, None] * _EYE3
         rotation = pose[:3, :3]
@@ -643,7 +755,7 @@ class ObjectTracker:
         )
         if not gate.any():
             return in_view, []
-        candidates = np.flatnonzero(gate.any(axis=1))
+        candidates = gate.any(axis=1).nonzero()[0]
         cost = np.where(gate[candidates], distance2[candidates], _FORBIDDEN)
         rows_, cols_ = linear_sum_assignment(cost)
         objects = candidates[rows_]
@@ -651,14 +763,16 @@ class ObjectTracker:
         matches = list(zip(objects[kept].tolist(), cols_[kept].tolist(), strict=True))
         return in_view, matches
 
-    def _refine(self, tracks: list[_Track], stamp: float) -> None:
-        """Re-triangulate ``tracks`` (in one batch) and update their derived state."""
+    def _refine(self, tracks: list[_Track], rows: list[int], stamp: float) -> None:
+        """Re-triangulate ``tracks`` (in one batch) and update their derived state, and their
+        ``rows`` of the table."""
         if not tracks:
             return
         params = self.params
         capacity = params.max_rays
         batch = len(tracks)
-        packed = np.array([t.rays for t in tracks])
+        table, rows_ = self._table, np.array(rows)  # an index array once, read four times
+        packed = table.rays[rows_]
         stamps = packed[..., _STAMP]
         counts = np.array([t.count for t in tracks])
         filled = np.arange(capacity)[None, :] < counts[:, None]
@@ -666,7 +780,6 @@ class ObjectTracker:
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True
-        high = packed[..., _HIGH]
         # Shaped by the ring tables and with each anchor valid (set above): unchecked.
         rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
@@ -675,32 +788,41 @@ class ObjectTracker:
             extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2
             + params.position_sigma**2,
             low=packed[..., _LOW],
-            high=np.where(high >= params.max_range, params.max_range * _SPACE_FAR, high),
+            high=packed[..., _HIGH],  # beyond max_range against space (_ray_rows)
             valid=valid,
             anchor=anchor,
         )
         solution = triangulate(rays)
-        resolved, consistent = self._range_checks(solution, rays)
-        # The residual test gates confirmation only: run where the rest would confirm.
-        coherent = np.ones(batch, dtype=bool)
-        candidates = np.flatnonzero(
-            [t.state == "tentative" and t.window_hits >= params.confirm_hits for t in tracks]
-            & resolved
-            & consistent
-        )
-        if len(candidates):
-            coherent[candidates] = self._coherent(solution, rays, counts, candidates)
+        # Python values, read once (an element read from an array costs as much as a list).
+        resolved, consistent = (checks.tolist() for checks in self._range_checks(solution, rays))
+        # The residual test gates confirmation only: run where the rest would confirm (a
+        # few objects, found in Python).
+        coherent = [True] * batch
+        candidates = [
+            i
+            for i, track in enumerate(tracks)
+            if track.state == "tentative"
+            and track.window_hits >= params.confirm_hits
+            and resolved[i]
+            and consistent[i]
+        ]
+        if candidates:
+            tested = self._coherent(solution, rays, counts, np.array(candidates))
+            for i, coherent_ in zip(candidates, tested.tolist(), strict=True):
+                coherent[i] = coherent_
         extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
-        # Python values, read once (an element read from an array costs as much as a list).
+        table.position[rows_] = solution.position
+        table.covariance[rows_] = solution.covariance
+        table.size[rows_] = sizes
         for track, position, covariance, size, resolved_, consistent_, coherent_ in zip(
             tracks,
             solution.position,
             solution.covariance,
             sizes.tolist(),
-            resolved.tolist(),
-            consistent.tolist(),
-            coherent.tolist(),
+            resolved,
+            consistent,
+            coherent,
             strict=True,
         ):
             track.position = position
@@ -741,15 +863,61 @@ class ObjectTracker:
         limit = self._chi2_limit[np.clip(dof, 0, len(self._chi2_limit) - 1)]
         return (dof < 1) | (terms.sum(axis=1) <= limit)
 
-    def _duplicate(self, track: _Track, confirmed: _Sightings, camera: np.ndarray) -> bool:
-        """Whether ``track`` is a second track of one of the ``confirmed`` objects, seen from
-        the ``camera`` position (:func:`same_object`). A detection that splits one thing
-        into regions the gate keeps apart (a blanket's folds, a wrench's head and handle)
-        starts a second track of it; confirmed, it would be a second object where there is
-        one."""
+    def _duplicate(
+        self,
+        track: _Track,
+        confirmed: list[_Track],
+        sights: _Sightings,
+        camera: np.ndarray,
+    ) -> bool:
+        """Whether ``track`` is a second track of one of the ``confirmed`` objects (their
+        ``sights``), seen from the ``camera`` position (:func:`same_object`); the first it
+        meets is kept as ``track.met``. A detection that splits one thing into regions the
+        gate keeps apart (a blanket's folds, a wrench's head and handle) starts a second
+        track of it; confirmed, it would be a second object where there is one."""
+        track.met = None
         if self.params.duplicate_quantile == 0.0:
             return False
-        return bool(self._one_with(track, confirmed, camera).any())
+        met = np.flatnonzero(self._one_with(track, sights, camera))
+        if not len(met):
+            return False
+        track.met = confirmed[met[0]]
+        return True
+
+    def _meets_again(self, track: _Track, confirmed: list[_Track], camera: np.ndarray) -> bool:
+        """Whether ``track`` is still a second track of ``track.met``, the confirmed object
+        :meth:`_duplicate` found it one of, when that is still among the ``confirmed``: by
+        :func:`same_object`'s rule for this one pair in scalars, passed with margins that the
+        rounding of the vectorised test cannot cross (so it answers as that test would).
+        False where not so sure: the full test decides."""
+        other = track.met
+        if other is None or self.params.duplicate_quantile == 0.0 or other not in confirmed:
+            return False
+        limit = self._duplicate_limit
+        sights = [_scalar_sight(estimate.position, camera) for estimate in (track, other)]
+        (distance, direction), (other_distance, other_direction) = sights
+        # In the image: the angle between them less half their angular sizes.
+        (x, y, z), (ox, oy, oz) = direction, other_direction
+        cosine = x * ox + y * oy + z * oz
+        angle = math.acos(min(max(cosine, -1.0), 1.0))
+        gap = angle - 0.5 * (track.size / distance + other.size / other_distance)
+        # Both directions' noise, as _direction_noise gives it, squared.
+        focal2 = self._focal**2
+        noise2 = (
+            self._centroid_variance(self._focal * track.size / distance)
+            + self._centroid_variance(self._focal * other.size / other_distance)
+        ) / focal2
+        if not _surely_within(gap, _ANGLE_MARGIN, limit * noise2):
+            return False
+        # In range: the range gap less half their sizes, against the variance along both
+        # lines of sight (less a bound on its rounding).
+        range_gap = abs(other_distance - distance) - 0.5 * (track.size + other.size)
+        variance, rounding = _scalar_variance(direction, track.covariance)
+        other_variance, other_rounding = _scalar_variance(other_direction, other.covariance)
+        variance += other_variance
+        rounding += other_rounding
+        margin = _RELATIVE_MARGIN * (distance + other_distance)
+        return _surely_within(range_gap, margin, limit * (variance - _RELATIVE_MARGIN * rounding))
 
     def _reacquired(self, track: _Track, camera: np.ndarray) -> int | None:
         """The id of the object lost within ``reacquire_s`` that ``track`` is
@@ -863,7 +1031,6 @@ class ObjectTracker:
     def _record(
         self, track: _Track, in_view: bool, region: int | None, state: State | None = None
     ) -> TrackedObject:
-        window = self.params.confirm_window
         # Filled without the frozen dataclass's __init__ (a setattr per field): fifty
         # objects a frame made that a tenth of the tracker's time. The fields are the same.
         record = object.__new__(TrackedObject)
@@ -873,7 +1040,7 @@ class ObjectTracker:
             position=track.position,
             covariance=track.covariance,
             size=track.size,
-            score=min(1.0, max(track.window_score, 0.0) / window),
+            score=track.score,
             range_resolved=track.resolved,
             in_view=in_view,
             region=region,

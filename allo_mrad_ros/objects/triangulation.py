@@ -178,10 +178,23 @@ class Triangulation:
     position: np.ndarray
     covariance: np.ndarray
     ranges: np.ndarray
-    free_range: np.ndarray
-    free_range_sigma: np.ndarray
     inverse_range: np.ndarray
     inverse_range_sigma: np.ndarray
+
+    # The free range and its spread follow from the inverse range: computed when read (the
+    # tracker reads the inverse range only).
+    @property
+    def free_range(self) -> np.ndarray:
+        """(B,) ``1 / inverse_range`` (inf at 0): see the class text."""
+        rho = self.inverse_range
+        return np.divide(1.0, rho, out=np.full(len(rho), np.inf), where=rho != 0)
+
+    @property
+    def free_range_sigma(self) -> np.ndarray:
+        """(B,) the free range's standard deviation (inf where the inverse range's is)."""
+        rho, sigma = self.inverse_range, self.inverse_range_sigma
+        informed = np.isfinite(sigma)  # where the rays determine the inverse range
+        return np.divide(sigma, rho**2, out=np.full(len(rho), np.inf), where=informed & (rho != 0))
 
     def free_inverse_range(self) -> tuple[np.ndarray, np.ndarray]:
         """(B,) inverse range along the anchor from parallax alone and its standard
@@ -214,7 +227,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     if batch == 0:
         empty = np.zeros((0,))
         return Triangulation(
-            np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, count)), empty, empty, empty, empty
+            np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, count)), empty, empty
         )
     index = np.arange(batch)
     c, d, valid = rays.origins, rays.directions, rays.valid
@@ -235,7 +248,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
         valid, 1.0 / (rays.angular_variance * seed_ranges**2 + rays.extra_variance), 0.0
     )
     a_rays, b_rays = _information(weights, c, d, origin_along)
-    floor = _NULL * np.trace(a_rays, axis1=1, axis2=2)
+    floor = _NULL * a_rays.trace(axis1=1, axis2=2)
     seed = prior_point + _solve(a_rays, b_rays - _apply(a_rays, prior_point), floor)
     local = np.einsum("bij,bj->bi", basis, seed - anchor_c)
     rho_floor, rho_ceiling = 0.1 / anchor_high, 10.0 / anchor_low
@@ -267,9 +280,13 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     rho_variance = np.where(informed, rho_sigma, 0.0) ** 2
     cut = ~informed | (free_rho - _TRUNCATED * rho_sigma < rho_low)
     cut |= free_rho + _TRUNCATED * rho_sigma > rho_high
-    if cut.any():
-        rho_mean[cut], rho_variance[cut] = truncated_normal_moments(
-            np.where(informed[cut], free_rho[cut], 0.0), rho_sigma[cut], rho_low[cut], rho_high[cut]
+    where_cut = cut.nonzero()[0]  # indices: read and written by five arrays each
+    if len(where_cut):
+        rho_mean[where_cut], rho_variance[where_cut] = truncated_normal_moments(
+            np.where(informed[where_cut], free_rho[where_cut], 0.0),
+            rho_sigma[where_cut],
+            rho_low[where_cut],
+            rho_high[where_cut],
         )
     # Rays that meet beyond the intervals (or nearer) by more than _CONFLICT sigma contradict
     # them (glare, the Moon over a module): the rays' own estimate, so that the next region
@@ -283,7 +300,9 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     rho_mean = np.where(conflict, kept_rho, rho_mean)
     rho_variance = np.where(conflict, rho_sigma**2, rho_variance)
     ab = ab + step_ab + slope * (rho_mean - rho)[:, None]
-    m = np.concatenate([ab, np.ones((batch, 1))], axis=1)
+    m = np.empty((batch, 3))  # (alpha, beta, 1), written in (numpy.concatenate costs more)
+    m[:, :2] = ab
+    m[:, 2] = 1.0
     offset = np.einsum("bji,bj->bi", basis, m)  # E^T m
     position = anchor_c + offset / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
@@ -299,23 +318,15 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     theta[:, :2, 2] = theta[:, 2, :2] = slope * rho_variance[:, None]
     theta[:, 2, 2] = rho_variance
     jacobian = np.empty((batch, 3, 3))
-    jacobian[:, :, 0] = basis[:, 0] / rho_mean[:, None]
-    jacobian[:, :, 1] = basis[:, 1] / rho_mean[:, None]
+    jacobian[:, :, :2] = basis[:, :2].transpose(0, 2, 1) / rho_mean[:, None, None]
     jacobian[:, :, 2] = -offset / rho_mean[:, None] ** 2
     covariance = jacobian @ theta @ jacobian.transpose(0, 2, 1)
     covariance = (covariance + covariance.transpose(0, 2, 1)) / 2.0
     ranges = np.where(valid, _along(position, d, origin_along), 0.0)
-    nonzero = free_rho != 0
-    free_range = np.divide(1.0, free_rho, out=np.full(batch, np.inf), where=nonzero)
-    free_sigma = np.divide(
-        rho_sigma, free_rho**2, out=np.full(batch, np.inf), where=informed & nonzero
-    )
     return Triangulation(
         position=position,
         covariance=covariance,
         ranges=ranges,
-        free_range=free_range,
-        free_range_sigma=free_sigma,
         inverse_range=free_rho,
         inverse_range_sigma=rho_sigma,
     )
@@ -324,23 +335,30 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
 def _anchor_basis(anchor_d: np.ndarray) -> np.ndarray:
     """(B, 3, 3) rows ``e1, e2, d``: an orthonormal frame whose third axis is the anchor."""
     # The world axis least aligned with d makes a well-conditioned first axis.
-    axis = np.zeros_like(anchor_d)
-    axis[np.arange(len(anchor_d)), np.abs(anchor_d).argmin(axis=1)] = 1.0
+    axis = _EYE3.take(np.abs(anchor_d).argmin(axis=1), axis=0)
     first = _cross(anchor_d, axis)
     first /= np.sqrt(np.einsum("bi,bi->b", first, first))[:, None]
-    return np.stack([first, _cross(anchor_d, first), anchor_d], axis=1)
+    # Written row by row into one array (numpy.stack costs more than the three writes).
+    basis = np.empty((len(anchor_d), 3, 3))
+    basis[:, 0] = first
+    basis[:, 1] = _cross(anchor_d, first)
+    basis[:, 2] = anchor_d
+    return basis
+
+
+# Component k of a cross product is x[k + 1] y[k + 2] - x[k + 2] y[k + 1] (indices mod 3).
+_NEXT = np.array([1, 2, 0])
+_AFTER = np.array([2, 0, 1])
 
 
 def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of (B, 3) arrays (numpy.cross costs more for small B)."""
-    out = np.empty_like(x)
-    out[:, 0] = x[:, 1] * y[:, 2] - x[:, 2] * y[:, 1]
-    out[:, 1] = x[:, 2] * y[:, 0] - x[:, 0] * y[:, 2]
-    out[:, 2] = x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]
-    return out
+    """Row-wise cross products of (B, 3) arrays, each component as numpy.cross forms it
+    (numpy.cross, or a write per component, costs more for small B)."""
+    x_next, x_after = x.take(_NEXT, axis=1), x.take(_AFTER, axis=1)
+    return x_next * y.take(_AFTER, axis=1) - x_after * y.take(_NEXT, axis=1)
 
 
-@dataclass(frozen=True)
+@dataclass  # not frozen: built every frame, and a frozen field costs a call to set
 class _Geometry:
     """Per ray, what the Gauss-Newton steps of :func:`triangulate` need, in the anchor's
     frame: the direction ``D``, the baseline ``b = c_a - c_i``, ``C = (D_x, D_y, D . b)``
@@ -461,7 +479,11 @@ def _feasible(
     upper = np.where(rays.valid, rays.high - h, 0.0)
     # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
     above = np.divide(g, lower, out=np.full_like(g, np.inf), where=lower > 0)
-    above = np.minimum(above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper < 0))
+    upper_negative = upper < 0
+    if upper_negative.any():  # none in most batches (their bound is inf: changes nothing)
+        above = np.minimum(
+            above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper_negative)
+        )
     below = np.divide(g, upper, out=np.zeros_like(g), where=upper > 0)
     below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=lower < 0))
     own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
@@ -489,7 +511,8 @@ def truncated_normal_moments(
     """
     width = np.maximum(high - low, 0.0)
     uniform = ~np.isfinite(sigma) | (sigma <= 0)
-    scale = np.where(uniform, 1.0, sigma)
+    any_uniform = bool(uniform.any())  # else the blends below change nothing: skipped
+    scale = np.where(uniform, 1.0, sigma) if any_uniform else sigma
     a = (low - mean) / scale
     b = (high - mean) / scale
     mirror = a + b < 0
@@ -519,9 +542,10 @@ def truncated_normal_moments(
         spread = np.where(far, tail_spread, spread)
     out_mean = mean + np.where(mirror, -shift, shift) * scale
     out_variance = scale**2 * np.maximum(spread, 0.0)
-    out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
     uniform_variance = width**2 / 12.0
-    out_variance = np.where(uniform, uniform_variance, out_variance)
+    if any_uniform:
+        out_mean = np.where(uniform, (low + high) / 2.0, out_mean)
+        out_variance = np.where(uniform, uniform_variance, out_variance)
     return np.minimum(np.maximum(out_mean, low), high), np.minimum(out_variance, uniform_variance)
 
 
@@ -553,7 +577,7 @@ def _well_posed(matrix: np.ndarray, floor: np.ndarray) -> np.ndarray:
     surely exceeds ``floor``: the least is at least ``4 det / trace^2`` (the other two
     multiply to at most a quarter of the trace squared); twice the floor leaves room for
     the determinant's rounding."""
-    trace = np.trace(matrix, axis1=1, axis2=2)
+    trace = matrix.trace(axis1=1, axis2=2)
     return 4.0 * np.linalg.det(matrix) > 2.0 * floor * trace**2
 
 

@@ -16,7 +16,7 @@ from scipy.stats import chi2
 from allo_mrad_ros.detector.regions import Region
 from allo_mrad_ros.objects import ObjectParams, ObjectsError, ObjectTracker
 from allo_mrad_ros.objects.params import parameter_table
-from allo_mrad_ros.objects.tracker import same_object
+from allo_mrad_ros.objects.tracker import _Track, same_object
 
 POINT = np.array([0.5, 0.0, 0.3])  # 10 m ahead of the sweep's camera
 FPS = 10.0
@@ -729,3 +729,52 @@ def test_parameters_from_command_line_texts():
     ):
         with pytest.raises(ObjectsError, match=message):
             params_from(texts)
+
+
+def test_the_recheck_of_a_held_back_second_track_answers_as_the_full_test():
+    # A track held back as a second track re-checks the confirmed object it met first, in
+    # scalars with margins: wherever that says "still one", the full vectorised test (the
+    # one the tracker runs otherwise) must say so too, also at the edge of the rule (pairs
+    # scaled apart to where the full test turns); and it must say so for most clear pairs.
+    tracker = ObjectTracker(ObjectParams(), CAMERA)
+    rng = np.random.default_rng(11)
+    camera = rng.normal(0.0, 1.0, 3)
+
+    def track_at(position, covariance, size):
+        track = _Track(0, 4, 5, 0.0)
+        track.position, track.covariance, track.size = position, covariance, size
+        return track
+
+    def answers(one, other):
+        other.state = "confirmed"
+        one.met = other
+        again = tracker._meets_again(one, [other], camera)
+        full = bool(tracker._one_with(one, tracker._sightings([other], camera), camera)[0])
+        return again, full
+
+    clear_pairs = rechecked = 0
+    for _ in range(300):
+        root = rng.normal(0.0, 0.2, (3, 3))
+        centre = camera + np.array([0.0, 0.0, 10.0]) + rng.normal(0.0, 1.0, 3)
+        offset = rng.normal(0.0, 0.3, 3)
+        size = rng.uniform(0.05, 0.8)
+        first = track_at(centre, root @ root.T, size)
+
+        def other_at(scale, centre=centre, offset=offset, covariance=root @ root.T / 2, size=size):
+            return track_at(centre + scale * offset, covariance, 0.7 * size)
+
+        again, full = answers(first, other_at(1.0))
+        assert full or not again
+        clear_pairs += full
+        rechecked += again
+        # The edge: bisect the scale at which the full test turns, then just either side.
+        low, high = 0.0, 64.0
+        if answers(first, other_at(high))[1]:
+            continue
+        for _ in range(80):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if answers(first, other_at(middle))[1] else (low, middle)
+        for scale in (low, high, low * (1 - 1e-12), high * (1 + 1e-12)):
+            again, full = answers(first, other_at(scale))
+            assert full or not again, scale
+    assert rechecked >= 0.8 * clear_pairs > 0
