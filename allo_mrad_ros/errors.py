@@ -15,6 +15,11 @@ derived from one of these, so messages stay specific while handlers stay simple.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import TypeVar
+
+T = TypeVar("T")
+
 
 class AlloError(Exception):
     """Base of every error raised by ``allo_mrad_ros`` and ``rosbag_tools``."""
@@ -36,3 +41,32 @@ def one_line(error: BaseException) -> str:
     if problem and mark is not None:  # a yaml.MarkedYAMLError
         return f"{problem} (line {mark.line + 1}, column {mark.column + 1})"
     return " ".join(str(error).split())
+
+
+def lookup(table: Mapping[str, T], name: str, *, what: str, error: type[Exception]) -> T:
+    """The entry of ``table`` named ``name``, or ``error`` naming the choices.
+
+    Parameters
+    ----------
+    table : Mapping
+        Entries by name, in the order the message lists them.
+    name : str
+        The name asked for.
+    what : str
+        What a name names, for the message (``preset``, ``outpost layout``).
+    error : type
+        The exception to raise, the calling module's own.
+
+    Returns
+    -------
+    object
+        ``table[name]``.
+
+    Raises
+    ------
+    Exception
+        ``error("unknown <what> '<name>'; choose from <names>")`` for a name not in ``table``.
+    """
+    if name not in table:
+        raise error(f"unknown {what} {name!r}; choose from {', '.join(table)}")
+    return table[name]

@@ -9,6 +9,8 @@ Conventions used throughout the package:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -160,3 +162,24 @@ def look_at(eye: object, target: object, up: object = (0.0, 0.0, 1.0)) -> np.nda
     transform[:3, :3] = np.column_stack([right, down, forward])
     transform[:3, 3] = eye
     return transform
+
+
+def sphere_points(count: int) -> np.ndarray:
+    """``count`` unit vectors spread evenly over the sphere (a Fibonacci lattice).
+
+    Parameters
+    ----------
+    count : int
+        How many vectors.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(count, 3)`` float64, from the +z pole (first) to the -z pole (last), each a turn of
+        the golden angle about z from the one before.
+    """
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    angle = math.pi * (3.0 - math.sqrt(5.0)) * index
+    radius = np.sqrt(1.0 - z * z)
+    return np.c_[radius * np.cos(angle), radius * np.sin(angle), z]

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from allo_mrad_ros.detector import METHODS, MradParams, profile
+from allo_mrad_ros.errors import lookup
 from allo_mrad_ros.metrics import (
     MetricsAccumulator,
     PooledScoreCounts,
@@ -108,9 +109,7 @@ SETTINGS: dict[str, tuple[str, dict[str, object]]] = {
 def parse_setting(text: str) -> NamedSetting:
     """``name[:key=value[:key=value...]]`` -> a :class:`NamedSetting` over the defaults."""
     name, *overrides = text.split(":")
-    if name not in SETTINGS:
-        raise ValueError(f"unknown setting {name!r}; choose from {', '.join(SETTINGS)}")
-    method, changes = SETTINGS[name]
+    method, changes = lookup(SETTINGS, name, what="setting", error=ValueError)
     changes = dict(changes)
     for item in overrides:
         key, _, value = item.partition("=")

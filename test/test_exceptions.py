@@ -15,7 +15,7 @@ from types import ModuleType
 
 import pytest
 
-from allo_mrad_ros.errors import AlloError, BackendError, InvalidInput
+from allo_mrad_ros.errors import AlloError, BackendError, InvalidInput, lookup
 
 PACKAGES = ("allo_mrad_ros", "rosbag_tools")
 ROOTS = {AlloError, InvalidInput, BackendError}
@@ -116,3 +116,23 @@ def test_the_rebased_errors_are_still_value_errors(module, name):
 def test_every_module_imports_or_lacks_only_an_external_dependency(name):
     if import_or_skip(name) is None:
         pytest.skip(f"{name}: an external dependency is missing here")
+
+
+def test_lookup_returns_the_entry_or_raises_the_given_error_listing_the_choices():
+    table = {"hub": 1, "spine": 2}
+    assert lookup(table, "spine", what="layout", error=InvalidInput) == 2
+    with pytest.raises(BackendError) as raised:
+        lookup(table, "ring", what="outpost layout", error=BackendError)
+    assert str(raised.value) == "unknown outpost layout 'ring'; choose from hub, spine"
+
+
+def test_an_unknown_outpost_layout_and_preset_name_their_choices():
+    from allo_mrad_ros.render.outpost_model import LAYOUTS, OutpostError, build_outpost
+    from allo_mrad_ros.synth.config import PRESETS, SynthError, preset
+
+    with pytest.raises(
+        OutpostError, match=f"^unknown outpost layout 'x'; choose from {', '.join(LAYOUTS)}$"
+    ):
+        build_outpost("x")
+    with pytest.raises(SynthError, match=f"^unknown preset 'x'; choose from {', '.join(PRESETS)}$"):
+        preset("x")

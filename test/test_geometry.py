@@ -20,6 +20,7 @@ from allo_mrad_ros.geometry import (
     pose_components,
     pose_matrix,
     quaternion_to_matrix,
+    sphere_points,
     validate_transform,
 )
 
@@ -194,3 +195,15 @@ def test_resized_intrinsics_keep_every_pixel_edge_on_its_ray():
             (v * depth.height - 0.5 - depth.cy) / depth.fy,
         )
         assert resized_ray == pytest.approx(ray)
+
+
+def test_sphere_points_are_unit_vectors_spread_over_the_whole_sphere():
+    points = sphere_points(200)
+    assert points.shape == (200, 3)
+    np.testing.assert_allclose(np.linalg.norm(points, axis=1), 1.0, atol=1e-12)
+    # Evenly spread: centred on the origin, and no two closer than half the spacing a
+    # uniform cover of the sphere's area gives each point.
+    np.testing.assert_allclose(points.mean(axis=0), 0.0, atol=1e-2)
+    distances = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    np.fill_diagonal(distances, np.inf)
+    assert distances.min() > 0.5 * np.sqrt(4 * np.pi / 200)

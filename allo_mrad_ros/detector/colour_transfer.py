@@ -27,7 +27,6 @@ reference's colour in either direction.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -40,7 +39,7 @@ from allo_mrad_ros.detector.images import (
     reference_at,
     station_surface,
 )
-from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived, read_only_cache
 from allo_mrad_ros.errors import InvalidInput
 
 __all__ = [
@@ -217,14 +216,12 @@ def _reference_samples(
     return _Samples(index, pixels.T.astype(np.int32), tuple(levels), source)
 
 
-@lru_cache(maxsize=32)
+@read_only_cache(maxsize=32)
 def _enclosing_bins(finest: int, width: int) -> np.ndarray:
     # For each finest bin, the index of the bin of ``width`` that encloses it.
     n_fine, n = 256 // finest, 256 // width
     enclosing = np.indices((n_fine, n_fine, n_fine)).reshape(3, -1) * finest // width
-    parent = (enclosing[0] * n + enclosing[1]) * n + enclosing[2]
-    parent.flags.writeable = False
-    return parent
+    return (enclosing[0] * n + enclosing[1]) * n + enclosing[2]
 
 
 def apply_to_reference(reference: np.ndarray, transfer: ColourTransfer) -> np.ndarray:

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from functools import lru_cache
 
 import numpy as np
+
+from allo_mrad_ros.detector.reference_cache import read_only_cache
 
 
 def cell_edges(length: int, grid: int) -> list[int]:
@@ -41,11 +42,9 @@ def iter_cells(height: int, width: int, grid: int) -> Iterator[tuple[int, tuple[
     yield from enumerate(cell_slices(height, width, grid))
 
 
-@lru_cache(maxsize=8)
+@read_only_cache(maxsize=8)
 def cell_index_map(height: int, width: int, grid: int) -> np.ndarray:
     """Return the H x W (read-only) row-major index of the cell each pixel lies in."""
     rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
     cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
-    cells = (rows[:, None] * grid + cols[None, :]).astype(np.intp)
-    cells.flags.writeable = False
-    return cells
+    return (rows[:, None] * grid + cols[None, :]).astype(np.intp)

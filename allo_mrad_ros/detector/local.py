@@ -48,14 +48,12 @@ evidence keep their order (the negative band of the ranking map included).
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.grid import cell_index_map
 from allo_mrad_ros.detector.images import SPACE_LEVEL, eight_bit, reference_at
-from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived, read_only_cache
 
 __all__ = [
     "DARK_FLOOR",
@@ -90,13 +88,11 @@ def _envelope(reference: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarra
     return cv2.erode(reference, window), cv2.dilate(reference, window)
 
 
-@lru_cache(maxsize=8)
+@read_only_cache(maxsize=8)
 def _cell_keys(height: int, width: int, grid: int, stride: int) -> np.ndarray:
     # Each pixel's cell index times ``stride``: adding a value below it gives its (cell,
     # value) bin.
-    keys = (cell_index_map(height, width, grid) * stride).astype(np.int32)
-    keys.flags.writeable = False
-    return keys
+    return (cell_index_map(height, width, grid) * stride).astype(np.int32)
 
 
 def _cell_medians(keys: np.ndarray, cells: int, stride: int) -> np.ndarray:
@@ -171,7 +167,7 @@ _SPACE = _LEVELS  # the dark cue's value where the reference nearby shows space
 _DARK_STRIDE = _LEVELS + 1
 
 
-@lru_cache(maxsize=8)
+@read_only_cache(maxsize=8)
 def _hidden_share(abs_floor: float) -> np.ndarray:
     # rho in 8-bit levels for every (Y_min, Y_q) pair, flat: Y_min * 256 + Y_q; _SPACE where
     # Y_min is space, so the cell medians can leave those pixels out.
@@ -180,9 +176,7 @@ def _hidden_share(abs_floor: float) -> np.ndarray:
     hidden = lowest - query
     share = np.rint(255.0 * hidden / (lowest + DARK_FLOOR))
     share = np.where(hidden > NOISE_SIGMAS * np.sqrt(abs_floor), share, 0.0)
-    table = np.where(lowest > SPACE_LEVEL, share, _SPACE).astype(np.int32).ravel()
-    table.flags.writeable = False
-    return table
+    return np.where(lowest > SPACE_LEVEL, share, _SPACE).astype(np.int32).ravel()
 
 
 def dark_evidence(

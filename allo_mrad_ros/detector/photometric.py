@@ -16,14 +16,13 @@ local) and fits its offset under that gain.
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
 
 import numpy as np
 from scipy.ndimage import median_filter
 
 from allo_mrad_ros.detector.grid import cell_index_map, cell_slices
 from allo_mrad_ros.detector.images import area_downscale, to_float32
-from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived, read_only_cache
 from allo_mrad_ros.errors import InvalidInput
 
 QUANTILES = np.linspace(0.1, 0.9, 9)
@@ -90,13 +89,11 @@ def _quantiles_uint8(image: np.ndarray, grid: int) -> np.ndarray:
     return (below + (position - low) * (above - below)).reshape(grid * grid, 3, QUANTILES.size)
 
 
-@lru_cache(maxsize=8)
+@read_only_cache(maxsize=8)
 def _histogram_base(height: int, width: int, grid: int) -> np.ndarray:
     # Bin offset of each pixel's (cell, channel) histogram; the pixel value is added to it.
     cells = cell_index_map(height, width, grid)
-    base = (cells[:, :, None] * 768 + 256 * np.arange(3)).astype(np.intp)
-    base.flags.writeable = False
-    return base
+    return (cells[:, :, None] * 768 + 256 * np.arange(3)).astype(np.intp)
 
 
 def fit_cell_affine(

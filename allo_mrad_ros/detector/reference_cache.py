@@ -9,18 +9,22 @@ Only a read-only array is held (the renderer's references are), so a cached valu
 describe pixels changed since: a writable reference is computed afresh every frame. The
 image is held by reference and compared by identity, so no other array can take its place.
 Cached arrays are made read-only, so a stage that changed one in place would fail loudly.
+:func:`read_only_cache` does the same for the tables a stage derives from image sizes and
+parameters alone.
 """
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Callable, Hashable
 from dataclasses import fields, is_dataclass
-from typing import Any, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
 T = TypeVar("T")
+P = ParamSpec("P")
 
 
 class ReferenceCache:
@@ -74,6 +78,37 @@ def derived(
     if cache is None:
         return compute()
     return cache.value(image, key, compute)
+
+
+def read_only_cache(maxsize: int) -> Callable[[Callable[P, T]], Callable[P, T]]:
+    """Memoise a function of hashable arguments, its result made read-only.
+
+    :func:`functools.lru_cache` hands every caller the same object, so an array one caller
+    changed in place would change what every later call returns; read-only, the change
+    raises instead.
+
+    Parameters
+    ----------
+    maxsize : int
+        Results kept, least recently used dropped first.
+
+    Returns
+    -------
+    callable
+        A decorator; the function it returns has ``cache_info`` and ``cache_clear`` as
+        :func:`functools.lru_cache` gives them.
+    """
+
+    def decorate(function: Callable[P, T]) -> Callable[P, T]:
+        @functools.wraps(function)
+        def frozen(*args: P.args, **kwargs: P.kwargs) -> T:
+            result = function(*args, **kwargs)
+            _freeze(result)
+            return result
+
+        return functools.lru_cache(maxsize=maxsize)(frozen)
+
+    return decorate
 
 
 def _freeze(value: object) -> None:

@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from allo_mrad_ros.detector.grid import cell_edges, cell_slices
+from allo_mrad_ros.detector.grid import cell_index_map, cell_slices
 from allo_mrad_ros.detector.images import to_float32
 from allo_mrad_ros.detector.photometric import QUANTILES, cell_quantiles
 from allo_mrad_ros.detector.quadratic import PixelQuadratic
@@ -133,9 +133,7 @@ class TorchBackend:
 def _cell_index(height: int, width: int, grid: int, device: torch.device) -> torch.Tensor:
     # The row-major cell of every pixel, flattened; cells as in grid.cell_slices.
     cell_slices(height, width, grid)  # raises for an image smaller than the grid
-    rows = np.searchsorted(cell_edges(height, grid), np.arange(height), side="right") - 1
-    cols = np.searchsorted(cell_edges(width, grid), np.arange(width), side="right") - 1
-    cells = (rows[:, None] * grid + cols[None, :]).reshape(-1)
+    cells = cell_index_map(height, width, grid).reshape(-1)
     return torch.from_numpy(cells.astype(np.int64)).to(device)
 
 

@@ -34,7 +34,7 @@ import trimesh
 from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
-from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.errors import InvalidInput, lookup
 from allo_mrad_ros.render.primitives import box, cylinder, dish, frustum, strut
 
 # (base colour linear RGB, metallic, roughness): none of station_model's materials.
@@ -232,10 +232,9 @@ def build_outpost(layout: str, textured: bool = False, seed: int = 0) -> trimesh
     OutpostError
         For an unknown layout.
     """
-    if layout not in _LAYOUTS:
-        raise OutpostError(f"unknown outpost layout {layout!r}; choose from {', '.join(LAYOUTS)}")
+    build = lookup(_LAYOUTS, layout, what="outpost layout", error=OutpostError)
     parts: Parts = {}
-    _LAYOUTS[layout](parts)
+    build(parts)
     rng = np.random.default_rng(seed)
     scene = trimesh.Scene()
     for material in sorted(parts):

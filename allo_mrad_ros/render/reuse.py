@@ -35,6 +35,7 @@ import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.errors import InvalidInput
+from allo_mrad_ros.geometry import sphere_points
 from allo_mrad_ros.render.bodies import CelestialBody
 from allo_mrad_ros.render.warp import (
     angle_deg,
@@ -46,7 +47,6 @@ from allo_mrad_ros.render.warp import (
     largest_shift_px,
     relative_motion,
     rotation_angle_deg,
-    sphere_points,
     uncovered_px,
     widened,
 )

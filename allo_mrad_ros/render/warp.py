@@ -92,15 +92,6 @@ def beyond_px(points: np.ndarray, camera: CameraIntrinsics) -> float:
     return float(max(0.0, low.max(), high.max()))
 
 
-def sphere_points(count: int) -> np.ndarray:
-    """``count`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
-    index = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * index / count
-    angle = math.pi * (3.0 - math.sqrt(5.0)) * index
-    radius = np.sqrt(1.0 - z * z)
-    return np.c_[radius * np.cos(angle), radius * np.sin(angle), z]
-
-
 def content_offset_px(shown: np.ndarray, wanted: np.ndarray, camera: CameraIntrinsics) -> float:
     """How far (keyframe pixels) the content of an image warped with ``shown`` lies from
     where the warp ``wanted`` puts it, at the image's corners."""

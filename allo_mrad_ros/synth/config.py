@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
+from allo_mrad_ros.errors import lookup
 from allo_mrad_ros.sequence import SPLITS
 from allo_mrad_ros.synth.cycles_light import CyclesLightConfig
 from allo_mrad_ros.synth.realism_config import RealismConfig
@@ -596,6 +597,4 @@ def preset(name: str) -> SynthConfig:
     SynthError
         For an unknown name.
     """
-    if name not in PRESETS:
-        raise SynthError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
-    return PRESETS[name]()
+    return lookup(PRESETS, name, what="preset", error=SynthError)()

@@ -14,11 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from allo_mrad_ros.geometry import OPTICAL_TO_OPENGL, look_at
+from allo_mrad_ros.geometry import OPTICAL_TO_OPENGL, look_at, sphere_points
 from allo_mrad_ros.synth.config import SynthError
 from allo_mrad_ros.synth.occupancy import StationOccupancy
 
-_GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 # Attempts to find a clear base pose along one lattice direction before giving up on it.
 _BASE_ATTEMPTS = 50
 # Smallest distance of a perturbed camera from the hull.
@@ -52,12 +51,7 @@ class BasePose:
 
 def _fibonacci_directions(count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` directions spread evenly over the sphere, randomly rotated."""
-    k = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * k / count
-    r = np.sqrt(1.0 - z * z)
-    phi = k * _GOLDEN_ANGLE
-    directions = np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
-    return directions @ _random_rotation(rng).T
+    return sphere_points(count) @ _random_rotation(rng).T
 
 
 def _random_rotation(rng: np.random.Generator) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.pipeline import detect_pad
-from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived
+from allo_mrad_ros.detector.reference_cache import ReferenceCache, derived, read_only_cache
 from allo_mrad_ros.example_scene import example_pair
 
 
@@ -140,3 +140,22 @@ def test_cached_values_are_read_only_and_keyed_by_their_parameters():
     assert derived(cache, reference, ("sum", 2), lambda: np.zeros(3))[0] == 0
     # Another image (a resized copy, say) is computed, not looked up.
     assert derived(cache, reference.copy(), ("sum", 1), lambda: np.zeros(3))[0] == 0
+
+
+def test_a_read_only_cache_computes_once_per_argument_and_hands_out_read_only_arrays():
+    calls = []
+
+    @read_only_cache(maxsize=2)
+    def table(size: int) -> tuple[np.ndarray, np.ndarray]:
+        calls.append(size)
+        return np.arange(size), np.zeros(size)
+
+    first = table(3)
+    assert table(3) is first
+    assert table(4)[0].size == 4
+    assert calls == [3, 4]
+    for array in first:
+        assert not array.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 7
+    assert table.cache_info().currsize == 2
