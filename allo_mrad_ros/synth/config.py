@@ -519,16 +519,14 @@ def _objects_pt() -> SynthConfig:
     # The objects trajectories with the extended path-traced bench's queries (Cycles; the
     # query's own roughness, specular strength, Earth-shine, area lamp and a Sun disc; a view
     # transform and a camera response of our own), for another station model (``--mesh``): a
-    # test split only, at 5 Hz over the same 8 s as ``objects`` and at 640x360, so that it
-    # renders in under an hour on two cores. Nothing is chosen on it.
+    # test split only, with the trajectories of ``objects`` (80 frames at 10 Hz) at 640x360,
+    # so that it renders in under an hour on two cores. Nothing is chosen on it.
     pt = _bench_pt()
     return _objects().with_overrides(
         name="objects-pt",
         splits={"test": SplitSpec(2, 4, 6)},
         width=640,
         height=360,
-        rate_hz=5.0,
-        trajectory=TrajectoryConfig(frames=40),
         query_renderer="cycles",
         cycles_samples=pt.cycles_samples,
         cycles_view_transforms=pt.cycles_view_transforms,
@@ -584,8 +582,8 @@ def preset(name: str) -> SynthConfig:
         dark station parts) or ``objects`` (arm trajectories at 960x540 and 10 Hz, 80
         frames each: per split 6 past objects and 3 anomaly-free) or ``objects-normal``
         (6 anomaly-free trajectories per split) or ``objects-pt`` (test: 4 past objects and
-        2 anomaly-free, 640x360 at 5 Hz, 40 frames each, with ``bench-pt``'s Cycles queries;
-        for another station model, ``--mesh``; needs the optional bpy).
+        2 anomaly-free, 640x360, with ``bench-pt``'s Cycles queries; for another station
+        model, ``--mesh``; needs the optional bpy).
 
     Returns
     -------
