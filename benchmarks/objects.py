@@ -23,7 +23,8 @@
 ``--diagnose`` instead follows every ground-truth object of the val split through the
 detection, association, confirmation and matching with the shipped defaults (or the
 parameters given with ``--param name=value``) and prints where each was lost
-(:func:`allo_mrad_ros.evaluation.objects.diagnose_objects`).
+(:func:`allo_mrad_ros.evaluation.objects.diagnose_objects`); ``--diagnose path-traced``
+does the same on the path-traced station (to read, not to choose on).
 """
 
 from __future__ import annotations
@@ -343,10 +344,16 @@ def diagnosis_table(rows: list[ObjectDiagnosis]) -> str:
 
 
 def diagnose(
-    data: Path, cache: Path, params: ObjectParams, config: PipelineConfig, jobs: int
+    data: Path,
+    cache: Path,
+    params: ObjectParams,
+    config: PipelineConfig,
+    jobs: int,
+    *,
+    split: str = "val",
 ) -> list[ObjectDiagnosis]:
-    """:func:`diagnose_objects` on the val split, with the detections of ``config``."""
-    run = detections(data, cache, "val", config, jobs)
+    """:func:`diagnose_objects` on ``split`` of ``data``, with the detections of ``config``."""
+    run = detections(data, cache, split, config, jobs)
     sequence = read_sequence(data, check_images=False)
     rows = diagnose_objects(run, params, lambda i: sequence.load_instances(sequence.frames[i]))
     print(diagnosis_table(rows))
@@ -378,8 +385,11 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument(
         "--diagnose",
-        action="store_true",
-        help="follow each val object through detection, tracking and matching; no grid",
+        nargs="?",
+        const="val",
+        choices=("val", "path-traced"),
+        help="follow each object of val (or of the path-traced station's test split) through "
+        "detection, tracking and matching; no grid",
     )
     parser.add_argument(
         "--param",
@@ -403,9 +413,15 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as error:  # ParamsError, ObjectsError
         raise SystemExit(str(error)) from None
     config = PipelineConfig(methods=("MRAD",), params=detector)
-    if args.diagnose:
-        params = tracker_changes
-        diagnose(args.data, args.cache, params, config, args.jobs)
+    if args.diagnose == "val":
+        diagnose(args.data, args.cache, tracker_changes, config, args.jobs)
+        return
+    if args.diagnose == "path-traced":
+        if not args.path_traced:
+            raise SystemExit("--diagnose path-traced needs --path-traced")
+        path_traced = Path(args.path_traced)
+        ensure_path_traced(path_traced, args.path_traced_mesh, args.path_traced_seed)
+        diagnose(path_traced, args.cache, tracker_changes, config, args.jobs, split="test")
         return
     runs = {s: detections(args.data, args.cache, s, config, args.jobs) for s in ("val", "test")}
     coverage = coverage_of(args.data, runs)
