@@ -141,29 +141,22 @@ def report_of(run: ObjectRun, params: ObjectParams) -> dict[str, Any]:
     return report
 
 
-def ensure_data(path: Path, width: int | None, height: int | None, seed: int) -> None:
-    """Generate the objects preset into ``path`` unless a sequence is there."""
+def generate(path: Path, preset: str, seed: int, *options: str) -> None:
+    """Generate ``preset`` into ``path`` unless a sequence is there (``options``: more
+    ``allo-synth generate`` arguments)."""
     if (path / "sequence.yaml").is_file():
         return
-    command = [
-        sys.executable,
-        "-m",
-        "allo_mrad_ros.synth.entry",
-        "generate",
-        "--preset",
-        "objects",
-        "--seed",
-        str(seed),
-        "--out",
-        str(path),
-        "--quiet",
-    ]
-    if width is not None:
-        command += ["--width", str(width)]
-    if height is not None:
-        command += ["--height", str(height)]
+    command = [sys.executable, "-m", "allo_mrad_ros.synth.entry", "generate"]
+    command += ["--preset", preset, "--seed", str(seed), "--out", str(path), "--quiet", *options]
     print("generating:", " ".join(command[2:]), flush=True)
     subprocess.run(command, check=True)
+
+
+def ensure_data(path: Path, width: int | None, height: int | None, seed: int) -> None:
+    """Generate the objects preset into ``path`` unless a sequence is there."""
+    options = [] if width is None else ["--width", str(width)]
+    options += [] if height is None else ["--height", str(height)]
+    generate(path, "objects", seed, *options)
 
 
 PT_SPLIT = "test, path-traced"
@@ -202,23 +195,7 @@ def ensure_path_traced(path: Path, mesh: Path, seed: int) -> None:
         write_outposts(mesh.parent)
         if not mesh.is_file():
             raise SystemExit(f"--path-traced-mesh {mesh}: no such outpost model was written")
-    command = [
-        sys.executable,
-        "-m",
-        "allo_mrad_ros.synth.entry",
-        "generate",
-        "--preset",
-        "objects-pt",
-        "--seed",
-        str(seed),
-        "--mesh",
-        str(mesh),
-        "--out",
-        str(path),
-        "--quiet",
-    ]
-    print("generating:", " ".join(command[2:]), flush=True)
-    subprocess.run(command, check=True)
+    generate(path, "objects-pt", seed, "--mesh", str(mesh))
 
 
 def detections(data: Path, cache: Path, split: str, config: PipelineConfig, jobs: int) -> ObjectRun:

@@ -29,3 +29,19 @@ def test_an_existing_path_traced_sequence_is_not_generated_again(tmp_path, monke
 
     monkeypatch.setattr(bench.subprocess, "run", refuse)
     bench.ensure_path_traced(sequence, tmp_path / "missing.glb", 7)
+
+
+def test_a_missing_path_traced_sequence_is_generated_on_its_station(tmp_path, monkeypatch):
+    mesh = tmp_path / "outpost_spine.glb"
+    mesh.write_bytes(b"glTF")
+    commands = []
+    monkeypatch.setattr(bench.subprocess, "run", lambda command, check: commands.append(command))
+    bench.ensure_path_traced(tmp_path / "objects_pt", mesh, 7)
+    (command,) = commands
+
+    def value(option: str) -> str:
+        return command[command.index(option) + 1]
+
+    assert value("generate") == "--preset" and value("--preset") == "objects-pt"
+    assert value("--seed") == "7" and value("--mesh") == str(mesh)
+    assert value("--out") == str(tmp_path / "objects_pt")
