@@ -159,6 +159,11 @@ def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2]) / 2.0
 
 
+# A line of sight: distance from the camera and unit direction, of one estimate (a float
+# and (3,)) or of n (arrays (n,) and (n, 3)).
+_Sight = tuple[Any, np.ndarray]
+
+
 def same_object(
     one: tuple[np.ndarray, np.ndarray, float, float],
     others: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
@@ -166,9 +171,15 @@ def same_object(
     limit: float,
 ) -> np.ndarray:
     """Which of ``others`` may be one thing with ``one``, seen from the ``camera`` position:
-    their extents meet in the image (:func:`meet_in_image`) and in range
-    (:func:`meet_in_range`). Two things apart in the image are two however uncertain their
-    ranges: the image tells them apart where the triangulation cannot yet.
+    their extents meet in the image and in range. Two things apart in the image are two
+    however uncertain their ranges: the image tells them apart where the triangulation
+    cannot yet.
+
+    In the image, the angle between them less half their summed angular sizes is at most
+    zero, or its square within ``limit`` times the summed variances of their directions (a
+    thing the detection splits leaves a few pixels between its parts). In range, the range
+    gap less half their summed sizes is at most zero, or its square within ``limit`` times
+    its variance (the two covariances along their lines of sight).
 
     Parameters
     ----------
@@ -190,51 +201,35 @@ def same_object(
     """
     position, covariance, size, noise = one
     positions, covariances, sizes, noises = (np.asarray(a, dtype=np.float64) for a in others)
-    sight = _sight_of(position, camera)
-    sights = _line_of_sight(positions, camera)
-    return _meet_in_image(sight, size, noise, sights, sizes, noises, limit) & _meet_in_range(
-        sight, covariance, size, sights, covariances, sizes, limit
+    distances, directions = _line_of_sight(positions, camera)
+    return _same_object(
+        (_sight_of(position, camera), covariance, size, noise),
+        _Sightings(distances, directions, sizes, noises, covariances),
+        limit,
     )
 
 
-def meet_in_image(
-    one: tuple[np.ndarray, float, float],
-    others: tuple[np.ndarray, np.ndarray, np.ndarray],
-    camera: np.ndarray,
-    limit: float,
+def _same_object(
+    one: tuple[_Sight, np.ndarray, float, float], others: _Sightings, limit: float
 ) -> np.ndarray:
-    """Which of ``others`` (positions (n, 3), sizes (n,), direction noises (n,)) have an
-    extent that meets ``one``'s (position, size, direction noise) in the image from
-    ``camera``: the angle between them less half their summed angular sizes is at most
-    zero, or its square within ``limit`` times the summed variances of their directions (a
-    thing the detection splits leaves a few pixels between its parts)."""
-    position, size, noise = one
-    positions, sizes, noises = (np.asarray(a, dtype=np.float64) for a in others)
-    sights = _line_of_sight(positions, camera)
-    return _meet_in_image(_sight_of(position, camera), size, noise, sights, sizes, noises, limit)
-
-
-def meet_in_range(
-    one: tuple[np.ndarray, np.ndarray, float],
-    others: tuple[np.ndarray, np.ndarray, np.ndarray],
-    camera: np.ndarray,
-    limit: float,
-) -> np.ndarray:
-    """Which of ``others`` (positions (n, 3), covariances (n, 3, 3), sizes (n,)) have an
-    extent that meets ``one``'s (position, covariance, size) in range from ``camera``: the
-    range gap less half their summed sizes is at most zero, or its square within ``limit``
-    times its variance (the two covariances along their lines of sight)."""
-    position, covariance, size = one
-    positions, covariances, sizes = (np.asarray(a, dtype=np.float64) for a in others)
-    sights = _line_of_sight(positions, camera)
-    return _meet_in_range(
-        _sight_of(position, camera), covariance, size, sights, covariances, sizes, limit
-    )
-
-
-# A line of sight: distance from the camera and unit direction, of one estimate (a float
-# and (3,)) or of n (arrays (n,) and (n, 3)).
-_Sight = tuple[Any, np.ndarray]
+    """:func:`same_object` from lines of sight (``one``: its line of sight, covariance, size
+    and direction noise): the range test only for those that meet ``one`` in the image,
+    their covariances gathered for those alone."""
+    sight, covariance, size, noise = one
+    sights = (others.distances, others.directions)
+    meet = _meet_in_image(sight, size, noise, sights, others.sizes, others.noises, limit)
+    near = np.flatnonzero(meet)
+    if len(near):
+        meet[near] = _meet_in_range(
+            sight,
+            covariance,
+            size,
+            (others.distances[near], others.directions[near]),
+            np.array([others.covariances[i] for i in near]),
+            others.sizes[near],
+            limit,
+        )
+    return meet
 
 
 def _meet_in_image(
@@ -246,7 +241,7 @@ def _meet_in_image(
     noises: np.ndarray,
     limit: float,
 ) -> np.ndarray:
-    """:func:`meet_in_image` from lines of sight."""
+    """The image half of :func:`same_object`, from lines of sight."""
     (distance, direction), (distances, directions) = sight, sights
     angles = np.arccos(np.clip(directions @ direction, -1.0, 1.0))
     gap = angles - 0.5 * (size / distance + sizes / distances)
@@ -262,7 +257,7 @@ def _meet_in_range(
     sizes: np.ndarray,
     limit: float,
 ) -> np.ndarray:
-    """:func:`meet_in_range` from lines of sight."""
+    """The range half of :func:`same_object`, from lines of sight."""
     (distance, direction), (distances, directions) = sight, sights
     gap = np.abs(distances - distance) - 0.5 * (size + sizes)
     variance = direction @ covariance @ direction + np.einsum(
@@ -935,32 +930,13 @@ class ObjectTracker:
 
     def _one_with(self, track: _Track, others: _Sightings, camera: np.ndarray) -> np.ndarray:
         """(n,) bool: which of ``others`` ``track`` may be one thing with
-        (:func:`same_object`, each direction as noisy as a region of its angular size); the
-        range test only for those that meet it in the image (their covariances gathered for
-        those alone)."""
-        one = np.zeros(len(others.sizes), dtype=bool)
-        if not len(one):
-            return one
-        limit = self._duplicate_limit
+        (:func:`same_object`, each direction as noisy as a region of its angular size)."""
+        if not len(others.sizes):
+            return np.zeros(0, dtype=bool)
         sight = _sight_of(track.position, camera)
         noise = self._direction_noise(track.size / sight[0])
-        sights = (others.distances, others.directions)
-        near = np.flatnonzero(
-            _meet_in_image(sight, track.size, noise, sights, others.sizes, others.noises, limit)
-        )
-        if len(near):
-            near_sights = (others.distances[near], others.directions[near])
-            covariances = np.array([others.covariances[i] for i in near])
-            one[near] = _meet_in_range(
-                sight,
-                track.covariance,
-                track.size,
-                near_sights,
-                covariances,
-                others.sizes[near],
-                limit,
-            )
-        return one
+        one = (sight, track.covariance, track.size, noise)
+        return _same_object(one, others, self._duplicate_limit)
 
     def _sightings(
         self,
