@@ -55,7 +55,7 @@ from allo_mrad_ros.objects.params import params_from as object_params_from
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.sequence import read_sequence
 from benchmarks import tracker as tracker_bench
-from benchmarks.stations import write_outposts
+from benchmarks.stations import OUTPOSTS, write_outpost
 
 # The grid searched on val (the rest of ObjectParams stays at its defaults).
 GRID: dict[str, tuple[Any, ...]] = {
@@ -163,11 +163,18 @@ PT_SPLIT = "test, path-traced"
 """How the path-traced station's test split is named in the printed tables."""
 
 
+def station_of(sequence: Path) -> str | None:
+    """The station model a generated sequence was rendered with (its ``generation.json``),
+    or None where that does not say."""
+    try:
+        mesh = json.loads((sequence / "generation.json").read_text())["mesh"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return Path(str(mesh)).stem
+
+
 def path_traced_result(
-    path: Path | None,
-    mesh: Path,
-    run: ObjectRun | None,
-    reports: dict[str, dict[str, Any]],
+    path: Path | None, run: ObjectRun | None, reports: dict[str, dict[str, Any]]
 ) -> dict[str, Any]:
     """The report's entries of the path-traced station (none when it was left out)."""
     if path is None or run is None:
@@ -176,7 +183,7 @@ def path_traced_result(
     return {
         "path_traced": {
             "data": str(path),
-            "station": mesh.stem,
+            "station": station_of(path),
             "frames": len(run.frames),
             "camera": {"width": run.camera.width, "height": run.camera.height},
         },
@@ -188,13 +195,16 @@ def path_traced_result(
 
 def ensure_path_traced(path: Path, mesh: Path, seed: int) -> None:
     """Generate the ``objects-pt`` preset on ``mesh`` into ``path`` unless a sequence is
-    there (``mesh`` itself is written with the other outposts when it is missing)."""
+    there (``mesh`` itself is written when it is missing and names one of the outposts)."""
     if (path / "sequence.yaml").is_file():
         return
     if not mesh.is_file():
-        write_outposts(mesh.parent)
-        if not mesh.is_file():
-            raise SystemExit(f"--path-traced-mesh {mesh}: no such outpost model was written")
+        if mesh.stem not in OUTPOSTS:
+            raise SystemExit(
+                f"--path-traced-mesh {mesh}: no such file, and not one of the outposts "
+                f"({', '.join(f'{name}.glb' for name in OUTPOSTS)})"
+            )
+        write_outpost(mesh)
     generate(path, "objects-pt", seed, "--mesh", str(mesh))
 
 
@@ -443,7 +453,8 @@ def main(argv: list[str] | None = None) -> None:
         reports.update(pt_reports)
     print(table(reports))
     groups = [("val", best_val), ("test", test_chosen)]
-    groups += [(name.removesuffix(" (chosen)"), r) for name, r in pt_reports.items()][:1]
+    if pt_reports:
+        groups.append((PT_SPLIT, pt_reports[f"{PT_SPLIT} (chosen)"]))
     for split, report in groups:
         for key in ("per_type", "per_placement"):
             print(f"\n{split}, chosen parameters:\n{group_table(report, key)}")
@@ -466,7 +477,7 @@ def main(argv: list[str] | None = None) -> None:
         "val_defaults": val_defaults,
         "test_defaults": test_defaults,
         "targets_met_test": met(test_chosen),
-        **path_traced_result(path_traced, args.path_traced_mesh, pt_run, pt_reports),
+        **path_traced_result(path_traced, pt_run, pt_reports),
         "detection_coverage": coverage,
         "grid_results": [
             {

@@ -113,16 +113,18 @@ per-kind figures then count distinct objects) or one seed per split."""
 
 def write_outposts(out: Path) -> list[Path]:
     """Write the outposts of :data:`OUTPOSTS` into ``out`` (each ``<name>.glb``)."""
+    return [write_outpost(out / f"{name}.glb") for name in OUTPOSTS]
+
+
+def write_outpost(path: Path) -> Path:
+    """Write the outpost that ``path``'s stem names (one of :data:`OUTPOSTS`) to ``path``."""
     from allo_mrad_ros.render.outpost_model import build_outpost
 
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, (layout, textured) in OUTPOSTS.items():
-        path = out / f"{name}.glb"
-        scene = build_outpost(layout, textured)
-        path.write_bytes(scene.export(file_type="glb", include_normals=True))
-        written.append(path)
-    return written
+    layout, textured = OUTPOSTS[path.stem]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    scene = build_outpost(layout, textured)
+    path.write_bytes(scene.export(file_type="glb", include_normals=True))
+    return path
 
 
 def prepare_station(source: Path, destination: Path, length_m: float) -> dict[str, float]:
