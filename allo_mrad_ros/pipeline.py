@@ -262,10 +262,18 @@ class Pipeline:
         return self._provider.render_with_depth(view, time_s)
 
     def detect(
-        self, image: np.ndarray, reference: np.ndarray, *, score_map: bool = True
+        self,
+        image: np.ndarray,
+        reference: np.ndarray,
+        *,
+        score_map: bool = True,
+        view: View | None = None,
     ) -> ProcessedFrame:
         """Run every method on ``image`` against ``reference``, the second half of
         :meth:`process`; the frame's ``render`` time is 0 and its reference camera None.
+
+        ``view``, the view the reference was rendered for, tells the methods where the Sun
+        is in the image (MRAD's ``sun_glare``); without it no glare is placed at the Sun.
 
         ``score_map=False`` when no one reads the results' ``score`` (the node with no
         ``~/score`` subscriber): the methods then make the cheapest map,
@@ -275,11 +283,19 @@ class Pipeline:
         ranking map (a second photometric model in the cross score) is skipped.
         """
         params = self._config.params if score_map else self._params_without_map
+        sun_pixel = None
+        if view is not None and params.sun_glare > 0.0:
+            sun_pixel = view.sun_pixel(self._provider.camera)
         results, timings = {}, {"render": 0.0}
         for name in self._config.methods:
             start = time.perf_counter()
             results[name] = METHODS[name](
-                image, reference, params, backend=self._backend, cache=self._cache
+                image,
+                reference,
+                params,
+                backend=self._backend,
+                cache=self._cache,
+                sun_pixel=sun_pixel,
             )
             timings[name] = 1e3 * (time.perf_counter() - start)
         timings["total"] = sum(timings.values())
@@ -329,7 +345,7 @@ class Pipeline:
                 f"{expected[1]}x{expected[0]}"
             )
         if reference is not None:
-            return self.detect(image, reference)
+            return self.detect(image, reference, view=view)
         start = time.perf_counter()
         reference_depth = None
         if depth:
@@ -337,7 +353,7 @@ class Pipeline:
         else:
             reference = self.render(view, time_s=time_s)
         render_ms = 1e3 * (time.perf_counter() - start)
-        frame = self.detect(image, reference).with_render(
+        frame = self.detect(image, reference, view=view).with_render(
             render_ms, self._provider.reference_camera
         )
         return frame if reference_depth is None else replace(frame, reference_depth=reference_depth)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.render.bodies import CelestialBody
 from allo_mrad_ros.sequence import Frame
 from allo_mrad_ros.sky import earth_and_moon, with_sun
@@ -62,6 +63,28 @@ class View:
         return cls.from_row(
             camera, frame.sun_direction, frame.sun_strength, frame.earth, frame.moon
         )
+
+    def sun_pixel(self, camera: CameraIntrinsics) -> tuple[float, float] | None:
+        """Where the Sun's centre falls in ``camera``'s image plane.
+
+        Parameters
+        ----------
+        camera : CameraIntrinsics
+            The intrinsics of the image (any resolution of the camera).
+
+        Returns
+        -------
+        tuple of float or None
+            ``(x, y)`` in the intrinsics' continuous pixel coordinates (pixel ``(i, j)``
+            spans ``[i, i + 1) x [j, j + 1)``), possibly outside the image; None when the
+            Sun is not in front of the camera (or no direction is given).
+        """
+        direction = np.asarray(self.sun_direction, dtype=np.float64)
+        rotation = np.asarray(self.T_station_camera, dtype=np.float64)[:3, :3]
+        x, y, z = rotation.T @ direction
+        if not (z > 0.0 and np.isfinite([x, y, z]).all()):
+            return None
+        return (camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy)
 
     @property
     def sky_bodies(self) -> tuple[CelestialBody, ...]:

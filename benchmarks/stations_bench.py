@@ -66,6 +66,9 @@ class BenchFrame:
     reference: np.ndarray
     kind: str = ""
     """The object's kind (``invisible`` for an object marked invisible); "" when normal."""
+    sun_pixel: tuple[float, float] | None = None
+    """Where the Sun's centre falls in the image (None: behind the camera), for
+    ``sun_glare``."""
 
 
 @dataclass(frozen=True)
@@ -161,9 +164,18 @@ def sequence_frames(
                 continue
             image = sequence.load_image(frame)
             truth = sequence.load_mask(frame)
-            reference = provider.render(View.of_frame(frame))
+            view = View.of_frame(frame)
+            reference = provider.render(view)
             frames.append(
-                BenchFrame(station, frame.anomaly, image, truth, reference, frame_kind(frame))
+                BenchFrame(
+                    station,
+                    frame.anomaly,
+                    image,
+                    truth,
+                    reference,
+                    frame_kind(frame),
+                    view.sun_pixel(sequence.meta.camera),
+                )
             )
     finally:
         provider.close()
@@ -190,7 +202,9 @@ def run_settings(
         for result in results:
             s = result.setting
             start = time.perf_counter()
-            detection = METHODS[s.method](frame.image, frame.reference, s.params)
+            detection = METHODS[s.method](
+                frame.image, frame.reference, s.params, sun_pixel=frame.sun_pixel
+            )
             result.detect_ms.append(1e3 * (time.perf_counter() - start))
             result.pooled.update(detection.score, detection.image_score, frame.truth)
             station = result.stations.setdefault(frame.station, MetricsAccumulator())

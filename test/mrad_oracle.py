@@ -283,3 +283,26 @@ def dark_evidence_naive(
                 if lit[block][a, b] and value > median:
                     out[rows[i] + a, cols[j] + b] = (value - median) / 255.0
     return out
+
+
+def components_naive(clipped: np.ndarray) -> list[list[tuple[int, int]]]:
+    """The 8-connected components of a boolean image by a flood fill, pixel by pixel."""
+    seen = np.zeros_like(clipped)
+    found = []
+    for start in zip(*np.nonzero(clipped), strict=True):
+        if seen[start]:
+            continue
+        seen[start] = True
+        stack, pixels = [start], []
+        while stack:
+            row, col = stack.pop()
+            pixels.append((row, col))
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    r, c = row + dr, col + dc
+                    inside = 0 <= r < clipped.shape[0] and 0 <= c < clipped.shape[1]
+                    if inside and clipped[r, c] and not seen[r, c]:
+                        seen[r, c] = True
+                        stack.append((r, c))
+        found.append(pixels)
+    return found

@@ -1,5 +1,6 @@
 """Render-then-detect on real renders of the station model, with an object the model lacks."""
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -240,6 +241,28 @@ def test_detect_returns_a_processed_frame_as_process_does(renderers, pose):
     rendered = detected.with_render(5.0, INTRINSICS.scaled(0.5))
     assert rendered.timings_ms["render"] == 5.0 and rendered.reference_camera.width == 320
     assert rendered.timings_ms["total"] == 5.0 + detected.timings_ms["MRAD"]
+
+
+def test_process_tells_the_detector_where_the_sun_is(renderers):
+    _, pipeline = renderers
+    sun = np.array([0.2, -0.3, 0.93])
+    sun /= np.linalg.norm(sun)
+    eye = 100.0 * sun  # outside the station, on its sunny side, looking at the Sun
+    view = View(look_at(eye, 200.0 * sun, up=(1.0, 0.0, 0.0)), sun)
+    reference = pipeline.render(view)
+    # The camera clips the Sun and blooms it far beyond the disc the reference draws.
+    image = np.zeros((INTRINSICS.height, INTRINSICS.width, 3), np.uint8)
+    centre = tuple(round(v) for v in view.sun_pixel(INTRINSICS))
+    assert centre == (320, 180)
+    cv2.circle(image, centre, 40, (150, 150, 150), -1)
+    cv2.circle(image, centre, 12, (255, 255, 255), -1)
+    glare_config = pipeline.config.replace(params=pipeline.config.params.replace(sun_glare=4.0))
+    glare = pipeline.with_config(glare_config)
+    assert pipeline.process(image, view, reference=reference).primary.anomalous
+    assert not glare.process(image, view, reference=reference).primary.anomalous
+    # Without the view, detect() cannot place the Sun: the glare is an anomaly.
+    assert glare.detect(image, reference).primary.anomalous
+    assert not glare.detect(image, reference, view=view).primary.anomalous
 
 
 def test_options_are_keyword_only(renderers, pose):

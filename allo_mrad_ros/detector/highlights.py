@@ -1,7 +1,7 @@
 """Stage 0'': tolerate light the reference cannot draw exactly, colourless and where it may be.
 
-Two kinds of light brighten a query over its transferred reference without being an object,
-and both add roughly the same amount to every channel:
+Three kinds of light brighten a query over its transferred reference without being an object,
+and all add roughly the same amount to every channel:
 
 * **A specular highlight** whose strength or width the reference does not match (another
   roughness or specular strength than the model's, a Sun of finite size). The reference is
@@ -20,14 +20,19 @@ and both add roughly the same amount to every channel:
   halo of radius ``glare_halo * sqrt(A)``. A clipped component over a surface the reference
   does not light (a bright object, the Sun over space) makes none, and the clipped pixels
   themselves are left to the colour transfer's glare rule (``glare_level``).
+* **The Sun's glare**: with the Sun in view, the camera clips its disc and its optics
+  spread it (bloom, a starburst, a halo) far beyond the disc the reference draws. The Sun's
+  position in the image is known from the view, so the clipped component at that position
+  is the Sun and not a glint off an object: it and every pixel within
+  ``sun_glare * sqrt(A)`` of it (``A`` its area) are tolerated.
 
-Where either applies, the query's *colourless* brightening over the reference pixel, the
+Where any applies, the query's *colourless* brightening over the reference pixel, the
 smallest of its three channel excesses (zero when any channel is not brighter), is
 subtracted from all three channels, up to an allowance: ``specular_tolerance`` 8-bit levels
-times the specular potential (rounded to whole levels), and without limit inside a halo. A
-coloured object there keeps its colour departure; a dark one is not brighter and keeps all
-of it; a colourless highlight where no highlight is predicted and no clipped region is near
-keeps all of it.
+times the specular potential (rounded to whole levels), and without limit inside a halo or
+the Sun's glare. A coloured object there keeps its colour departure; a dark one is not
+brighter and keeps all of it; a colourless highlight where no highlight is predicted and no
+clipped region is near keeps all of it.
 """
 
 from __future__ import annotations
@@ -47,12 +52,15 @@ __all__ = [
     "SPECULAR_FULL",
     "SPECULAR_SPREAD",
     "SPECULAR_WINDOW",
+    "SUN_REACH",
     "UNLIMITED",
     "HighlightsError",
     "allowance",
     "colourless_excess",
     "glare_halo",
     "specular_potential",
+    "sun_glare",
+    "sun_reach",
     "tolerate_highlights",
 ]
 
@@ -72,6 +80,9 @@ LIT_LEVEL = 128.0
 """Mean brightest reference channel over a clipped component from which it is glare."""
 UNLIMITED = 255
 """The allowance inside a glare halo: any colourless brightening."""
+SUN_REACH = 1.0 / 64.0
+"""How far a clipped component may lie from the Sun's computed position and be the Sun, as a
+fraction of the image's shorter side (see :func:`sun_reach`)."""
 
 
 class HighlightsError(InvalidInput):
@@ -124,34 +135,91 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
         A component of area ``A`` reaches every pixel within Euclidean distance
         ``factor * sqrt(A)`` of one of its pixels; 0 gives no halo.
     """
-    height, width = query.shape[:2]
-    halo = np.zeros((height, width), bool)
+    halo = np.zeros(query.shape[:2], bool)
     if factor <= 0.0:
         return halo
-    blue, green, red = cv2.split(query)
-    clipped = (cv2.max(cv2.max(blue, green), red) >= CLIPPED_LEVEL).astype(np.uint8)
-    if not cv2.countNonZero(clipped):
-        return halo
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(clipped, connectivity=8)
+    count, labels, stats = _clipped_components(query)
     if count <= 1:
         return halo
+    clipped = labels > 0
     lit = brightest_channel(reference)
     sums = np.bincount(labels.ravel(), weights=lit.ravel(), minlength=count)
     for label in range(1, count):
-        x, y, w, h, area = (int(v) for v in stats[label])
-        if sums[label] < LIT_LEVEL * area:
-            continue
-        radius = factor * math.sqrt(area)
-        reach = math.floor(radius)
-        top, bottom = max(0, y - reach), min(height, y + h + reach)
-        left, right = max(0, x - reach), min(width, x + w + reach)
-        outside = (labels[top:bottom, left:right] != label).astype(np.uint8)
-        # Exact Euclidean distance to the component's nearest pixel (0 on it).
-        distance = cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        halo[top:bottom, left:right] |= distance <= np.float32(radius)
+        if sums[label] >= LIT_LEVEL * stats[label, cv2.CC_STAT_AREA]:
+            _add_halo(halo, labels, stats, label, factor)
     # The clipped pixels themselves are not tolerated here: over station the colour
     # transfer's glare rule already takes them; over space they may be a bright object.
-    return halo & (clipped == 0)
+    return halo & ~clipped
+
+
+def _clipped_components(query: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The 8-connected components of ``query``'s clipped pixels (a channel at or above
+    :data:`CLIPPED_LEVEL`): their count (the background included), labels and stats."""
+    blue, green, red = cv2.split(query)
+    clipped = (cv2.max(cv2.max(blue, green), red) >= CLIPPED_LEVEL).astype(np.uint8)
+    if not cv2.countNonZero(clipped):
+        return 1, np.zeros(clipped.shape, np.int32), np.zeros((1, 5), np.int32)
+    return cv2.connectedComponentsWithStats(clipped, connectivity=8)[:3]
+
+
+def _add_halo(
+    halo: np.ndarray, labels: np.ndarray, stats: np.ndarray, label: int, factor: float
+) -> None:
+    """Mark in ``halo`` every pixel within ``factor * sqrt(A)`` of component ``label`` (of
+    area ``A``), the component's own pixels included."""
+    height, width = halo.shape
+    x, y, w, h, area = (int(v) for v in stats[label])
+    radius = factor * math.sqrt(area)
+    reach = math.floor(radius)
+    top, bottom = max(0, y - reach), min(height, y + h + reach)
+    left, right = max(0, x - reach), min(width, x + w + reach)
+    outside = (labels[top:bottom, left:right] != label).astype(np.uint8)
+    # Exact Euclidean distance to the component's nearest pixel (0 on it).
+    distance = cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    halo[top:bottom, left:right] |= distance <= np.float32(radius)
+
+
+def sun_reach(shape: tuple[int, int]) -> int:
+    """How far, in pixels of an image of ``shape``, a clipped component may lie from the
+    Sun's computed position and still be the Sun: :data:`SUN_REACH` of the shorter side, at
+    least 2 pixels (the Sun's disc and the pose's error)."""
+    return max(2, round(min(shape) * SUN_REACH))
+
+
+def sun_glare(
+    query: np.ndarray, sun_pixel: tuple[float, float] | None, factor: float
+) -> np.ndarray:
+    """H x W bool: the Sun's glare, the clipped components of ``query`` at the Sun's
+    position with every pixel within ``factor * sqrt(A)`` of them (``A`` their area).
+
+    Parameters
+    ----------
+    query : numpy.ndarray
+        uint8 H x W x 3, the query at the processing resolution before the colour transfer.
+    sun_pixel : tuple of float or None
+        The Sun's centre ``(x, y)`` in this image's continuous pixel coordinates (pixel
+        ``(i, j)`` spans ``[i, i + 1) x [j, j + 1)``); None: no Sun in front of the camera.
+        A clipped component counts when one of its pixels lies within :func:`sun_reach` of
+        the pixel holding it (the Sun itself, seen through the camera's optics); a Sun out
+        of the image or behind the station (nothing clipped there) makes no glare.
+    factor : float
+        The halo's radius per square root of the component's area; 0 gives no glare.
+    """
+    height, width = query.shape[:2]
+    glare = np.zeros((height, width), bool)
+    if factor <= 0.0 or sun_pixel is None:
+        return glare
+    column, row = (math.floor(v) for v in sun_pixel)
+    reach = sun_reach((height, width))
+    top, bottom = max(0, row - reach), min(height, row + reach + 1)
+    left, right = max(0, column - reach), min(width, column + reach + 1)
+    if top >= bottom or left >= right:
+        return glare
+    _, labels, stats = _clipped_components(query)
+    for label in np.unique(labels[top:bottom, left:right]):
+        if label:
+            _add_halo(glare, labels, stats, int(label), factor)
+    return glare
 
 
 def colourless_excess(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -198,6 +266,8 @@ def tolerate_highlights(
     *,
     specular_tolerance: float,
     glare_halo_factor: float,
+    sun_glare_factor: float = 0.0,
+    sun_pixel: tuple[float, float] | None = None,
     cache: ReferenceCache | None = None,
 ) -> np.ndarray:
     """The query with its tolerated colourless brightening over the reference removed.
@@ -215,6 +285,12 @@ def tolerate_highlights(
         8-bit levels tolerated at a full predicted highlight; 0 = none.
     glare_halo_factor : float
         The halo's radius per square root of a clipped component's area; 0 = none.
+    sun_glare_factor : float
+        The Sun's glare radius per square root of its clipped area (:func:`sun_glare`);
+        0 = none.
+    sun_pixel : tuple of float or None
+        The Sun's centre in ``query``'s continuous pixel coordinates, None when it is not in
+        front of the camera.
     cache : ReferenceCache, optional
         Keeps the resized reference and its specular allowance while the reference is
         reused.
@@ -229,10 +305,10 @@ def tolerate_highlights(
     HighlightsError
         For a negative tolerance or factor, or ``seen`` of another size than ``query``.
     """
-    if specular_tolerance < 0.0 or glare_halo_factor < 0.0:
+    if min(specular_tolerance, glare_halo_factor, sun_glare_factor) < 0.0:
         raise HighlightsError(
-            f"specular_tolerance ({specular_tolerance}) and glare_halo "
-            f"({glare_halo_factor}) must be >= 0"
+            f"specular_tolerance ({specular_tolerance}), glare_halo ({glare_halo_factor}) "
+            f"and sun_glare ({sun_glare_factor}) must be >= 0"
         )
     if seen.shape[:2] != query.shape[:2]:
         raise HighlightsError(f"seen {seen.shape} and query {query.shape} differ in size")
@@ -253,6 +329,10 @@ def tolerate_highlights(
         halo = glare_halo(eight_bit(seen), pixels, glare_halo_factor)
         if halo.any():
             allowed = _unlimited_in(halo, allowed)
+    if sun_glare_factor > 0.0 and sun_pixel is not None:
+        glare = sun_glare(eight_bit(seen), sun_pixel, sun_glare_factor)
+        if glare.any():
+            allowed = _unlimited_in(glare, allowed)
     if allowed is None:
         return query
     removed = cv2.min(colourless_excess(query, pixels), allowed)

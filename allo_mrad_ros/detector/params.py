@@ -246,6 +246,15 @@ class MradParams:
         0,
         16,
     )
+    sun_glare: float = parameter(
+        0.0,
+        "radius, per square root of its area (pixels at the processing resolution), of the "
+        "Sun's glare round the clipped query region at the Sun's position in the image, "
+        "within which any colourless brightening over the reference is tolerated (needs the "
+        "view: Pipeline and the node pass it); 0 = off",
+        0,
+        16,
+    )
     structure_weight: float = parameter(
         0.0,
         "weight of the structure cue (edges the query has and its reference cell lacks, "

@@ -24,7 +24,7 @@ from allo_mrad_ros.detector.colour_transfer import (
 )
 from allo_mrad_ros.detector.decision import frame_decision, image_score
 from allo_mrad_ros.detector.gain_field import apply_gain_field
-from allo_mrad_ros.detector.highlights import tolerate_highlights
+from allo_mrad_ros.detector.highlights import sun_reach, tolerate_highlights
 from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
@@ -148,6 +148,7 @@ def detect(
     *,
     backend: PixelBackend | str | None = None,
     cache: ReferenceCache | None = None,
+    sun_pixel: tuple[float, float] | None = None,
 ) -> DetectionResult:
     """Run MRAD on a query image against the rendered reference of the same view.
 
@@ -166,6 +167,10 @@ def detect(
         Keeps what is derived from a read-only ``reference`` alone (cell statistics,
         quantiles, colour bins) for the next call with the same array object; the result is
         the same as without it.
+    sun_pixel : tuple of float, optional
+        The Sun's centre ``(x, y)`` in ``query``'s continuous pixel coordinates
+        (:meth:`~allo_mrad_ros.view.View.sun_pixel`), None when it is not in front of the
+        camera; read only with ``params.sun_glare`` > 0.
 
     Returns
     -------
@@ -207,7 +212,10 @@ def detect(
     if params.gain_field_degree > 0:
         with timer.stage("gain_field"):
             work = apply_gain_field(work, reference, params.gain_field_degree)
-    if params.specular_tolerance > 0.0 or params.glare_halo > 0.0:
+    sun_in_work = None
+    if sun_pixel is not None and params.sun_glare > 0.0:
+        sun_in_work = _sun_near_image(sun_pixel, full_shape, work.shape[:2])
+    if params.specular_tolerance > 0.0 or params.glare_halo > 0.0 or sun_in_work is not None:
         with timer.stage("highlights"):
             work = tolerate_highlights(
                 seen,
@@ -215,6 +223,8 @@ def detect(
                 reference,
                 specular_tolerance=params.specular_tolerance,
                 glare_halo_factor=params.glare_halo,
+                sun_glare_factor=params.sun_glare,
+                sun_pixel=sun_in_work,
                 cache=cache,
             )
     # The ranking map may use another photometric model than the mask; both come from
@@ -267,6 +277,20 @@ def detect(
         masked_score=params.pixel_score == "regions",
         verdict=verdict,
     )
+
+
+def _sun_near_image(
+    sun_pixel: tuple[float, float], full_shape: tuple[int, int], work_shape: tuple[int, int]
+) -> tuple[float, float] | None:
+    """The Sun's pixel at the processing resolution, None when it lies farther outside the
+    image than a clipped component may lie from it (:func:`sun_reach`): then there is no
+    glare to place, and the highlights stage is skipped."""
+    # Continuous coordinates scale with the image's size along each axis.
+    x = sun_pixel[0] * work_shape[1] / full_shape[1]
+    y = sun_pixel[1] * work_shape[0] / full_shape[0]
+    reach = sun_reach(work_shape)
+    inside = -reach <= x < work_shape[1] + reach and -reach <= y < work_shape[0] + reach
+    return (x, y) if inside else None
 
 
 @dataclass(frozen=True)
@@ -427,11 +451,13 @@ def detect_pad(
     *,
     backend: PixelBackend | str | None = None,
     cache: ReferenceCache | None = None,
+    sun_pixel: tuple[float, float] | None = None,
 ) -> DetectionResult:
     """PAD baseline: the cross score with one cell and only a threshold after scaling.
 
     The result's ``score`` is the scaled cross score; ``mask`` is where it reaches
-    ``params.min_score``. ``cache`` as for :func:`detect`.
+    ``params.min_score``. ``cache`` as for :func:`detect`; ``sun_pixel`` is accepted for a
+    uniform interface and ignored (the baseline models no glare).
     """
     params = params or MradParams()
     query, reference = _checked_pair(query, reference, params, cache, "PAD")
@@ -450,11 +476,12 @@ def detect_rxd(
     *,
     backend: PixelBackend | str | None = None,
     cache: ReferenceCache | None = None,
+    sun_pixel: tuple[float, float] | None = None,
 ) -> DetectionResult:
     """RXD baseline: each pixel against the whole query's mean and covariance.
 
-    ``reference`` and ``cache`` are accepted for a uniform interface and ignored. Scores and
-    mask as in :func:`detect_pad`.
+    ``reference``, ``cache`` and ``sun_pixel`` are accepted for a uniform interface and
+    ignored. Scores and mask as in :func:`detect_pad`.
     """
     params = params or MradParams()
     query = check_image(query, "query", params.bit_depth)

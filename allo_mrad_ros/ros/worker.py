@@ -501,7 +501,7 @@ class ProcessingWorker:
         try:
             score_map = self._score_wanted()
             detected = rendered.pipeline.detect(
-                rendered.image, rendered.reference, score_map=score_map
+                rendered.image, rendered.reference, score_map=score_map, view=rendered.view
             )
             detect_end = time.monotonic()
         except ValueError as error:

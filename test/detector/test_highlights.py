@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from mrad_oracle import components_naive
 
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.highlights import (
@@ -63,28 +64,6 @@ def potential_naive(reference: np.ndarray) -> np.ndarray:
     potential = np.minimum((darkest - opened) / SPECULAR_FULL, 1.0)
     spread = max(1, round(min(darkest.shape) * SPECULAR_SPREAD)) | 1
     return potential if spread == 1 else _window_reduce(potential, spread, np.max)
-
-
-def components_naive(clipped: np.ndarray) -> list[list[tuple[int, int]]]:
-    seen = np.zeros_like(clipped)
-    found = []
-    for start in zip(*np.nonzero(clipped), strict=True):
-        if seen[start]:
-            continue
-        seen[start] = True
-        stack, pixels = [start], []
-        while stack:
-            row, col = stack.pop()
-            pixels.append((row, col))
-            for dr in (-1, 0, 1):
-                for dc in (-1, 0, 1):
-                    r, c = row + dr, col + dc
-                    inside = 0 <= r < clipped.shape[0] and 0 <= c < clipped.shape[1]
-                    if inside and clipped[r, c] and not seen[r, c]:
-                        seen[r, c] = True
-                        stack.append((r, c))
-        found.append(pixels)
-    return found
 
 
 def halo_naive(query: np.ndarray, reference: np.ndarray, factor: float) -> np.ndarray:

@@ -141,7 +141,7 @@ def a_worker(monkeypatch, diagnostics, published, pipelined=True, **options):
         def close(self):
             pass
 
-        def detect(self, image, reference, score_map=True):
+        def detect(self, image, reference, score_map=True, view=None):
             result = types.SimpleNamespace(anomalous=False)
             return ProcessedFrame(reference, {"MRAD": result}, {"render": 0.0, "MRAD": 0.0})
 

@@ -70,7 +70,7 @@ class FastPipeline:
         reference_camera=CAMERA,
     )
 
-    def detect(self, image, reference, score_map=True):
+    def detect(self, image, reference, score_map=True, view=None):
         result = types.SimpleNamespace(anomalous=False)
         return ProcessedFrame(reference, {"MRAD": result}, {"render": 0.0, "MRAD": 0.0})
 

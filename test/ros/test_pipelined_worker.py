@@ -153,7 +153,7 @@ class Stages:
             def warm_up(self):
                 stages.warmed_up.append(threading.get_ident())
 
-            def detect(self, image, reference, score_map=True):
+            def detect(self, image, reference, score_map=True, view=None):
                 frame = stages._frames[id(reference)][0]
                 stages.record("detect", "start", frame)
                 stages.detect_threads.append(threading.get_ident())

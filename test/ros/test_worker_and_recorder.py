@@ -44,6 +44,7 @@ class Counting(Quiet):
 @pytest.mark.parametrize("pipelined", [True, False])
 def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monkeypatch, pipelined):
     entered, release = threading.Event(), threading.Event()
+    views = []
 
     class SlowPipeline:
         provider = types.SimpleNamespace(
@@ -56,7 +57,8 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monk
         def close(self):
             pass
 
-        def detect(self, image, reference, score_map=True):
+        def detect(self, image, reference, score_map=True, view=None):
+            views.append(view)  # the view rendered: the detector places the Sun's glare by it
             entered.set()
             release.wait(30)
             result = types.SimpleNamespace(anomalous=False)
@@ -86,6 +88,7 @@ def test_nothing_is_published_after_stop_returns_even_when_the_join_expires(monk
     worker.join(30)
     assert not any(thread.is_alive() for thread in worker._threads)
     assert published == []
+    assert views == ["view"]
 
 
 @pytest.mark.parametrize("pipelined", [True, False])

@@ -1,0 +1,209 @@
+"""The Sun's glare: the clipped region at the Sun's computed position and its halo are
+tolerated; a clipped glint elsewhere, and a coloured or dark object inside the halo, are not.
+
+Oracles: the glare mask against a per-pixel float64 one (a flood fill of the clipped pixels,
+brute-force distances); the Sun's pixel against OpenCV's ``projectPoints``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from mrad_oracle import components_naive
+
+from allo_mrad_ros.camera import CameraIntrinsics
+from allo_mrad_ros.detector import MradParams, detect
+from allo_mrad_ros.detector.highlights import (
+    CLIPPED_LEVEL,
+    HighlightsError,
+    sun_glare,
+    sun_reach,
+    tolerate_highlights,
+)
+from allo_mrad_ros.detector.params import ParamsError
+from allo_mrad_ros.geometry import look_at
+from allo_mrad_ros.view import View
+
+HEIGHT, WIDTH = 90, 160
+
+
+def sun_glare_naive(query: np.ndarray, sun: tuple[float, float] | None, factor: float):
+    """Every clipped component with a pixel within the reach (Chebyshev, from the pixel
+    holding the Sun) and every pixel within factor * sqrt(area) of it, in float64."""
+    glare = np.zeros(query.shape[:2], bool)
+    if sun is None or factor <= 0:
+        return glare
+    clipped = query.astype(np.float64).max(axis=2) >= CLIPPED_LEVEL
+    reach = sun_reach(query.shape[:2])
+    column, row = math.floor(sun[0]), math.floor(sun[1])
+    rows, cols = np.mgrid[0 : query.shape[0], 0 : query.shape[1]].astype(np.float64)
+    for pixels in components_naive(clipped):
+        if not any(abs(r - row) <= reach and abs(c - column) <= reach for r, c in pixels):
+            continue
+        radius = factor * math.sqrt(len(pixels))
+        nearest = np.full(glare.shape, np.inf)
+        for r, c in pixels:
+            nearest = np.minimum(nearest, np.hypot(rows - r, cols - c))
+        glare |= nearest <= radius
+    return glare
+
+
+def space_with_blobs(seed: int) -> tuple[np.ndarray, list[tuple[float, float]]]:
+    """Black space with a few clipped blobs of random sizes; their centres."""
+    rng = np.random.default_rng(seed)
+    query = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    centres = []
+    for _ in range(4):
+        x, y = rng.uniform(-5, WIDTH + 5), rng.uniform(-5, HEIGHT + 5)
+        radius = rng.uniform(0.5, 4.0)
+        cv2.circle(query, (round(x), round(y)), round(radius), (255, 255, 255), -1)
+        centres.append((x, y))
+    return query, centres
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("factor", [0.0, 1.0, 2.5])
+def test_the_glare_matches_the_float64_oracle(seed, factor):
+    query, centres = space_with_blobs(seed)
+    rng = np.random.default_rng(100 + seed)
+    suns = [*centres, (rng.uniform(0, WIDTH), rng.uniform(0, HEIGHT)), (-40.0, 10.0), None]
+    for sun in suns:
+        got = sun_glare(query, sun, factor)
+        np.testing.assert_array_equal(got, sun_glare_naive(query, sun, factor))
+
+
+def glare_scene():
+    """Black space (the reference) and a query with the Sun clipped in a disc of radius 3 at
+    (40, 45) with a grey bloom round it, and a clipped glint of the same size at (120, 45)
+    with the same bloom."""
+    reference = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    query = reference.copy()
+    rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH]
+    for x in (40, 120):
+        distance = np.hypot(rows - 45, cols - x)
+        bloom = np.clip(120.0 - 8.0 * distance, 0, None).astype(np.uint8)
+        query = cv2.max(query, cv2.merge((bloom, bloom, bloom)))
+        cv2.circle(query, (x, 45), 3, (255, 255, 255), -1)
+    return reference, query
+
+
+def tolerate_sun(query, reference, factor, sun):
+    """The highlights stage with the Sun's glare alone."""
+    return tolerate_highlights(
+        query,
+        query,
+        reference,
+        specular_tolerance=0.0,
+        glare_halo_factor=0.0,
+        sun_glare_factor=factor,
+        sun_pixel=sun,
+    )
+
+
+def test_the_suns_glare_is_tolerated_and_a_glint_elsewhere_is_kept():
+    reference, query = glare_scene()
+    out = tolerate_sun(query, reference, 4.0, (40.5, 45.5))
+    left, right = np.s_[:, :80], np.s_[:, 80:]
+    # The Sun's disc and its bloom are what the reference shows: space.
+    np.testing.assert_array_equal(out[left], reference[left])
+    # The glint, not at the Sun, keeps all of its light.
+    np.testing.assert_array_equal(out[right], query[right])
+    # Without the Sun's position (or with the rule off) nothing is tolerated.
+    for factor, sun in ((4.0, None), (0.0, (40.5, 45.5))):
+        kept = tolerate_sun(query, reference, factor, sun)
+        assert kept is query
+
+
+def test_a_coloured_or_dark_object_in_the_suns_glare_keeps_its_departure():
+    reference, query = glare_scene()
+    reference[40:44, 50:54] = 90  # a lit surface the reference shows in the glare
+    query[40:44, 50:54] = 30  # hidden by a dark object
+    query[48:52, 50:54] = (40, 200, 40)  # a green object over the bloom
+    out = tolerate_sun(query, reference, 4.0, (40.5, 45.5))
+    np.testing.assert_array_equal(out[40:44, 50:54], query[40:44, 50:54])
+    # The green object loses only its colourless part (the smallest channel's excess).
+    green = out[48:52, 50:54].astype(int)
+    assert (green[..., 1] - green[..., 0] == 160).all()
+
+
+def test_the_detector_flags_a_glint_and_not_the_suns_glare():
+    reference, query = glare_scene()
+    only_sun = query.copy()
+    only_sun[:, 80:] = 0
+    params = MradParams(grid=4, process_scale=1.0, sun_glare=4.0)
+    at_sun = (40.5, 45.5)
+    assert not detect(only_sun, reference, params, sun_pixel=at_sun).anomalous
+    assert detect(only_sun, reference, params, sun_pixel=None).anomalous
+    assert detect(only_sun, reference, params.replace(sun_glare=0.0), sun_pixel=at_sun).anomalous
+    # The glint is found whether or not the Sun is in view elsewhere.
+    both = detect(query, reference, params, sun_pixel=at_sun)
+    assert both.anomalous
+    assert all(region.box[0] >= 80 for region in both.regions)
+
+
+def test_the_sun_position_scales_to_the_processing_resolution():
+    reference, query = glare_scene()
+    # The full-resolution query, twice the size: the Sun at twice the coordinates.
+    large = cv2.resize(query, (2 * WIDTH, 2 * HEIGHT), interpolation=cv2.INTER_NEAREST)
+    large[:, 160:] = 0
+    params = MradParams(grid=4, process_scale=0.5, sun_glare=4.0)
+    assert not detect(large, reference, params, sun_pixel=(81.0, 91.0)).anomalous
+    assert detect(large, reference, params, sun_pixel=(40.5, 45.5)).anomalous
+
+
+def test_out_of_range_or_negative_factors_are_refused():
+    with pytest.raises(ParamsError):
+        MradParams(sun_glare=-1.0)
+    with pytest.raises(ParamsError):
+        MradParams(sun_glare=17.0)
+    image = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    with pytest.raises(HighlightsError, match="sun_glare"):
+        tolerate_highlights(
+            image,
+            image,
+            image,
+            specular_tolerance=0.0,
+            glare_halo_factor=0.0,
+            sun_glare_factor=-1.0,
+            sun_pixel=(1.0, 1.0),
+        )
+
+
+# ---------------------------------------------------------------- the Sun's pixel
+CAMERA = CameraIntrinsics(width=640, height=360, fx=500.0, fy=480.0, cx=320.5, cy=170.25)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_the_suns_pixel_matches_opencvs_projection(seed):
+    rng = np.random.default_rng(seed)
+    eye = rng.normal(size=3) * 20.0
+    target = eye + rng.normal(size=3)
+    pose = look_at(eye=eye, target=target)
+    # A direction near the optical axis, so the Sun is in front of the camera.
+    axis = pose[:3, 2]
+    direction = axis + 0.4 * rng.normal(size=3)
+    view = View(pose, sun_direction=direction)
+    got = view.sun_pixel(CAMERA)
+    rotation = pose[:3, :3].T
+    in_camera = rotation @ direction
+    if in_camera[2] <= 0:
+        assert got is None
+        return
+    # A point far along the direction, projected as OpenCV does (no distortion).
+    rvec, _ = cv2.Rodrigues(rotation)
+    tvec = -rotation @ eye
+    point = (eye + 1e6 * direction / np.linalg.norm(direction))[None, :]
+    expected, _ = cv2.projectPoints(point, rvec, tvec, CAMERA.matrix, None)
+    np.testing.assert_allclose(got, expected.ravel(), rtol=0, atol=1e-3)
+
+
+def test_a_sun_behind_the_camera_has_no_pixel():
+    pose = look_at(eye=[10.0, 0.0, 0.0], target=[0.0, 0.0, 0.0])
+    behind = -pose[:3, 2]
+    assert View(pose, sun_direction=behind).sun_pixel(CAMERA) is None
+    assert View(pose, sun_direction=[0.0, 0.0, 0.0]).sun_pixel(CAMERA) is None
+    ahead = View(pose, sun_direction=pose[:3, 2]).sun_pixel(CAMERA)
+    assert ahead == pytest.approx((CAMERA.cx, CAMERA.cy))
