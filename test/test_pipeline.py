@@ -256,10 +256,13 @@ def test_process_tells_the_detector_where_the_sun_is(renderers):
     assert centre == (320, 180)
     cv2.circle(image, centre, 40, (150, 150, 150), -1)
     cv2.circle(image, centre, 12, (255, 255, 255), -1)
-    glare_config = pipeline.config.replace(params=pipeline.config.params.replace(sun_glare=4.0))
-    glare = pipeline.with_config(glare_config)
-    assert pipeline.process(image, view, reference=reference).primary.anomalous
+    params = pipeline.config.params
+    assert params.sun_glare > 0  # the default
+    glare = pipeline.with_config(pipeline.config.replace(params=params.replace(sun_glare=4.0)))
+    blind = pipeline.with_config(pipeline.config.replace(params=params.replace(sun_glare=0.0)))
+    assert blind.process(image, view, reference=reference).primary.anomalous
     assert not glare.process(image, view, reference=reference).primary.anomalous
+    assert not pipeline.process(image, view, reference=reference).primary.anomalous
     # Without the view, detect() cannot place the Sun: the glare is an anomaly.
     assert glare.detect(image, reference).primary.anomalous
     assert not glare.detect(image, reference, view=view).primary.anomalous

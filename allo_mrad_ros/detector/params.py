@@ -5,7 +5,8 @@ tolerance growth only). Grid 8x8, processing at a quarter of the query's size
 (``process_scale`` 0.25), the per-cell noise rule, hysteresis growth, the continuous ranking
 map and the photometric models were chosen on the validation split by the
 speed-against-error benchmark (``make bench``), the colour transfer of the query into the
-reference's colours on the multi-station bench; the values the paper leaves open were
+reference's colours on the multi-station bench, the Sun's glare on the frames of the
+validation sequences with the Sun in view; the values the paper leaves open were
 decided by measurement. docs/method.md states the method and the rule by which a default
 is chosen; docs/detector.md ("How the defaults were chosen") gives the measurements.
 """
@@ -247,7 +248,7 @@ class MradParams:
         16,
     )
     sun_glare: float = parameter(
-        0.0,
+        8.0,
         "radius, per square root of its area (pixels at the processing resolution), of the "
         "Sun's glare round the clipped query region at the Sun's position in the image, "
         "within which any colourless brightening over the reference is tolerated (needs the "
@@ -479,6 +480,7 @@ _PAPER_OPTIMUM = MradParams(
     image_score="area",
     colour_transfer="none",
     specular_tolerance=0.0,
+    sun_glare=0.0,
     local_weight=0.0,
     frame_rule="area",
 )

@@ -18,6 +18,7 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.highlights import (
     CLIPPED_LEVEL,
+    SUN_GLARE_MAX_RADIUS,
     HighlightsError,
     sun_glare,
     sun_reach,
@@ -43,7 +44,7 @@ def sun_glare_naive(query: np.ndarray, sun: tuple[float, float] | None, factor: 
     for pixels in components_naive(clipped):
         if not any(abs(r - row) <= reach and abs(c - column) <= reach for r, c in pixels):
             continue
-        radius = factor * math.sqrt(len(pixels))
+        radius = min(factor * math.sqrt(len(pixels)), SUN_GLARE_MAX_RADIUS * min(glare.shape))
         nearest = np.full(glare.shape, np.inf)
         for r, c in pixels:
             nearest = np.minimum(nearest, np.hypot(rows - r, cols - c))
@@ -65,7 +66,7 @@ def space_with_blobs(seed: int) -> tuple[np.ndarray, list[tuple[float, float]]]:
 
 
 @pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("factor", [0.0, 1.0, 2.5])
+@pytest.mark.parametrize("factor", [0.0, 1.0, 2.5, 16.0])
 def test_the_glare_matches_the_float64_oracle(seed, factor):
     query, centres = space_with_blobs(seed)
     rng = np.random.default_rng(100 + seed)
@@ -73,6 +74,15 @@ def test_the_glare_matches_the_float64_oracle(seed, factor):
     for sun in suns:
         got = sun_glare(query, sun, factor)
         np.testing.assert_array_equal(got, sun_glare_naive(query, sun, factor))
+
+
+def test_the_glare_of_a_sun_clipped_with_a_lit_surface_is_bounded():
+    query = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    query[30:60, 40:110] = 255  # a clipped module the Sun sits on: one large component
+    glare = sun_glare(query, (80.5, 45.5), 16.0)
+    rows, cols = np.nonzero(glare)
+    reach = math.floor(SUN_GLARE_MAX_RADIUS * HEIGHT)  # whole pixels straight out
+    assert rows.min() == 30 - reach and cols.max() == 109 + reach and cols.min() == 40 - reach
 
 
 def glare_scene():
