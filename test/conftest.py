@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, settings
 
 from allo_mrad_ros.ros.node_process import use_loopback_profile
 from harness.dds import process_domain
+from harness.shared_memory import remove_orphans
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -63,3 +64,9 @@ if os.environ.get("ALLO_TESTS") == "ros":
         for path in (REPO / "test").rglob("test_*.py")
         if not touches_ros(path)
     ]
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Delete the Fast DDS shared-memory files the killed processes of this and earlier runs
+    left in /dev/shm (memory), those no live process uses (harness.shared_memory)."""
+    remove_orphans()
