@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # A private network namespace with only loopback, where the machine allows one (root).
 ISOLATED := $(shell unshare -n true 2>/dev/null && echo "unshare -n sh -c 'ip link set lo up && exec \"\$$0\" \"\$$@\"'")
 
-.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations bench-pt cycles-setup bench-detector bench-render bench-node bench-node-load bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark bench-objects bench-sun bench-tracker param-study station-model clean
+.PHONY: setup demo test fuzz sweep flood test-distro test-jazzy lint bench bench-cycles bench-stations bench-pt cycles-setup bench-detector bench-render bench-node bench-node-load bench-reuse bench-node-compare bench-transport bench-node-outputs profile-node bench-generate eval-bench ablate-bench synth-demo synth-bench synth-bench-val bench-dark bench-objects bench-sky bench-tracker param-study station-model clean
 
 setup: $(STAMP)
 
@@ -242,18 +242,23 @@ data/bench_dark/frames.csv: | $(STAMP)
 bench-objects: $(CYCLES_STAMP)
 	$(PY) -m benchmarks.objects --out reports/bench_objects.json
 
-# The Sun's glare (docs/evaluation.md): the frames with the Sun in view, per factor, on the
-# validation sequences (where the default was chosen), then on the test ones; generates the
-# sequences it needs if missing (the path-traced ones with Cycles).
-SUN_PT := $(PY) -m allo_mrad_ros.synth.entry generate --preset objects-pt --jobs 2
-bench-sun: $(CYCLES_STAMP) data/bench/frames.csv data/bench_val/frames.csv
+# Light in the sky the reference cannot draw (docs/evaluation.md): the Sun's glare and the
+# bodies' limbs on the frames with them in view, per value, on the validation sequences (where
+# the defaults were chosen), then on the test ones; generates the sequences it needs if
+# missing (the path-traced ones with Cycles).
+SKY_PT := $(PY) -m allo_mrad_ros.synth.entry generate --preset objects-pt --jobs 2
+SKY_VAL := data/objects:val data/bench_val:val data/objects_pt_hub
+SKY_TEST := data/objects:test data/bench:test data/objects_pt data/objects_pt_ring
+bench-sky: $(CYCLES_STAMP) data/bench/frames.csv data/bench_val/frames.csv
 	test -f data/objects/frames.csv || $(PY) -m allo_mrad_ros.synth.entry generate --preset objects --seed 0 --out data/objects --jobs 2
 	test -f data/stations_pt/outpost_hub.glb || $(PY) -m benchmarks.stations outposts data/stations_pt
-	test -f data/objects_pt_hub/frames.csv || $(SUN_PT) --mesh data/stations_pt/outpost_hub.glb --seed 11 --trajectory-frames 40 --out data/objects_pt_hub
-	test -f data/objects_pt/frames.csv || $(SUN_PT) --mesh data/stations_pt/outpost_spine.glb --seed 7 --out data/objects_pt
-	test -f data/objects_pt_ring/frames.csv || $(SUN_PT) --mesh data/stations_pt/outpost_ring.glb --seed 9 --out data/objects_pt_ring
-	$(PY) -m benchmarks.sun_glare data/objects:val data/bench_val:val data/objects_pt_hub --factors 0,1,2,3,4,5,6,8,10,12,16 --out reports/sun_glare_val.json
-	$(PY) -m benchmarks.sun_glare data/objects:test data/bench:test data/objects_pt data/objects_pt_ring --factors 0,8 --out reports/sun_glare_test.json
+	test -f data/objects_pt_hub/frames.csv || $(SKY_PT) --mesh data/stations_pt/outpost_hub.glb --seed 11 --trajectory-frames 40 --out data/objects_pt_hub
+	test -f data/objects_pt/frames.csv || $(SKY_PT) --mesh data/stations_pt/outpost_spine.glb --seed 7 --out data/objects_pt
+	test -f data/objects_pt_ring/frames.csv || $(SKY_PT) --mesh data/stations_pt/outpost_ring.glb --seed 9 --out data/objects_pt_ring
+	$(PY) -m benchmarks.sky sun_glare $(SKY_VAL) --values 0,1,2,3,4,5,6,8,10,12,16 --out reports/sky_sun_glare_val.json
+	$(PY) -m benchmarks.sky sun_glare $(SKY_TEST) --values 0,8 --out reports/sky_sun_glare_test.json
+	$(PY) -m benchmarks.sky body_margin $(SKY_VAL) --values 0,0.5,1,1.5,2,3 --out reports/sky_body_margin_val.json
+	$(PY) -m benchmarks.sky body_margin $(SKY_TEST) --values 0,1 --out reports/sky_body_margin_test.json
 
 # The object tracker's cost per frame: 20 regions, 50 objects.
 bench-tracker: $(STAMP)

@@ -273,7 +273,8 @@ class Pipeline:
         :meth:`process`; the frame's ``render`` time is 0 and its reference camera None.
 
         ``view``, the view the reference was rendered for, tells the methods where the Sun
-        is in the image (MRAD's ``sun_glare``); without it no glare is placed at the Sun.
+        and the bodies are in the image (MRAD's ``sun_glare`` and ``body_margin``); without
+        it neither rule acts.
 
         ``score_map=False`` when no one reads the results' ``score`` (the node with no
         ``~/score`` subscriber): the methods then make the cheapest map,
@@ -283,9 +284,13 @@ class Pipeline:
         ranking map (a second photometric model in the cross score) is skipped.
         """
         params = self._config.params if score_map else self._params_without_map
-        sun_pixel = None
-        if view is not None and params.sun_glare > 0.0:
-            sun_pixel = view.sun_pixel(self._provider.camera)
+        sun_pixel, body_discs = None, []
+        if view is not None:
+            camera = self._provider.camera
+            if params.sun_glare > 0.0:
+                sun_pixel = view.sun_pixel(camera)
+            if params.body_margin > 0.0:
+                body_discs = view.body_discs(camera)
         results, timings = {}, {"render": 0.0}
         for name in self._config.methods:
             start = time.perf_counter()
@@ -296,6 +301,7 @@ class Pipeline:
                 backend=self._backend,
                 cache=self._cache,
                 sun_pixel=sun_pixel,
+                body_discs=body_discs,
             )
             timings[name] = 1e3 * (time.perf_counter() - start)
         timings["total"] = sum(timings.values())

@@ -86,6 +86,38 @@ class View:
             return None
         return (camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy)
 
+    def body_discs(self, camera: CameraIntrinsics) -> list[tuple[float, float, float]]:
+        """The discs of the bodies (Earth, Moon; not the Sun) in front of ``camera``.
+
+        Parameters
+        ----------
+        camera : CameraIntrinsics
+            The intrinsics of the image (any resolution of the camera).
+
+        Returns
+        -------
+        list of tuple of float
+            ``(x, y, radius)`` per body whose centre is in front of the camera: the centre
+            in the intrinsics' continuous pixel coordinates (possibly outside the image) and
+            the radius in pixels along x (a sphere's outline is a circle of that radius on the
+            optical axis, slightly stretched away from it).
+        """
+        pose = np.asarray(self.T_station_camera, dtype=np.float64)
+        rotation, eye = pose[:3, :3], pose[:3, 3]
+        discs = []
+        for body in self.bodies:
+            if body.name.lower() == "sun":
+                continue
+            offset = np.asarray(body.centre, dtype=np.float64) - eye
+            x, y, z = rotation.T @ offset
+            distance = float(np.linalg.norm(offset))
+            if not z > 0.0 or body.radius >= distance:
+                continue
+            half_angle = np.arcsin(body.radius / distance)
+            radius = camera.fx * float(np.tan(half_angle))
+            discs.append((camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy, radius))
+        return discs
+
     @property
     def sky_bodies(self) -> tuple[CelestialBody, ...]:
         """Every body the reference shows: :attr:`bodies` plus the Sun's disc."""

@@ -69,6 +69,8 @@ class BenchFrame:
     sun_pixel: tuple[float, float] | None = None
     """Where the Sun's centre falls in the image (None: behind the camera), for
     ``sun_glare``."""
+    body_discs: tuple[tuple[float, float, float], ...] = ()
+    """The Earth's and the Moon's discs in the image, for ``body_margin``."""
 
 
 @dataclass(frozen=True)
@@ -175,6 +177,7 @@ def sequence_frames(
                     reference,
                     frame_kind(frame),
                     view.sun_pixel(sequence.meta.camera),
+                    tuple(view.body_discs(sequence.meta.camera)),
                 )
             )
     finally:
@@ -203,7 +206,11 @@ def run_settings(
             s = result.setting
             start = time.perf_counter()
             detection = METHODS[s.method](
-                frame.image, frame.reference, s.params, sun_pixel=frame.sun_pixel
+                frame.image,
+                frame.reference,
+                s.params,
+                sun_pixel=frame.sun_pixel,
+                body_discs=frame.body_discs,
             )
             result.detect_ms.append(1e3 * (time.perf_counter() - start))
             result.pooled.update(detection.score, detection.image_score, frame.truth)

@@ -247,6 +247,15 @@ class MradParams:
         0,
         16,
     )
+    body_margin: float = parameter(
+        1.0,
+        "reference pixels either side of the Earth's and the Moon's projected limb within which "
+        "the query takes the reference's colour (the reference places a limb to within a "
+        "pixel and draws a small body as a blocky disc; needs the view: Pipeline and the node "
+        "pass it); 0 = off",
+        0,
+        16,
+    )
     sun_glare: float = parameter(
         8.0,
         "radius, per square root of its area (pixels at the processing resolution), of the "
@@ -481,6 +490,7 @@ _PAPER_OPTIMUM = MradParams(
     colour_transfer="none",
     specular_tolerance=0.0,
     sun_glare=0.0,
+    body_margin=0.0,
     local_weight=0.0,
     frame_rule="area",
 )

@@ -7,7 +7,7 @@ so the node, the evaluator and the benchmarks treat them alike.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from allo_mrad_ros.detector.backends import PixelBackend, resolve_backend
+from allo_mrad_ros.detector.bodies import Disc, take_reference_at_limbs
 from allo_mrad_ros.detector.colour_transfer import (
     apply_to_query,
     apply_to_reference,
@@ -29,7 +30,9 @@ from allo_mrad_ros.detector.images import (
     area_downscale,
     check_aspect,
     check_image,
+    eight_bit,
     nearest_upscale,
+    reference_at,
 )
 from allo_mrad_ros.detector.local import colour_evidence, combine, dark_evidence
 from allo_mrad_ros.detector.params import MradParams
@@ -149,6 +152,7 @@ def detect(
     backend: PixelBackend | str | None = None,
     cache: ReferenceCache | None = None,
     sun_pixel: tuple[float, float] | None = None,
+    body_discs: Sequence[Disc] = (),
 ) -> DetectionResult:
     """Run MRAD on a query image against the rendered reference of the same view.
 
@@ -171,6 +175,10 @@ def detect(
         The Sun's centre ``(x, y)`` in ``query``'s continuous pixel coordinates
         (:meth:`~allo_mrad_ros.view.View.sun_pixel`), None when it is not in front of the
         camera; read only with ``params.sun_glare`` > 0.
+    body_discs : sequence of (x, y, radius)
+        The Earth's and the Moon's discs in ``query``'s pixels
+        (:meth:`~allo_mrad_ros.view.View.body_discs`); read only with ``params.body_margin``
+        > 0.
 
     Returns
     -------
@@ -227,6 +235,11 @@ def detect(
                 sun_pixel=sun_in_work,
                 cache=cache,
             )
+    if body_discs and params.body_margin > 0.0:
+        with timer.stage("bodies"):
+            work = _limbs_tolerated(
+                work, reference, body_discs, params.body_margin, full_shape, cache
+            )
     # The ranking map may use another photometric model than the mask; both come from
     # one pass that shares the cell statistics.
     models = [params.photometric]
@@ -277,6 +290,25 @@ def detect(
         masked_score=params.pixel_score == "regions",
         verdict=verdict,
     )
+
+
+def _limbs_tolerated(
+    work: np.ndarray,
+    reference: np.ndarray,
+    discs: Sequence[Disc],
+    margin: float,
+    full_shape: tuple[int, int],
+    cache: ReferenceCache | None,
+) -> np.ndarray:
+    """``work`` with the reference's colour within ``margin`` reference pixels of the
+    bodies' limbs (``discs`` in the pixels of the query, of ``full_shape``)."""
+    height, width = work.shape[:2]
+    sx, sy = width / full_shape[1], height / full_shape[0]
+    scaled = [(x * sx, y * sy, radius * sx) for x, y, radius in discs]
+    # A reference pixel in processing pixels (the aspect ratios agree: check_aspect).
+    margin_px = margin * width / reference.shape[1]
+    near = reference_at(reference, (height, width), cache)
+    return take_reference_at_limbs(eight_bit(work), near, scaled, margin_px)
 
 
 def _sun_near_image(
@@ -452,12 +484,13 @@ def detect_pad(
     backend: PixelBackend | str | None = None,
     cache: ReferenceCache | None = None,
     sun_pixel: tuple[float, float] | None = None,
+    body_discs: Sequence[Disc] = (),
 ) -> DetectionResult:
     """PAD baseline: the cross score with one cell and only a threshold after scaling.
 
     The result's ``score`` is the scaled cross score; ``mask`` is where it reaches
-    ``params.min_score``. ``cache`` as for :func:`detect`; ``sun_pixel`` is accepted for a
-    uniform interface and ignored (the baseline models no glare).
+    ``params.min_score``. ``cache`` as for :func:`detect`; ``sun_pixel`` and ``body_discs``
+    are accepted for a uniform interface and ignored (the baseline models neither).
     """
     params = params or MradParams()
     query, reference = _checked_pair(query, reference, params, cache, "PAD")
@@ -477,11 +510,12 @@ def detect_rxd(
     backend: PixelBackend | str | None = None,
     cache: ReferenceCache | None = None,
     sun_pixel: tuple[float, float] | None = None,
+    body_discs: Sequence[Disc] = (),
 ) -> DetectionResult:
     """RXD baseline: each pixel against the whole query's mean and covariance.
 
-    ``reference``, ``cache`` and ``sun_pixel`` are accepted for a uniform interface and
-    ignored. Scores and mask as in :func:`detect_pad`.
+    ``reference``, ``cache``, ``sun_pixel`` and ``body_discs`` are accepted for a uniform
+    interface and ignored. Scores and mask as in :func:`detect_pad`.
     """
     params = params or MradParams()
     query = check_image(query, "query", params.bit_depth)
