@@ -138,7 +138,7 @@ def _typed(default: object, text: str) -> object:
 def load_frames(
     root: Path,
     split: str,
-    reference_scale: float,
+    render: RenderSettings,
     splits: Mapping[str, Sequence[str]] = BENCH_SPLITS,
 ) -> list[BenchFrame]:
     """Read every station sequence of ``split`` and render each frame's reference once."""
@@ -147,19 +147,17 @@ def load_frames(
         folder = root / split / station
         if not (folder / "frames.csv").is_file():
             raise FileNotFoundError(f"{folder}: station sequence missing (make bench-stations)")
-        frames += sequence_frames(folder, station, None, reference_scale)
+        frames += sequence_frames(folder, station, None, render)
     return frames
 
 
 def sequence_frames(
-    folder: Path, station: str, split: str | None, reference_scale: float
+    folder: Path, station: str, split: str | None, render: RenderSettings
 ) -> list[BenchFrame]:
     """The frames of one sequence (one split of it, or all) with their references."""
     frames = []
     sequence = read_sequence(folder)
-    provider = ReferenceProvider(
-        sequence.meta.mesh, sequence.meta.camera, RenderSettings(reference_scale)
-    )
+    provider = ReferenceProvider(sequence.meta.mesh, sequence.meta.camera, render)
     try:
         for frame in sequence.frames:
             if split is not None and frame.split != split:
@@ -376,6 +374,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--settings", default="default,no_transfer,PAD,RXD")
     parser.add_argument("--compare", default="PAD,default", help="A,B: bootstrap P.AP(B)-P.AP(A)")
     parser.add_argument("--reference-scale", type=float, default=RenderSettings().reference_scale)
+    parser.add_argument(
+        "--reference-supersampling", type=int, default=RenderSettings().supersampling
+    )
     parser.add_argument("--recall", action="store_true", help="recall per anomaly type")
     parser.add_argument("--out", type=Path, help="JSON report")
     args = parser.parse_args(argv)
@@ -387,12 +388,13 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         print(f"stations_bench: {error}", file=sys.stderr)
         return 2
+    render = RenderSettings(args.reference_scale, supersampling=args.reference_supersampling)
     if args.sequence:
-        frames = sequence_frames(args.root, args.root.name, args.split, args.reference_scale)
+        frames = sequence_frames(args.root, args.root.name, args.split, render)
         stations: tuple[str, ...] = (args.root.name,)
     else:
         try:
-            frames = load_frames(args.root, args.split, args.reference_scale, splits)
+            frames = load_frames(args.root, args.split, render, splits)
         except FileNotFoundError as error:
             print(f"stations_bench: {error}", file=sys.stderr)
             return 2

@@ -6,6 +6,7 @@ from __future__ import annotations
 from os import PathLike
 from typing import Any
 
+import cv2
 import numpy as np
 
 from allo_mrad_ros.camera import CameraIntrinsics
@@ -43,17 +44,20 @@ class ReferenceProvider:
         # The renderer's own rule: the reference keeps the image's aspect ratio.
         self.reference_camera = scaled_keeping_aspect(camera, render.reference_scale)
         self.reuse: ReferenceReuse | None = None
-        render_camera, scale = camera, render.reference_scale
+        # What one render must give: the reference's own size, or with reuse the keyframe's
+        # (the reference plus the reuse margin).
+        self._output = self.reference_camera
         if render.reuse is not None:
             self.reuse = ReferenceReuse(
                 self.reference_camera, render.reuse, self.reference_camera.width / camera.width
             )
-            # The keyframe is rendered at the reference's own size plus the reuse margin.
-            render_camera, scale = self.reuse.wide_camera, 1.0
+            self._output = self.reuse.wide_camera
+        # Rendered at supersampling times the output's size, averaged down to it.
+        self._supersampling = render.supersampling
         self.renderer = ReferenceRenderer(
             mesh,
-            render_camera,
-            scale=scale,
+            self._output,
+            scale=float(render.supersampling),
             backend=render.render_backend or None,
             shadows=render.shadows,
             cull_bodies=render.cull_bodies,
@@ -86,25 +90,26 @@ class ReferenceProvider:
         back (and, with reuse, a warp of the depth); :meth:`render` never pays for it.
         """
         if self.reuse is None:
-            result = self.renderer.render(
-                view.T_station_camera,
-                view.sun_direction,
-                view.sun_strength,
-                view.sky_bodies,
-                depth=True,
-            )
-            return result.rgb, result.depth
+            return self._render(view, depth=True)
         return self.reuse.reference_with_depth(view, time_s, self._render)
 
-    def _render(self, view: View) -> tuple[np.ndarray, np.ndarray]:
+    def _render(self, view: View, depth: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One render at the output's size (the depth with reuse, or when ``depth``)."""
         result = self.renderer.render(
             view.T_station_camera,
             view.sun_direction,
             view.sun_strength,
             view.sky_bodies,
-            depth=self.reuse is not None,
+            depth=self.reuse is not None if depth is None else depth,
         )
-        return result.rgb, result.depth
+        rgb, depth_image = result.rgb, result.depth
+        if self._supersampling > 1:
+            size = (self._output.width, self._output.height)
+            rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+            if depth_image is not None:
+                # A depth is one surface's, not a blend of a near and a far one.
+                depth_image = cv2.resize(depth_image, size, interpolation=cv2.INTER_NEAREST)
+        return rgb, depth_image
 
     def warm_up(self) -> None:
         """Render once from a pose looking at the station, outside any reuse: the first

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 from allo_mrad_ros.errors import InvalidInput
@@ -10,6 +11,9 @@ from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.render.reuse import ReuseBounds
 
 RENDER_BACKENDS = ("", "osmesa", "egl")
+DEFAULT_SUPERSAMPLING = 2
+"""The reference's supersampling factor (see :class:`RenderSettings`)."""
+MAX_SUPERSAMPLING = 4
 
 
 class RenderSettingsError(InvalidInput):
@@ -24,6 +28,12 @@ class RenderSettings:
     ----------
     reference_scale : float
         Linear scale of the rendered reference, (0, 1].
+    supersampling : int
+        The reference is rendered at this many times its size along each axis and
+        area-averaged down to it (1..4; 1 renders it at its size): an edge or a structure
+        thinner than a reference pixel (a panel seen edge-on, a handrail) then gets its share
+        of the pixel instead of appearing in some pixels and not in others. The depth is
+        sampled, not averaged.
     shadows : bool
         Directional shadows from the Sun.
     cull_bodies : bool
@@ -37,6 +47,7 @@ class RenderSettings:
     """
 
     reference_scale: float = DEFAULT_SCALE
+    supersampling: int = DEFAULT_SUPERSAMPLING
     shadows: bool = DEFAULT_SHADOWS
     cull_bodies: bool = True
     render_backend: str = ""
@@ -48,6 +59,13 @@ class RenderSettings:
             raise RenderSettingsError(f"reference_scale must be a number, got {scale!r}")
         if not (math.isfinite(scale) and 0 < scale <= 1):
             raise RenderSettingsError(f"reference_scale must be in (0, 1], got {scale!r}")
+        factor = self.supersampling
+        if isinstance(factor, bool) or not isinstance(factor, numbers.Integral):
+            raise RenderSettingsError(f"supersampling must be an integer, got {factor!r}")
+        if not 1 <= factor <= MAX_SUPERSAMPLING:
+            raise RenderSettingsError(
+                f"supersampling must be in 1..{MAX_SUPERSAMPLING}, got {factor!r}"
+            )
         if self.render_backend not in RENDER_BACKENDS:
             raise RenderSettingsError(
                 f"render_backend must be one of {list(RENDER_BACKENDS)}, "

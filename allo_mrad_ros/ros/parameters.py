@@ -29,7 +29,11 @@ from allo_mrad_ros.objects import ObjectParams
 from allo_mrad_ros.pipeline import PipelineConfig, RenderSettings
 from allo_mrad_ros.render import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.render.reuse import ReuseBounds
-from allo_mrad_ros.render.settings import RENDER_BACKENDS
+from allo_mrad_ros.render.settings import (
+    DEFAULT_SUPERSAMPLING,
+    MAX_SUPERSAMPLING,
+    RENDER_BACKENDS,
+)
 
 _REUSE = ReuseBounds()
 
@@ -162,6 +166,18 @@ NODE_TABLE: tuple[Section, ...] = (
                     "ratio, so 700x3 -> 233x1)",
                     0.05,
                     1.0,
+                ),
+                read_only=True,
+            ),
+            "reference_supersampling": NodeParameter(
+                DEFAULT_SUPERSAMPLING,
+                _integer(
+                    "the reference is rendered at this many times its size along each axis and "
+                    "area-averaged down, so a structure thinner than a reference pixel gets its "
+                    "share of the pixel instead of breaking into dashes; 1 renders it at its "
+                    "size",
+                    1,
+                    MAX_SUPERSAMPLING,
                 ),
                 read_only=True,
             ),
@@ -534,9 +550,9 @@ class NodeConfig:
     """The node's validated settings, one immutable snapshot (replaced on a change).
 
     Every field is named as its parameter in :data:`NODE_TABLE` (a test checks they match);
-    ``pipeline`` gathers ``reference_scale``, ``shadows``, ``render_backend``,
-    ``array_backend``, the ``reuse_*`` parameters and the ``mrad.*`` parameters
-    (:func:`pipeline_config_from`); ``objects`` the ``objects.*`` parameters.
+    ``pipeline`` gathers ``reference_scale``, ``reference_supersampling``, ``shadows``,
+    ``render_backend``, ``array_backend``, the ``reuse_*`` parameters and the ``mrad.*``
+    parameters (:func:`pipeline_config_from`); ``objects`` the ``objects.*`` parameters.
     """
 
     pose_source: str
@@ -588,6 +604,7 @@ def pipeline_config_from(values: Mapping[str, Any]) -> PipelineConfig:
         )
     render = RenderSettings(
         reference_scale=values["reference_scale"],
+        supersampling=values["reference_supersampling"],
         shadows=values["shadows"],
         render_backend=values["render_backend"],
         reuse=reuse,
