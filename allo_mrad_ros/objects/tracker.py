@@ -786,7 +786,7 @@ class ObjectTracker:
         angular_variance = np.where(valid, packed[..., _VARIANCE], 1.0)
         if params.partial_sigma_fraction > 0:
             angular_variance = angular_variance + self._partial_variance(
-                packed, valid, anchor, table.position[rows_]
+                packed, valid, table.position[rows_]
             )
         rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
@@ -840,31 +840,23 @@ class ObjectTracker:
             track.coherent = coherent_
 
     def _partial_variance(
-        self, packed: np.ndarray, valid: np.ndarray, anchor: np.ndarray, previous: np.ndarray
+        self, packed: np.ndarray, valid: np.ndarray, previous: np.ndarray
     ) -> np.ndarray:
-        """(batch, capacity) more angular variance, radians^2, of rays whose regions differ
-        in extent from the object's others: ``partial_sigma_fraction`` of each region's
-        shortfall from the largest of them and of its difference from the newest (the
-        anchor's).
-
-        A detection that shows a part of an object, growing or shrinking as the view
-        changes, moves its centroid on the object, the same way over many frames: counted
-        as independent pixel noise, that drift is taken for parallax and places the object
-        metres off. A part's centroid lies up to half its shortfall from the object's (the
-        largest region is the best lower bound of the object's extent), and up to half the
-        difference of two regions' extents from where the other's puts it (a region still
-        growing is smaller than the object by an amount none of its regions shows; the
-        newest is the one the estimate is parameterised from). Extents are compared in
-        metres across the line of sight, each ray's at its range from the object's
-        ``previous`` estimate, so that a view from nearer does not count as a larger part.
-        """
+        """(batch, capacity) more angular variance, radians^2, of each ray whose region was
+        smaller than the largest the object's valid rays hold: ``partial_sigma_fraction``
+        of the shortfall. A detection that shows a part of the object, growing or shrinking
+        as the view changes, moves its centroid on the object, the same way over many
+        frames: counted as independent pixel noise, that drift is taken for parallax and
+        places the object metres off. Extents are compared in metres across the line of
+        sight, each ray's at its range from the object's ``previous`` estimate (the camera
+        may approach it), so that only a part's shortfall counts, not a farther view's."""
         ranges = np.linalg.norm(previous[:, None, :] - packed[..., 0:3], axis=-1)
         ranges = np.maximum(ranges, self.params.min_range)
-        across = np.where(valid, packed[..., _EXTENT] / self._focal * ranges, 0.0)  # metres
+        extent = packed[..., _EXTENT] / self._focal  # radians
+        across = np.where(valid, extent * ranges, 0.0)  # metres
         largest = across.max(axis=1, keepdims=True)
-        newest = across[np.arange(len(across)), anchor][:, None]
-        shortfall2 = (largest - across) ** 2 + (newest - across) ** 2
-        return np.where(valid, self.params.partial_sigma_fraction**2 * shortfall2 / ranges**2, 0.0)
+        shortfall = np.where(valid, (largest - across) / ranges, 0.0)  # radians
+        return (self.params.partial_sigma_fraction * shortfall) ** 2
 
     def _coherent(
         self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray
