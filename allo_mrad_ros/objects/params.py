@@ -57,15 +57,6 @@ class ObjectParams:
         0.0,
         10.0,
     )
-    partial_sigma_fraction: float = parameter(
-        0.0,
-        "more centroid noise for a region smaller than its object (a part of it, whose "
-        "centroid moves on it as the view changes): this fraction of the shortfall of the "
-        "region's extent from the object's (its projected extent when associating, the "
-        "largest of its regions when triangulating), added in quadrature; 0: none",
-        0.0,
-        10.0,
-    )
     position_sigma: float = parameter(
         0.04,
         "standard deviation of the camera position the pose reports, m (per axis): its rays "

@@ -740,17 +740,10 @@ class ObjectTracker:
         s00 = projected[:, None, 0, 0] + position_px2[:, None] + pixel_variance[None, :, 0]
         s11 = projected[:, None, 1, 1] + position_px2[:, None] + pixel_variance[None, :, 1]
         s01 = projected[:, None, 0, 1]
-        expected = np.maximum(size * self._focal / safe_z, 1.0)
-        extent = np.maximum(observations.extent_px, 1.0)
-        if params.partial_sigma_fraction > 0:
-            # A region smaller than the object's projection may be a part of it anywhere on
-            # it: its centroid is that much less sure (both axes).
-            shortfall = np.maximum(expected[:, None] - extent[None, :], 0.0)
-            partial = (params.partial_sigma_fraction * shortfall) ** 2
-            s00 = s00 + partial
-            s11 = s11 + partial
         determinant = s00 * s11 - s01 * s01
         distance2 = (du * du * s11 - 2.0 * du * dv * s01 + dv * dv * s00) / determinant
+        expected = np.maximum(size * self._focal / safe_z, 1.0)
+        extent = np.maximum(observations.extent_px, 1.0)
         ratio = np.maximum(extent[None, :] / expected[:, None], expected[:, None] / extent[None, :])
         gate = (
             front[:, None] & (distance2 <= params.gate_sigma**2) & (ratio <= params.size_ratio_max)
@@ -783,15 +776,10 @@ class ObjectTracker:
         valid = filled & (age <= params.history_s)
         valid[np.arange(batch), anchor] = True
         # Shaped by the ring tables and with each anchor valid (set above): unchecked.
-        angular_variance = np.where(valid, packed[..., _VARIANCE], 1.0)
-        if params.partial_sigma_fraction > 0:
-            angular_variance = angular_variance + self._partial_variance(
-                packed, valid, table.position[rows_]
-            )
         rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
             directions=packed[..., 3:6],
-            angular_variance=angular_variance,
+            angular_variance=np.where(valid, packed[..., _VARIANCE], 1.0),
             extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2
             + params.position_sigma**2,
             low=packed[..., _LOW],
@@ -838,25 +826,6 @@ class ObjectTracker:
             track.resolved = resolved_
             track.consistent = consistent_
             track.coherent = coherent_
-
-    def _partial_variance(
-        self, packed: np.ndarray, valid: np.ndarray, previous: np.ndarray
-    ) -> np.ndarray:
-        """(batch, capacity) more angular variance, radians^2, of each ray whose region was
-        smaller than the largest the object's valid rays hold: ``partial_sigma_fraction``
-        of the shortfall. A detection that shows a part of the object, growing or shrinking
-        as the view changes, moves its centroid on the object, the same way over many
-        frames: counted as independent pixel noise, that drift is taken for parallax and
-        places the object metres off. Extents are compared in metres across the line of
-        sight, each ray's at its range from the object's ``previous`` estimate (the camera
-        may approach it), so that only a part's shortfall counts, not a farther view's."""
-        ranges = np.linalg.norm(previous[:, None, :] - packed[..., 0:3], axis=-1)
-        ranges = np.maximum(ranges, self.params.min_range)
-        extent = packed[..., _EXTENT] / self._focal  # radians
-        across = np.where(valid, extent * ranges, 0.0)  # metres
-        largest = across.max(axis=1, keepdims=True)
-        shortfall = np.where(valid, (largest - across) / ranges, 0.0)  # radians
-        return (self.params.partial_sigma_fraction * shortfall) ** 2
 
     def _coherent(
         self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray
