@@ -135,7 +135,7 @@ class ObjectParams:
         low_open=True,
     )
     steady_size_ratio: float = parameter(
-        1e6,
+        1.25,
         "an object is confirmed only while the sizes of its newest regions (at most "
         "confirm_window; each region's extent times its range) lie within this ratio of each "
         "other: a region still growing or shrinking (a part of the thing becoming more of it, "
