@@ -19,8 +19,9 @@ depth and the frame's stamp. It
 5. re-triangulates the objects that got a ray (:mod:`.triangulation`);
 6. confirms a tentative object after ``confirm_hits`` hits in its last ``confirm_window``
    in-view frames, once parallax places it nearer than ``max_range``, neither behind the
-   surface nor nearer than ``min_range``, and while its newest rays pass through it as one
-   point's would (``residual_quantile``); ends an object after ``end_misses`` consecutive
+   surface nor nearer than ``min_range``, while its newest rays pass through it as one
+   point's would (``residual_quantile``) and its newest regions are of one size
+   (``steady_size_ratio``); ends an object after ``end_misses`` consecutive
    in-view misses (a hidden or out-of-view object is not missed), and a tentative one not
    hit for ``tentative_timeout_s``.
 
