@@ -9,7 +9,8 @@
    by the sequence and the settings), so a second run only tracks.
 3. Chooses the tracker's parameters on the val split only: a small grid over the parameters
    that matter (confirmation N of M, the region scores that start and continue an object,
-   the association and size gates, parallax, the image edge and the residual test), ranked
+   the association and size gates, parallax, the image edge, the residual and the
+   steady-size tests), ranked
    by the issue's targets met, then by the F1 of recall and precision, then by the error.
 4. Tracks the test split with the chosen parameters and the shipped defaults, times the
    tracker alone (``benchmarks.tracker``: 20 regions, 50 objects) and writes
@@ -68,6 +69,8 @@ GRID: dict[str, tuple[Any, ...]] = {
     "parallax_sigma": (3.0, 4.0),
     "edge_sigma_fraction": (0.5, 2.0),
     "residual_quantile": (0.999, 1.0),
+    # 1e6: no steady-size test.
+    "steady_size_ratio": (1.25, 1e6),
 }
 # The grid's fields (``confirm`` sets confirm_hits and confirm_window, ``scores``
 # min_region_score and hit_region_score).
@@ -81,6 +84,7 @@ GRID_FIELDS = (
     "parallax_sigma",
     "edge_sigma_fraction",
     "residual_quantile",
+    "steady_size_ratio",
 )
 # The targets: name -> (key, bound, kind).
 TARGETS = {

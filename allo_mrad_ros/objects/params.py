@@ -134,6 +134,16 @@ class ObjectParams:
         1.0,
         low_open=True,
     )
+    steady_size_ratio: float = parameter(
+        1.25,
+        "an object is confirmed only while the sizes of its newest regions (at most "
+        "confirm_window; each region's extent times its range) lie within this ratio of each "
+        "other: a region still growing or shrinking (a part of the thing becoming more of it, "
+        "glare blooming) moves its centroid on the thing, and the parallax that drift feigns "
+        "would confirm it off its place; 1e6 drops the test",
+        1.0,
+        1e6,
+    )
     duplicate_quantile: float = parameter(
         0.999,
         "an object is not confirmed while its extent meets a confirmed object's in the image "

@@ -19,8 +19,9 @@ depth and the frame's stamp. It
 5. re-triangulates the objects that got a ray (:mod:`.triangulation`);
 6. confirms a tentative object after ``confirm_hits`` hits in its last ``confirm_window``
    in-view frames, once parallax places it nearer than ``max_range``, neither behind the
-   surface nor nearer than ``min_range``, and while its newest rays pass through it as one
-   point's would (``residual_quantile``); ends an object after ``end_misses`` consecutive
+   surface nor nearer than ``min_range``, while its newest rays pass through it as one
+   point's would (``residual_quantile``) and its newest regions are of one size
+   (``steady_size_ratio``); ends an object after ``end_misses`` consecutive
    in-view misses (a hidden or out-of-view object is not missed), and a tentative one not
    hit for ``tentative_timeout_s``.
 
@@ -66,6 +67,8 @@ _SPACE_FAR = 1e3
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
 _EYE3 = np.eye(3)
+# steady_size_ratio at or above this drops the test (its range's top: 1e6).
+_NO_SIZE_TEST = 1e6
 # A distance below which an estimate is taken to be at the camera (no direction).
 _TINY = 1e-12
 
@@ -801,11 +804,14 @@ class ObjectTracker:
             and resolved[i]
             and consistent[i]
         ]
+        extent = packed[..., _EXTENT] / self._focal
         if candidates:
-            tested = self._coherent(solution, rays, counts, np.array(candidates))
+            which = np.array(candidates)
+            tested = self._coherent(solution, rays, counts, which)
+            if params.steady_size_ratio < _NO_SIZE_TEST:
+                tested &= self._steady(extent * solution.ranges, rays, counts, which)
             for i, coherent_ in zip(candidates, tested.tolist(), strict=True):
                 coherent[i] = coherent_
-        extent = packed[..., _EXTENT] / self._focal
         sizes = _row_medians(extent * solution.ranges, valid)
         table.position[rows_] = solution.position
         table.covariance[rows_] = solution.covariance
@@ -826,6 +832,27 @@ class ObjectTracker:
             track.resolved = resolved_
             track.consistent = consistent_
             track.coherent = coherent_
+
+    def _steady(
+        self, sizes: np.ndarray, rays: RayBatch, counts: np.ndarray, which: np.ndarray
+    ) -> np.ndarray:
+        """Whether the ``sizes`` (metres across the line of sight, per ray) of each object's
+        newest rays (at most ``confirm_window``; only the objects ``which``) lie within
+        ``steady_size_ratio`` of each other. A detection that shows a part of a thing and
+        grows or shrinks on it moves its centroid on the thing, the same way frame after
+        frame: counted as independent pixel noise, that drift passes for parallax and the
+        object would be confirmed off its place (metres off along the line of sight where
+        the drift runs with the camera's motion). Sizes in metres: an object the camera
+        approaches keeps its size."""
+        capacity = rays.valid.shape[1]
+        back = np.arange(min(self.params.confirm_window, capacity))
+        rows = which[:, None]
+        places = (rays.anchor[which, None] - back) % capacity
+        recent = (back < counts[rows]) & rays.valid[rows, places]
+        newest = sizes[rows, places]
+        largest = np.where(recent, newest, 0.0).max(axis=1)
+        smallest = np.where(recent, newest, np.inf).min(axis=1)
+        return largest <= self.params.steady_size_ratio * smallest
 
     def _coherent(
         self, solution: Triangulation, rays: RayBatch, counts: np.ndarray, which: np.ndarray
