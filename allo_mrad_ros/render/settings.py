@@ -11,8 +11,9 @@ from allo_mrad_ros.render.renderer import DEFAULT_SCALE, DEFAULT_SHADOWS
 from allo_mrad_ros.render.reuse import ReuseBounds
 
 RENDER_BACKENDS = ("", "osmesa", "egl")
-DEFAULT_SUPERSAMPLING = 2
-"""The reference's supersampling factor (see :class:`RenderSettings`)."""
+DEFAULT_SUPERSAMPLING = 1
+"""The reference's supersampling factor (see :class:`RenderSettings`): 1, as the frame
+decision's operating point was chosen with it (docs/detector.md, "The reference")."""
 MAX_SUPERSAMPLING = 4
 
 
