@@ -29,12 +29,6 @@ class RenderSettings:
     ----------
     reference_scale : float
         Linear scale of the rendered reference, (0, 1].
-    supersampling : int
-        The reference is rendered at this many times its size along each axis and
-        area-averaged down to it (1..4; 1 renders it at its size): an edge or a structure
-        thinner than a reference pixel (a panel seen edge-on, a handrail) then gets its share
-        of the pixel instead of appearing in some pixels and not in others. The depth is
-        sampled, not averaged.
     shadows : bool
         Directional shadows from the Sun.
     cull_bodies : bool
@@ -45,14 +39,21 @@ class RenderSettings:
         Warp the last rendered reference to a later view while these bounds allow
         (:mod:`allo_mrad_ros.render.reuse`); None renders every view. Frames must then
         come in their time order.
+    supersampling : int
+        The reference is rendered at this many times its size along each axis and
+        area-averaged down to it (1..4; 1 renders it at its size): an edge or a structure
+        thinner than a reference pixel (a panel seen edge-on, a handrail) then gets its share
+        of the pixel instead of appearing in some pixels and not in others. The depth is
+        sampled, not averaged.
     """
 
     reference_scale: float = DEFAULT_SCALE
-    supersampling: int = DEFAULT_SUPERSAMPLING
     shadows: bool = DEFAULT_SHADOWS
     cull_bodies: bool = True
     render_backend: str = ""
     reuse: ReuseBounds | None = None
+    # Last, so that positional construction from the fields above keeps its meaning.
+    supersampling: int = DEFAULT_SUPERSAMPLING
 
     def __post_init__(self) -> None:
         scale = self.reference_scale

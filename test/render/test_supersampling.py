@@ -88,3 +88,8 @@ def test_with_reuse_the_keyframe_is_supersampled_too():
 def test_a_bad_supersampling_is_refused(value):
     with pytest.raises(RenderSettingsError, match="supersampling"):
         RenderSettings(supersampling=value)
+
+
+def test_the_settings_made_by_position_keep_their_meaning():
+    settings = RenderSettings(0.5, False, False, "", None)
+    assert (settings.shadows, settings.cull_bodies, settings.supersampling) == (False, False, 1)
