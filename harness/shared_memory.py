@@ -4,7 +4,9 @@ A participant on the shared-memory transport (``config/fastdds_loopback.xml``) m
 file (64 MB, sparse) and port files there, and removes them when it closes. A process that
 ends without closing them (a test that kills a node, a signal) leaves them, and ``/dev/shm``
 is memory: over many test runs they fill it. :func:`remove_orphans` deletes those files that
-no live process maps or holds open; the tests run it when a session ends.
+no live process maps or holds open, among the ones a run made: the tests note what is there
+when a session starts (:func:`present`) and remove only what appeared since, never another
+program's files or an earlier run's.
 """
 
 from __future__ import annotations
@@ -17,9 +19,16 @@ from pathlib import Path
 PREFIXES = ("fastdds_", "fastrtps_", "sem.fastdds_", "sem.fastrtps_")
 """Names of the files Fast DDS (2.x and 3.x) makes for its shared-memory transport."""
 
-MIN_AGE_S = 600.0
+MIN_AGE_S = 5.0
 """A file younger than this is kept even when no process maps it: a participant starting
 now may have made it and not mapped it yet."""
+
+
+def present(directory: Path = Path("/dev/shm")) -> frozenset[str]:
+    """The names of the Fast DDS files in ``directory`` now (none when it does not exist)."""
+    if not directory.is_dir():
+        return frozenset()
+    return frozenset(p.name for p in directory.iterdir() if p.name.startswith(PREFIXES))
 
 
 def files_in_use(proc: Path = Path("/proc")) -> set[str]:
@@ -43,16 +52,20 @@ def files_in_use(proc: Path = Path("/proc")) -> set[str]:
 def remove_orphans(
     directory: Path = Path("/dev/shm"),
     *,
+    keep: Iterable[str] = (),
     min_age_s: float = MIN_AGE_S,
     in_use: Iterable[str] | None = None,
     now: float | None = None,
 ) -> list[Path]:
-    """Delete this user's Fast DDS files in ``directory`` that no live process uses.
+    """Delete this user's Fast DDS files in ``directory`` that no live process uses, but
+    those in ``keep``.
 
     Parameters
     ----------
     directory : Path
         Where the shared-memory files are (nothing is done when it does not exist).
+    keep : iterable of str
+        Names never removed: what was there before the run (:func:`present`).
     min_age_s : float
         Files modified more recently than this are kept.
     in_use : iterable of str, optional
@@ -68,10 +81,11 @@ def remove_orphans(
     if not directory.is_dir():
         return []
     used = set(files_in_use() if in_use is None else in_use)
+    kept = set(keep)
     now = time.time() if now is None else now
     removed = []
     for path in sorted(directory.iterdir()):
-        if not path.name.startswith(PREFIXES) or str(path) in used:
+        if not path.name.startswith(PREFIXES) or path.name in kept or str(path) in used:
             continue
         try:
             status = path.lstat()

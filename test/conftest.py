@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, settings
 
 from allo_mrad_ros.ros.node_process import use_loopback_profile
 from harness.dds import process_domain
-from harness.shared_memory import remove_orphans
+from harness.shared_memory import present, remove_orphans
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -66,7 +66,16 @@ if os.environ.get("ALLO_TESTS") == "ros":
     ]
 
 
+_SHARED_MEMORY_BEFORE: frozenset[str] = frozenset()
+
+
+def pytest_sessionstart(session):
+    """Note the Fast DDS shared-memory files there before the run (harness.shared_memory)."""
+    global _SHARED_MEMORY_BEFORE
+    _SHARED_MEMORY_BEFORE = present()
+
+
 def pytest_sessionfinish(session, exitstatus):
-    """Delete the Fast DDS shared-memory files the killed processes of this and earlier runs
-    left in /dev/shm (memory), those no live process uses (harness.shared_memory)."""
-    remove_orphans()
+    """Delete the Fast DDS shared-memory files this run's killed processes left in /dev/shm
+    (memory): those made since the session started that no live process uses."""
+    remove_orphans(keep=_SHARED_MEMORY_BEFORE)

@@ -1,5 +1,6 @@
 """Fast DDS files left in /dev/shm by killed processes are removed, and only those: a file a
-live process maps or holds open, a recent one, and other files stay."""
+live process maps or holds open, a recent one, one there before the run, and other files
+stay."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import os
 import subprocess
 import sys
 
-from harness.shared_memory import files_in_use, remove_orphans
+from harness.shared_memory import files_in_use, present, remove_orphans
 
 OLD = 3600.0
 
@@ -27,11 +28,20 @@ def test_orphans_go_and_files_in_use_recent_or_foreign_stay(tmp_path):
     old_name = _make(tmp_path, "fastrtps_port7411")
     semaphore = _make(tmp_path, "sem.fastdds_port7411_mutex")
     mapped = _make(tmp_path, "fastdds_fedcba9876543210")
-    recent = _make(tmp_path, "fastdds_1111111111111111", age_s=10.0)
+    recent = _make(tmp_path, "fastdds_1111111111111111", age_s=1.0)
     other = _make(tmp_path, "pulse-shm-1234")
-    removed = remove_orphans(tmp_path, in_use={str(mapped)}, now=now)
+    before = _make(tmp_path, "fastdds_3333333333333333")  # an earlier run's or program's
+    removed = remove_orphans(tmp_path, keep={before.name}, in_use={str(mapped)}, now=now)
     assert sorted(removed) == sorted([orphan, orphan_lock, old_name, semaphore])
-    assert sorted(tmp_path.iterdir()) == sorted([mapped, recent, other])
+    assert sorted(tmp_path.iterdir()) == sorted([mapped, recent, other, before])
+
+
+def test_present_names_only_the_fast_dds_files(tmp_path):
+    _make(tmp_path, "fastdds_4444444444444444")
+    _make(tmp_path, "sem.fastrtps_port7411_mutex")
+    _make(tmp_path, "pulse-shm-1234")
+    assert present(tmp_path) == {"fastdds_4444444444444444", "sem.fastrtps_port7411_mutex"}
+    assert present(tmp_path / "absent") == frozenset()
 
 
 def test_a_file_a_live_process_maps_is_in_use(tmp_path):
