@@ -80,11 +80,7 @@ class View:
             Sun is not in front of the camera (or no direction is given).
         """
         direction = np.asarray(self.sun_direction, dtype=np.float64)
-        rotation = np.asarray(self.T_station_camera, dtype=np.float64)[:3, :3]
-        x, y, z = rotation.T @ direction
-        if not (z > 0.0 and np.isfinite([x, y, z]).all()):
-            return None
-        return (camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy)
+        return self._image_point(camera, direction)
 
     def body_discs(self, camera: CameraIntrinsics) -> list[tuple[float, float, float]]:
         """The discs of the bodies (Earth, Moon; not the Sun) in front of ``camera``.
@@ -102,21 +98,30 @@ class View:
             the radius in pixels along x (a sphere's outline is a circle of that radius on the
             optical axis, slightly stretched away from it).
         """
-        pose = np.asarray(self.T_station_camera, dtype=np.float64)
-        rotation, eye = pose[:3, :3], pose[:3, 3]
+        eye = np.asarray(self.T_station_camera, dtype=np.float64)[:3, 3]
         discs = []
         for body in self.bodies:
             if body.name.lower() == "sun":
                 continue
             offset = np.asarray(body.centre, dtype=np.float64) - eye
-            x, y, z = rotation.T @ offset
             distance = float(np.linalg.norm(offset))
-            if not z > 0.0 or body.radius >= distance:
+            centre = self._image_point(camera, offset)
+            if centre is None or body.radius >= distance:
                 continue
-            half_angle = np.arcsin(body.radius / distance)
-            radius = camera.fx * float(np.tan(half_angle))
-            discs.append((camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy, radius))
+            radius = camera.fx * float(np.tan(np.arcsin(body.radius / distance)))
+            discs.append((*centre, radius))
         return discs
+
+    def _image_point(
+        self, camera: CameraIntrinsics, direction: np.ndarray
+    ) -> tuple[float, float] | None:
+        """Where a direction in the station frame falls in ``camera``'s image; None when it
+        does not point in front of the camera."""
+        rotation = np.asarray(self.T_station_camera, dtype=np.float64)[:3, :3]
+        x, y, z = rotation.T @ direction
+        if not (z > 0.0 and np.isfinite([x, y, z]).all()):
+            return None
+        return (camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy)
 
     @property
     def sky_bodies(self) -> tuple[CelestialBody, ...]:

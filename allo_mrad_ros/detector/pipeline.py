@@ -303,12 +303,22 @@ def _limbs_tolerated(
     """``work`` with the reference's colour within ``margin`` reference pixels of the
     bodies' limbs (``discs`` in the pixels of the query, of ``full_shape``)."""
     height, width = work.shape[:2]
-    sx, sy = width / full_shape[1], height / full_shape[0]
-    scaled = [(x * sx, y * sy, radius * sx) for x, y, radius in discs]
+    scaled = [
+        (*_at_work_scale((x, y), full_shape, work.shape[:2]), radius * width / full_shape[1])
+        for x, y, radius in discs
+    ]
     # A reference pixel in processing pixels (the aspect ratios agree: check_aspect).
     margin_px = margin * width / reference.shape[1]
     near = reference_at(reference, (height, width), cache)
     return take_reference_at_limbs(eight_bit(work), near, scaled, margin_px)
+
+
+def _at_work_scale(
+    point: tuple[float, float], full_shape: tuple[int, int], work_shape: tuple[int, int]
+) -> tuple[float, float]:
+    """A point in the query's continuous pixel coordinates at the processing resolution
+    (continuous coordinates scale with the image's size along each axis)."""
+    return (point[0] * work_shape[1] / full_shape[1], point[1] * work_shape[0] / full_shape[0])
 
 
 def _sun_near_image(
@@ -317,9 +327,7 @@ def _sun_near_image(
     """The Sun's pixel at the processing resolution, None when it lies farther outside the
     image than a clipped component may lie from it (:func:`sun_reach`): then there is no
     glare to place, and the highlights stage is skipped."""
-    # Continuous coordinates scale with the image's size along each axis.
-    x = sun_pixel[0] * work_shape[1] / full_shape[1]
-    y = sun_pixel[1] * work_shape[0] / full_shape[0]
+    x, y = _at_work_scale(sun_pixel, full_shape, work_shape)
     reach = sun_reach(work_shape)
     inside = -reach <= x < work_shape[1] + reach and -reach <= y < work_shape[0] + reach
     return (x, y) if inside else None

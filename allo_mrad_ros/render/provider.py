@@ -93,14 +93,15 @@ class ReferenceProvider:
             return self._render(view, depth=True)
         return self.reuse.reference_with_depth(view, time_s, self._render)
 
-    def _render(self, view: View, depth: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """One render at the output's size (the depth with reuse, or when ``depth``)."""
+    def _render(self, view: View, depth: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """One render at the output's size, with its depth when asked or with reuse (the
+        warp needs it)."""
         result = self.renderer.render(
             view.T_station_camera,
             view.sun_direction,
             view.sun_strength,
             view.sky_bodies,
-            depth=self.reuse is not None if depth is None else depth,
+            depth=depth or self.reuse is not None,
         )
         rgb, depth_image = result.rgb, result.depth
         if self._supersampling > 1:
