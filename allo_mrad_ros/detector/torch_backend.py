@@ -61,9 +61,11 @@ class TorchBackend:
     def cell_statistics(self, image: np.ndarray, grid: int) -> CellStatistics:
         height, width = image.shape[:2]
         cells = _cell_index(height, width, grid, self._device)
-        pixels = self._pixels(image).to(torch.float64)
         n_cells = grid * grid
         count = torch.bincount(cells, minlength=n_cells)
+        if image.dtype == np.uint8 and _integer_moments_fit(int(count.max())):
+            return self._integer_cell_statistics(image, cells, count)
+        pixels = self._pixels(image).to(torch.float64)
         n = count.to(torch.float64)[:, None]
         sums = torch.zeros((n_cells, 3), dtype=torch.float64, device=self._device)
         mean = sums.index_add_(0, cells, pixels) / n
@@ -73,6 +75,31 @@ class TorchBackend:
         second = torch.zeros((n_cells, 9), dtype=torch.float64, device=self._device)
         second.index_add_(0, cells, products)
         cov = second.reshape(n_cells, 3, 3) / torch.clamp(n - 1.0, min=1.0)[:, :, None]
+        return CellStatistics(
+            mean=mean.cpu().numpy(), cov=cov.cpu().numpy(), count=count.cpu().numpy()
+        )
+
+    def _integer_cell_statistics(
+        self, image: np.ndarray, cells: torch.Tensor, count: torch.Tensor
+    ) -> CellStatistics:
+        # A GPU adds floats in whatever order its atomics land, so two calls on the same
+        # image could differ in the last bit (and identical images would not score exactly
+        # 0). Sums of 8-bit values and their products are integers: added in int64 they are
+        # exact in any order, and n * sum(x x^T) - sum(x) sum(x)^T is the exact scatter
+        # times n (exact zeros for a flat cell), divided once.
+        values = torch.from_numpy(np.ascontiguousarray(image)).to(self._device)
+        values = values.reshape(-1, 3).to(torch.int64)
+        n_cells = count.numel()
+        sums = torch.zeros((n_cells, 3), dtype=torch.int64, device=self._device)
+        sums.index_add_(0, cells, values)
+        products = (values[:, :, None] * values[:, None, :]).reshape(-1, 9)
+        second = torch.zeros((n_cells, 9), dtype=torch.int64, device=self._device)
+        second.index_add_(0, cells, products)
+        n = count[:, None, None]
+        scatter_times_n = n * second.reshape(n_cells, 3, 3) - sums[:, :, None] * sums[:, None, :]
+        denominator = torch.clamp(n * (n - 1), min=1).to(torch.float64)
+        cov = scatter_times_n.to(torch.float64) / denominator
+        mean = sums.to(torch.float64) / count.to(torch.float64)[:, None]
         return CellStatistics(
             mean=mean.cpu().numpy(), cov=cov.cpu().numpy(), count=count.cpu().numpy()
         )
@@ -127,6 +154,12 @@ class TorchBackend:
                 score = torch.nan_to_num(score, nan=0.0, posinf=big, neginf=-big)
             scores.append(score.reshape(height, width).cpu().numpy())
         return scores
+
+
+def _integer_moments_fit(largest_cell: int) -> bool:
+    """Whether n * sum(x^2) of 8-bit values over a cell of ``largest_cell`` pixels stays
+    exact in int64 and in a float64's 53 bits (so its division rounds once)."""
+    return largest_cell * largest_cell * 255 * 255 < 2**53
 
 
 @lru_cache(maxsize=16)

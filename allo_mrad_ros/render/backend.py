@@ -108,6 +108,11 @@ def import_pyrender(backend: str) -> ModuleType:
         raise RendererError(f"OpenGL backend {backend!r} is not installed; {INSTALL_HINT}")
     # pyrender's OffscreenRenderer reads this variable too, at context creation.
     os.environ["PYOPENGL_PLATFORM"] = backend
+    if backend == "egl":
+        # pyrender imports its viewer, and with it pyglet's windowing, which needs X11's
+        # libraries unless pyglet runs headless (over EGL); a GPU server often has no X11.
+        os.environ.setdefault("PYGLET_HEADLESS", "true")
+        os.environ.setdefault("PYGLET_SHADOW_WINDOW", "false")
     try:
         import pyrender
     except Exception as error:  # ImportError, or OSError/AttributeError from PyOpenGL
@@ -180,9 +185,23 @@ class EglDisplayShare:
         platform.delete_context = delete_context
 
 
+def pointer_address(pointer: object) -> int | None:
+    """The address a ctypes pointer from PyOpenGL holds (an EGL display, a GL context), or
+    None for a null one. PyOpenGL hands such handles over as opaque ctypes pointers, whose
+    ``value`` is not the address (it may be the pointed-to bytes)."""
+    if not pointer:
+        return None
+    if isinstance(pointer, int):
+        return pointer
+    try:
+        return ctypes.cast(pointer, ctypes.c_void_p).value
+    except (TypeError, ctypes.ArgumentError):
+        value = getattr(pointer, "value", pointer)
+        return value if isinstance(value, int) else None
+
+
 def _display_key(display: object) -> int:
-    value = getattr(display, "value", display)
-    return int(value or 0)
+    return pointer_address(display) or 0
 
 
 _EGL_SHARE: EglDisplayShare | None = None

@@ -7,13 +7,13 @@ filter of :mod:`.shader_patches`, whose float rounding may move a rare pixel by 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 from collections.abc import Iterator
 from types import ModuleType
 
 import numpy as np
 import trimesh
 
+from allo_mrad_ros.render.backend import pointer_address
 from allo_mrad_ros.render.shader_patches import (
     install_light_limits,
     install_material_shader,
@@ -47,6 +47,7 @@ def install_patches(pr: ModuleType, offscreen: object) -> None:
     also inside :func:`plain_pyrender`)."""
     install_program_cache(pr, offscreen)
     install_material_shader(pr, offscreen)
+    install_single_sampling(offscreen)
     if _CPU_PATCHES:
         install_uniform_cache(offscreen)
         install_lighting_once_per_pass(offscreen)
@@ -55,21 +56,46 @@ def install_patches(pr: ModuleType, offscreen: object) -> None:
     install_shadow_map_cache(pr, offscreen)
 
 
+def install_single_sampling(offscreen: object) -> None:
+    """Draw into single-sampled buffers, as the segmentation pass sees the scene.
+
+    pyrender draws into a framebuffer of 4 samples per pixel and resolves it. OSMesa draws
+    one sample all the same; a GPU's driver does not: its colour then blends the station
+    with space, and one instance with another, at edges the labels (drawn at pixel centres)
+    put elsewhere, and its depth is read at one sample's position, up to 0.7 % off the
+    depth at the pixel's centre. Giving pyrender's multisampled buffers 0 samples after it
+    makes them (a 0-sample multisampled buffer is a plain one) makes the references the same
+    on every backend and driver; a smoother reference is what ``supersampling`` asks for.
+    """
+    renderer = getattr(offscreen, "_renderer", None)
+    if renderer is None or not hasattr(renderer, "_configure_main_framebuffer"):
+        return
+    from OpenGL import GL
+
+    configure = renderer._configure_main_framebuffer
+
+    def configure_single_sampled() -> None:
+        existed, size = renderer._main_fb_ms is not None, renderer._main_fb_dims
+        configure()
+        if renderer._main_fb_ms is None or (existed and renderer._main_fb_dims == size):
+            return  # pyrender kept the buffers it had: already single-sampled
+        width, height = renderer.viewport_width, renderer.viewport_height
+        for buffer, storage in (
+            (renderer._main_cb_ms, GL.GL_RGBA),
+            (renderer._main_db_ms, GL.GL_DEPTH_COMPONENT24),
+        ):
+            GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, buffer)
+            GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 0, storage, width, height)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, 0)
+
+    renderer._configure_main_framebuffer = configure_single_sampled
+
+
 def current_context() -> int | None:
     """The address of the OpenGL context current on this thread, or None."""
     from OpenGL import platform
 
-    return _address(platform.PLATFORM.GetCurrentContext())
-
-
-def _address(context: object) -> int | None:
-    if not context:
-        return None
-    try:
-        return ctypes.cast(context, ctypes.c_void_p).value
-    except (TypeError, ctypes.ArgumentError):
-        value = getattr(context, "value", context)
-        return value if isinstance(value, int) else None
+    return pointer_address(platform.PLATFORM.GetCurrentContext())
 
 
 def release_context_data(context: int | None) -> int:
@@ -89,7 +115,7 @@ def release_context_data(context: int | None) -> int:
     dropped = 0
     for storage in contextdata.STORAGES:
         for key in list(storage):  # a copy made without running Python code: thread-safe
-            if _address(key) == context:
+            if pointer_address(key) == context:
                 storage.pop(key, None)
                 dropped += 1
     return dropped

@@ -16,7 +16,13 @@ from types import SimpleNamespace
 
 import pytest
 
-from allo_mrad_ros.render.backend import EglDisplayShare, gpu_present
+from allo_mrad_ros.render.backend import (
+    EglDisplayShare,
+    gpu_present,
+    import_pyrender,
+    pointer_address,
+)
+from allo_mrad_ros.render.gl_patches import install_single_sampling
 
 
 class _FakeEgl:
@@ -110,3 +116,82 @@ def test_egl_renderers_replace_close_and_rebuild_in_any_order():
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert "EGL-SHARE-OK" in done.stdout
+
+
+def test_pointer_address_reads_an_opaque_pointer_not_its_bytes():
+    class _Opaque(ctypes.Structure):
+        pass
+
+    address = 0x2EE826C0
+    handle = ctypes.cast(ctypes.c_void_p(address), ctypes.POINTER(_Opaque))
+    assert pointer_address(handle) == address
+    assert pointer_address(ctypes.c_void_p(address)) == address
+    assert pointer_address(7) == 7
+    assert pointer_address(None) is None
+    assert pointer_address(ctypes.POINTER(_Opaque)()) is None  # a null pointer
+
+
+def test_egl_imports_pyrender_with_pyglet_headless(monkeypatch):
+    # pyrender imports pyglet's windowing, which needs X11 unless pyglet runs headless.
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: f"lib{name}.so")
+    monkeypatch.setitem(sys.modules, "pyrender", SimpleNamespace(name="fake pyrender"))
+    monkeypatch.setenv("PYOPENGL_PLATFORM", "egl")
+    monkeypatch.delenv("PYGLET_HEADLESS", raising=False)
+    monkeypatch.delenv("PYGLET_SHADOW_WINDOW", raising=False)
+    assert import_pyrender("egl").name == "fake pyrender"
+    assert os.environ["PYGLET_HEADLESS"] == "true"
+    assert os.environ["PYGLET_SHADOW_WINDOW"] == "false"
+
+
+class _FakeRenderer:
+    """pyrender's Renderer as far as its main framebuffer goes: made when missing, made
+    again when the viewport's size changes, with new buffer names each time."""
+
+    def __init__(self) -> None:
+        self.viewport_width, self.viewport_height = 64, 48
+        self._main_fb_ms = self._main_cb_ms = self._main_db_ms = None
+        self._main_fb_dims = (None, None)
+        self._names = iter(range(10, 100))
+
+    def _configure_main_framebuffer(self) -> None:
+        size = (self.viewport_width, self.viewport_height)
+        if self._main_fb_ms is not None and self._main_fb_dims != size:
+            self._main_fb_ms = None
+        if self._main_fb_ms is None:
+            self._main_fb_ms, self._main_cb_ms, self._main_db_ms = (
+                next(self._names) for _ in range(3)
+            )
+            self._main_fb_dims = size
+
+
+def test_pyrenders_multisampled_buffers_get_0_samples_whenever_made(monkeypatch):
+    from OpenGL import GL
+
+    storage: list[tuple] = []
+    bound: list[int] = []
+    monkeypatch.setattr(GL, "glBindRenderbuffer", lambda target, name: bound.append(name))
+    monkeypatch.setattr(
+        GL,
+        "glRenderbufferStorageMultisample",
+        lambda target, samples, fmt, width, height: storage.append(
+            (bound[-1], samples, fmt, width, height)
+        ),
+    )
+    renderer = _FakeRenderer()
+    install_single_sampling(SimpleNamespace(_renderer=renderer))
+
+    renderer._configure_main_framebuffer()
+    colour, depth = renderer._main_cb_ms, renderer._main_db_ms
+    assert storage == [
+        (colour, 0, GL.GL_RGBA, 64, 48),
+        (depth, 0, GL.GL_DEPTH_COMPONENT24, 64, 48),
+    ]
+    renderer._configure_main_framebuffer()  # the same buffers: nothing to do
+    assert len(storage) == 2
+    renderer.viewport_width = 80  # pyrender makes new ones, multisampled again
+    renderer._configure_main_framebuffer()
+    assert storage[2:] == [
+        (renderer._main_cb_ms, 0, GL.GL_RGBA, 80, 48),
+        (renderer._main_db_ms, 0, GL.GL_DEPTH_COMPONENT24, 80, 48),
+    ]
+    assert renderer._main_cb_ms != colour
