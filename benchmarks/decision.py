@@ -312,6 +312,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=Path("data/decision_cache"))
     parser.add_argument("--out", type=Path, default=Path("reports/decision.json"))
     parser.add_argument("--figure", type=Path, default=None, help="bar chart (PNG)")
+    parser.add_argument(
+        "--reference-supersampling",
+        type=int,
+        default=1,
+        help="render each reference this many times larger and area-average it down",
+    )
     add_params_options(parser)
     args = parser.parse_args(argv)
     params = params_from(args.profile, args.set)
@@ -321,10 +327,20 @@ def main(argv: list[str] | None = None) -> int:
     frames = {}
     shapes = {}
     for item in items:
-        frames[item.label] = cached_frames(args.cache, item, limit=args.limit, params=params)
+        frames[item.label] = cached_frames(
+            args.cache,
+            item,
+            limit=args.limit,
+            params=params,
+            supersampling=args.reference_supersampling,
+        )
         camera = open_sequence(item.path).camera
         shapes[item.label] = (camera.height, camera.width)
-    report: dict = {"params": params.to_dict(), "target": args.target}
+    report: dict = {
+        "params": params.to_dict(),
+        "target": args.target,
+        "reference_supersampling": args.reference_supersampling,
+    }
     if args.choose_on:
         grid = choose({i.label: frames[i.label] for i in args.choose_on}, params, args.target)
         report["grid"] = grid

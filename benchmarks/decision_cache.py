@@ -25,6 +25,7 @@ from allo_mrad_ros.detector import DetectionResult, MradParams
 from allo_mrad_ros.detector.decision import DECISION_FIELDS
 from allo_mrad_ros.evaluation.sources import open_sequence
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
+from allo_mrad_ros.render import RenderSettings
 from harness.perturbations import PERTURBATIONS, agx_like, filmic
 
 ANOMALY = 2
@@ -119,12 +120,21 @@ def pixel_params(params: MradParams) -> dict:
     return values
 
 
-def cache_dir(root: Path, item: SequenceSplit, limit: int | None, params: MradParams) -> Path:
+def cache_dir(
+    root: Path,
+    item: SequenceSplit,
+    limit: int | None,
+    params: MradParams,
+    supersampling: int = 1,
+) -> Path:
     """The folder of ``item``'s cached frames under ``root``."""
     frames_csv = (item.path / "frames.csv").read_bytes()
+    # The reference's supersampling joins the key only when it is on, so that the folders
+    # of references rendered without it keep their names.
     key = json.dumps(
         [item.split, limit, pixel_params(params), hashlib.sha256(frames_csv).hexdigest()]
-        + ([item.perturbation] if item.perturbation else []),
+        + ([item.perturbation] if item.perturbation else [])
+        + ([{"supersampling": supersampling}] if supersampling != 1 else []),
         sort_keys=True,
     )
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
@@ -163,19 +173,26 @@ def load_frame(path: Path) -> CachedFrame:
 
 
 def cached_frames(
-    root: Path, item: SequenceSplit, *, limit: int | None, params: MradParams
+    root: Path,
+    item: SequenceSplit,
+    *,
+    limit: int | None,
+    params: MradParams,
+    supersampling: int = 1,
 ) -> list[CachedFrame]:
     """Every frame of ``item`` (at most its own limit, else ``limit``, evenly spread),
     detected once with ``params`` (the reference rendered from each frame's pose with the
-    sequence's model) and read back from the cache."""
+    sequence's model, ``supersampling`` times larger and area-averaged down) and read back
+    from the cache."""
     limit = item.limit if item.limit is not None else limit
-    folder = cache_dir(root, item, limit, params)
+    folder = cache_dir(root, item, limit, params, supersampling)
     folder.mkdir(parents=True, exist_ok=True)
     source = open_sequence(item.path)
     indices = source.select(item.split, limit)
     missing = [i for i in indices if not (folder / f"{i:06d}.npz").is_file()]
     if missing:
-        config = PipelineConfig(params=params, methods=("MRAD",))
+        render = RenderSettings(supersampling=supersampling)
+        config = PipelineConfig(params=params, methods=("MRAD",), render=render)
         pipeline = Pipeline.open(source.camera, mesh=source.mesh, config=config)
         try:
             frames = source.frames(missing)
