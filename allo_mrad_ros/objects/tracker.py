@@ -818,15 +818,21 @@ class ObjectTracker:
             and resolved[i]
             and consistent[i]
         ]
-        extent = packed[..., _EXTENT] / self._focal
+        # Sizes in metres from every valid ray, those left out of the position too (the
+        # solution's ranges are 0 for those).
+        ranges = solution.ranges
+        if partial.any():
+            offset = solution.position[:, None, :] - packed[..., 0:3]
+            ranges = np.where(valid, np.einsum("brj,brj->br", offset, packed[..., 3:6]), 0.0)
+        sizes_m = packed[..., _EXTENT] / self._focal * ranges
         if candidates:
             which = np.array(candidates)
             tested = self._coherent(solution, rays, counts, which)
             if params.steady_size_ratio < _NO_SIZE_TEST:
-                tested &= self._steady(extent * solution.ranges, rays, valid, counts, which)
+                tested &= self._steady(sizes_m, rays, valid, counts, which)
             for i, coherent_ in zip(candidates, tested.tolist(), strict=True):
                 coherent[i] = coherent_
-        sizes = _row_medians(extent * solution.ranges, valid)
+        sizes = _row_medians(sizes_m, valid)
         table.position[rows_] = solution.position
         table.covariance[rows_] = solution.covariance
         table.size[rows_] = sizes
