@@ -144,6 +144,15 @@ class ObjectParams:
         1.0,
         1e6,
     )
+    partial_size_ratio: float = parameter(
+        2.0,
+        "a region smaller than its object's largest by more than this ratio (each region's "
+        "extent times its range) shows a part of the thing: its ray is left out of the "
+        "object's position (its centroid moves across the thing as the detection grows, "
+        "the same way frame after frame, and would pass for parallax); 1e6 keeps every ray",
+        1.0,
+        1e6,
+    )
     duplicate_quantile: float = parameter(
         0.999,
         "an object is not confirmed while its extent meets a confirmed object's in the image "

@@ -67,8 +67,12 @@ _SPACE_FAR = 1e3
 _VARIANCE, _STAMP, _LOW, _HIGH, _EXTENT = 6, 7, 8, 9, 10
 _COLUMNS = 11
 _EYE3 = np.eye(3)
-# steady_size_ratio at or above this drops the test (its range's top: 1e6).
+# steady_size_ratio (or partial_size_ratio) at or above this drops the test (its range's
+# top: 1e6).
 _NO_SIZE_TEST = 1e6
+# The angular variance, rad^2, of an anchor ray left out of the position (_partial): its
+# weight nothing beside any region's (pixel noise over a focal length: 1e-4 rad^2 or less).
+_WEIGHTLESS = 1e6
 # A distance below which an estimate is taken to be at the camera (no direction).
 _TINY = 1e-12
 
@@ -777,17 +781,27 @@ class ObjectTracker:
         anchor = (np.array([t.head for t in tracks]) - 1) % capacity  # each ring's newest ray
         age = stamp - stamps
         valid = filled & (age <= params.history_s)
-        valid[np.arange(batch), anchor] = True
+        index = np.arange(batch)
+        valid[index, anchor] = True
+        # The rays that place the object: not those of regions showing a part of it only
+        # (_partial); the anchor stays (the triangulation's frame), weightless if partial.
+        partial = self._partial(packed, valid, table.position[rows_])
+        placing = valid & ~partial
+        placing[index, anchor] = True
+        variance = np.where(placing, packed[..., _VARIANCE], 1.0)
+        variance[index, anchor] = np.where(
+            partial[index, anchor], _WEIGHTLESS, variance[index, anchor]
+        )
         # Shaped by the ring tables and with each anchor valid (set above): unchecked.
         rays = RayBatch.unchecked(
             origins=packed[..., 0:3],
             directions=packed[..., 3:6],
-            angular_variance=np.where(valid, packed[..., _VARIANCE], 1.0),
+            angular_variance=variance,
             extra_variance=(params.drift_speed * np.maximum(age, 0.0)) ** 2
             + params.position_sigma**2,
             low=packed[..., _LOW],
             high=packed[..., _HIGH],  # beyond max_range against space (_ray_rows)
-            valid=valid,
+            valid=placing,
             anchor=anchor,
         )
         solution = triangulate(rays)
@@ -804,15 +818,21 @@ class ObjectTracker:
             and resolved[i]
             and consistent[i]
         ]
-        extent = packed[..., _EXTENT] / self._focal
+        # Sizes in metres from every valid ray, those left out of the position too (the
+        # solution's ranges are 0 for those).
+        ranges = solution.ranges
+        if partial.any():
+            offset = solution.position[:, None, :] - packed[..., 0:3]
+            ranges = np.where(valid, np.einsum("brj,brj->br", offset, packed[..., 3:6]), 0.0)
+        sizes_m = packed[..., _EXTENT] / self._focal * ranges
         if candidates:
             which = np.array(candidates)
             tested = self._coherent(solution, rays, counts, which)
             if params.steady_size_ratio < _NO_SIZE_TEST:
-                tested &= self._steady(extent * solution.ranges, rays, counts, which)
+                tested &= self._steady(sizes_m, rays, valid, counts, which)
             for i, coherent_ in zip(candidates, tested.tolist(), strict=True):
                 coherent[i] = coherent_
-        sizes = _row_medians(extent * solution.ranges, valid)
+        sizes = _row_medians(sizes_m, valid)
         table.position[rows_] = solution.position
         table.covariance[rows_] = solution.covariance
         table.size[rows_] = sizes
@@ -833,8 +853,37 @@ class ObjectTracker:
             track.consistent = consistent_
             track.coherent = coherent_
 
+    def _partial(self, packed: np.ndarray, valid: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """(B, R) bool: which of each object's ``valid`` rays (``packed``: its ring's rows)
+        come from a region smaller than its largest region by more than
+        ``partial_size_ratio`` (sizes in metres: a region's extent times its range along the
+        ray from the object's last estimate, ``positions`` (B, 3); a camera that approaches a
+        thing sees one size).
+
+        Such a region shows a part of the thing. Its centroid lies anywhere on the thing
+        and, as the detection grows over it, moves across it the same way frame after
+        frame: an offset no independent pixel noise describes (no variance makes it average
+        out), which the triangulation would read as parallax and place the object metres
+        off along its line of sight while its stated spread shrinks. Those rays are left
+        out of the position (they still count as hits and for association). An object's
+        first ray (no estimate yet) is its largest: none is partial."""
+        ratio = self.params.partial_size_ratio
+        if ratio >= _NO_SIZE_TEST:
+            return np.zeros(valid.shape, dtype=bool)
+        offset = positions[:, None, :] - packed[..., 0:3]
+        ranges = np.maximum(
+            np.einsum("brj,brj->br", offset, packed[..., 3:6]), self.params.min_range
+        )
+        sizes = np.where(valid, packed[..., _EXTENT] * ranges, 0.0)
+        return valid & (sizes.max(axis=1)[:, None] > ratio * sizes)
+
     def _steady(
-        self, sizes: np.ndarray, rays: RayBatch, counts: np.ndarray, which: np.ndarray
+        self,
+        sizes: np.ndarray,
+        rays: RayBatch,
+        valid: np.ndarray,
+        counts: np.ndarray,
+        which: np.ndarray,
     ) -> np.ndarray:
         """Whether the ``sizes`` (metres across the line of sight, per ray) of each object's
         newest rays (at most ``confirm_window``; only the objects ``which``) lie within
@@ -843,12 +892,13 @@ class ObjectTracker:
         frame: counted as independent pixel noise, that drift passes for parallax and the
         object would be confirmed off its place (metres off along the line of sight where
         the drift runs with the camera's motion). Sizes in metres: an object the camera
-        approaches keeps its size."""
-        capacity = rays.valid.shape[1]
+        approaches keeps its size. ``valid``: the rays to compare (those of partial regions
+        too: the rays' own mask leaves them out of the position)."""
+        capacity = valid.shape[1]
         back = np.arange(min(self.params.confirm_window, capacity))
         rows = which[:, None]
         places = (rays.anchor[which, None] - back) % capacity
-        recent = (back < counts[rows]) & rays.valid[rows, places]
+        recent = (back < counts[rows]) & valid[rows, places]
         newest = sizes[rows, places]
         largest = np.where(recent, newest, 0.0).max(axis=1)
         smallest = np.where(recent, newest, np.inf).min(axis=1)

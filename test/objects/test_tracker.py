@@ -792,10 +792,12 @@ def test_an_object_whose_region_grows_on_it_is_not_confirmed_while_it_grows():
     # grows over it, 2 px a frame: its centroid slides 1 px a frame across the object, as
     # far as the sweep's parallax moves the object and the same way. Taken as independent
     # centroid noise, that drift passes for parallax: the object is confirmed within a
-    # second at half its range. While its newest regions' sizes differ by more than
-    # steady_size_ratio, it is not confirmed.
+    # second at half its range (partial_size_ratio off; with it, a frame later and as far
+    # off: regions within half its largest still drift on it). While
+    # its newest regions' sizes differ by more than steady_size_ratio, it is not confirmed.
     def run(ratio):
-        tracker = ObjectTracker(scene_params(steady_size_ratio=ratio, size_ratio_max=10.0), CAMERA)
+        params = scene_params(steady_size_ratio=ratio, partial_size_ratio=1e6, size_ratio_max=10.0)
+        tracker = ObjectTracker(params, CAMERA)
         states = []
         for k in range(15):  # the region grows from 10 to 38 px
             t = k / FPS
@@ -849,3 +851,65 @@ def test_an_object_the_camera_approaches_keeps_a_steady_size():
         obj = only(tracker.update([region_at(u, v, extents[-1])], pose, SPACE, t))
     assert extents[-1] > 1.15 * extents[-5]
     assert obj.state == "confirmed"
+
+
+def _along_sight(obj, point, pose):
+    """The estimate's error along the line of sight from ``pose`` to ``point`` (metres,
+    negative: nearer the camera) and its stated standard deviation there."""
+    origin = pose[:3, 3]
+    sight = (point - origin) / np.linalg.norm(point - origin)
+    return float((obj.position - point) @ sight), float(np.sqrt(sight @ obj.covariance @ sight))
+
+
+def test_rays_of_a_region_showing_part_of_its_object_leave_its_position():
+    # The detection first shows the right end of an object 10 m away (60 px across) and
+    # grows over it, 2 px a frame from 10 to 28 px (its centroid sliding 1 px a frame across
+    # the object, as far as the sweep's parallax moves it and the same way), then shows all
+    # of it. Counted as independent centroid noise, the drift passes for parallax: the
+    # object is confirmed once its whole regions are steady, metres nearer than it is and
+    # many of its stated standard deviations off. Rays of regions under half its largest
+    # (partial_size_ratio 2) leave its position: it is confirmed only where its whole
+    # regions place it, within its stated spread at every frame, and at the point (the
+    # whole regions are centred on its projection: noise-free rays).
+    def run(ratio):
+        params = scene_params(partial_size_ratio=ratio, size_ratio_max=10.0)
+        tracker = ObjectTracker(params, CAMERA)
+        confirmed = []
+        for k in range(50):
+            t = k / FPS
+            pose = sweep(t)
+            region = _part_of(POINT, pose, 60, 10 + 2 * k if k < 10 else 60)
+            obj = only(tracker.update([region], pose, SPACE, t))
+            assert obj.id == 1
+            if obj.state == "confirmed":
+                confirmed.append((*_along_sight(obj, POINT, pose), obj))
+        return confirmed
+
+    confirmed = run(1e6)
+    error, sigma, _ = confirmed[0]
+    assert error < -3.0 and abs(error) > 5.0 * sigma
+    confirmed = run(2.0)
+    assert confirmed
+    assert all(abs(error) <= 3.0 * sigma for error, sigma, _ in confirmed)
+    assert np.linalg.norm(confirmed[-1][2].position - POINT) < 1e-6
+
+
+def test_an_object_the_camera_approaches_has_no_partial_regions():
+    # The camera approaches an object 0.5 m across fast enough that its region more than
+    # doubles: in metres (its extent times its range) its regions keep one size, so none is
+    # taken for a part of it and its noise-free rays place it exactly (in pixels, its early
+    # rays would leave its position).
+    point = np.array([3.0, -1.5, 0.0])
+    look = (0.79, 0.62, 0.0)
+    tracker = ObjectTracker(scene_params(size_ratio_max=10.0), CAMERA)
+    extents = []
+    for k in range(22):
+        t = k / FPS
+        pose = sweep(t, speed=2.0, start=(-3.0, -4.0, 0.0), look=look)
+        u, v, z = project(point, pose)
+        extents.append(0.5 * CAMERA.fx / z)
+        obj = only(tracker.update([region_at(u, v, round(extents[-1]))], pose, SPACE, t))
+    assert extents[-1] > 2.0 * extents[0]
+    assert obj.state == "confirmed"
+    # Rounded extents: sizes within a few per cent; the rays themselves are exact.
+    assert np.linalg.norm(obj.position - point) < 1e-6
