@@ -69,8 +69,9 @@ GRID: dict[str, tuple[Any, ...]] = {
     "parallax_sigma": (3.0, 4.0),
     "edge_sigma_fraction": (0.5, 2.0),
     "residual_quantile": (0.999, 1.0),
-    # 1e6: no steady-size test.
+    # 1e6: no steady-size test; no partial-region rule.
     "steady_size_ratio": (1.25, 1e6),
+    "partial_size_ratio": (2.0, 1e6),
 }
 # The grid's fields (``confirm`` sets confirm_hits and confirm_window, ``scores``
 # min_region_score and hit_region_score).
@@ -85,6 +86,7 @@ GRID_FIELDS = (
     "edge_sigma_fraction",
     "residual_quantile",
     "steady_size_ratio",
+    "partial_size_ratio",
 )
 # The targets: name -> (key, bound, kind).
 TARGETS = {
