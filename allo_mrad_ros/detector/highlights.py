@@ -54,6 +54,7 @@ __all__ = [
     "SPECULAR_WINDOW",
     "SUN_GLARE_MAX_RADIUS",
     "SUN_REACH",
+    "SUN_WHITE_MARGIN",
     "UNLIMITED",
     "HighlightsError",
     "allowance",
@@ -62,6 +63,7 @@ __all__ = [
     "specular_potential",
     "sun_glare",
     "sun_reach",
+    "sun_white",
     "tolerate_highlights",
 ]
 
@@ -89,6 +91,10 @@ at most.)"""
 SUN_REACH = 1.0 / 64.0
 """How far a clipped component may lie from the Sun's computed position and be the Sun, as a
 fraction of the image's shorter side (see :func:`sun_reach`)."""
+SUN_WHITE_MARGIN = 255 - CLIPPED_LEVEL
+"""Where the Sun's brightest pixel lies below :data:`CLIPPED_LEVEL` (a tone curve or view
+transform whose white is under 255: a filmic curve's shoulder, AgX), the Sun's disc is the
+pixels within this many levels of it, as 250 is of 255."""
 
 
 class HighlightsError(InvalidInput):
@@ -159,11 +165,12 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
     return halo & ~clipped
 
 
-def _clipped_components(query: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+def _clipped_components(
+    query: np.ndarray, level: int = CLIPPED_LEVEL
+) -> tuple[int, np.ndarray, np.ndarray]:
     """The 8-connected components of ``query``'s clipped pixels (a channel at or above
-    :data:`CLIPPED_LEVEL`): their count (the background included), labels and stats."""
-    blue, green, red = cv2.split(query)
-    clipped = (cv2.max(cv2.max(blue, green), red) >= CLIPPED_LEVEL).astype(np.uint8)
+    ``level``): their count (the background included), labels and stats."""
+    clipped = (_brightest(query) >= level).astype(np.uint8)
     if not cv2.countNonZero(clipped):
         return 1, np.zeros(clipped.shape, np.int32), np.zeros((1, 5), np.int32)
     return cv2.connectedComponentsWithStats(clipped, connectivity=8)[:3]
@@ -196,8 +203,9 @@ def sun_glare(
     query: np.ndarray, sun_pixel: tuple[float, float] | None, factor: float
 ) -> np.ndarray:
     """H x W bool: the Sun's glare, the clipped components of ``query`` at the Sun's
-    position with every pixel within ``factor * sqrt(A)`` of them (``A`` their area; at most
-    :data:`SUN_GLARE_MAX_RADIUS` of the image's shorter side).
+    position (clipped at the camera's white, :func:`sun_white`) with every pixel within
+    ``factor * sqrt(A)`` of them (``A`` their area; at most :data:`SUN_GLARE_MAX_RADIUS` of
+    the image's shorter side).
 
     Parameters
     ----------
@@ -222,13 +230,42 @@ def sun_glare(
     left, right = max(0, column - reach), min(width, column + reach + 1)
     if top >= bottom or left >= right:
         return glare
-    _, labels, stats = _clipped_components(query)
+    level = sun_white(query, (slice(top, bottom), slice(left, right)))
+    if level is None:
+        return glare
+    _, labels, stats = _clipped_components(query, level)
     widest = SUN_GLARE_MAX_RADIUS * min(height, width)
     for label in np.unique(labels[top:bottom, left:right]):
         if label:
             radius = min(factor * math.sqrt(stats[label, cv2.CC_STAT_AREA]), widest)
             _add_halo(glare, labels, stats, int(label), radius)
     return glare
+
+
+def _brightest(image: np.ndarray) -> np.ndarray:
+    # Each pixel's largest channel.
+    blue, green, red = cv2.split(image)
+    return cv2.max(cv2.max(blue, green), red)
+
+
+def sun_white(query: np.ndarray, window: tuple[slice, slice]) -> int | None:
+    """The level from which ``query``'s pixels are the Sun's clipped disc, given the
+    ``window`` round the Sun's computed position; None when nothing there can be the Sun.
+
+    A camera clips the Sun: its brightest pixel is the camera's white. Where that is at or
+    above :data:`CLIPPED_LEVEL` the disc is the clipped pixels, as for any glare. A tone
+    curve or view transform may put the camera's white lower (a filmic shoulder at 245, AgX
+    near 208): then the disc is the pixels within :data:`SUN_WHITE_MARGIN` of the window's
+    brightest, provided that is the frame's brightest light too (within the margin) and
+    above :data:`LIT_LEVEL` (a Sun behind a module leaves only the module's light there).
+    """
+    brightest = _brightest(query)
+    core = int(brightest[window].max())
+    if core >= CLIPPED_LEVEL:
+        return CLIPPED_LEVEL
+    if core < LIT_LEVEL or core < int(brightest.max()) - SUN_WHITE_MARGIN:
+        return None
+    return core - SUN_WHITE_MARGIN
 
 
 def colourless_excess(query: np.ndarray, reference: np.ndarray) -> np.ndarray:

@@ -18,7 +18,9 @@ from allo_mrad_ros.camera import CameraIntrinsics
 from allo_mrad_ros.detector import MradParams, detect
 from allo_mrad_ros.detector.highlights import (
     CLIPPED_LEVEL,
+    LIT_LEVEL,
     SUN_GLARE_MAX_RADIUS,
+    SUN_WHITE_MARGIN,
     HighlightsError,
     sun_glare,
     sun_reach,
@@ -40,9 +42,27 @@ def sun_glare_naive(query: np.ndarray, sun: tuple[float, float] | None, factor: 
     ties = np.zeros_like(glare)
     if sun is None or factor <= 0:
         return glare, ties
-    clipped = query.astype(np.float64).max(axis=2) >= CLIPPED_LEVEL
     reach = sun_reach(query.shape[:2])
     column, row = math.floor(sun[0]), math.floor(sun[1])
+    brightest = query.astype(np.float64).max(axis=2)
+    near = [
+        brightest[r, c]
+        for r in range(query.shape[0])
+        for c in range(query.shape[1])
+        if abs(r - row) <= reach and abs(c - column) <= reach
+    ]
+    if not near:
+        return glare, ties
+    # The camera's white: 250 where the Sun clips at 255; else the Sun's brightest pixel,
+    # if it is the frame's brightest light and lit, less the same margin.
+    core = max(near)
+    if core >= CLIPPED_LEVEL:
+        level = CLIPPED_LEVEL
+    elif core >= LIT_LEVEL and core >= brightest.max() - SUN_WHITE_MARGIN:
+        level = core - SUN_WHITE_MARGIN
+    else:
+        return glare, ties
+    clipped = brightest >= level
     rows, cols = np.mgrid[0 : query.shape[0], 0 : query.shape[1]].astype(np.float64)
     for pixels in components_naive(clipped):
         if not any(abs(r - row) <= reach and abs(c - column) <= reach for r, c in pixels):
@@ -79,6 +99,35 @@ def test_the_glare_matches_the_float64_oracle(seed, factor):
         got = sun_glare(query, sun, factor)
         expected, ties = sun_glare_naive(query, sun, factor)
         np.testing.assert_array_equal(got[~ties], expected[~ties])
+
+
+@pytest.mark.parametrize("white", [255, 245, 208, 150])
+def test_a_camera_whose_white_is_under_the_clipping_level_still_clips_the_sun(white):
+    # A tone curve or view transform may map the sensor's white below 250 (a filmic
+    # shoulder at 245, an AgX-like curve near 208): the Sun is still the frame's brightest.
+    query, centres = space_with_blobs(3)
+    scaled = (query.astype(np.float64) * white / 255.0).round().astype(np.uint8)
+    sun = centres[0]
+    got = sun_glare(scaled, sun, 4.0)
+    expected, ties = sun_glare_naive(scaled, sun, 4.0)
+    np.testing.assert_array_equal(got[~ties], expected[~ties])
+    assert got.any()
+    # The glare is the one a camera clipping at 255 gives.
+    np.testing.assert_array_equal(got, sun_glare(query, sun, 4.0))
+
+
+def test_no_glare_where_the_suns_pixel_holds_less_than_the_frames_brightest_light():
+    query, centres = space_with_blobs(3)
+    dimmed = query.copy()
+    x, y = (round(v) for v in centres[0])
+    cv2.circle(dimmed, (x, y), 6, (200, 200, 200), -1)  # a module lit at 200 hides the Sun
+    cv2.circle(dimmed, (x, y), 2, (240, 240, 240), -1)  # its brightest part
+    # Clipped light elsewhere (another blob, at 255) is brighter: the 240 is not the Sun.
+    assert dimmed.max() == 255
+    assert not sun_glare(dimmed, centres[0], 4.0).any()
+    dark = np.zeros_like(query)
+    cv2.circle(dark, (x, y), 3, (100, 100, 100), -1)  # the brightest, but not lit enough
+    assert not sun_glare(dark, centres[0], 4.0).any()
 
 
 def test_the_glare_of_a_sun_clipped_with_a_lit_surface_is_bounded():
