@@ -326,7 +326,7 @@ class MradParams:
         1,
     )
     frame_floor: float = parameter(
-        3.0,
+        5.0,
         "lowest background level of the contrast rule (0..255 scale): a clean frame's "
         "evidence is compared with this",
         0,
@@ -334,7 +334,7 @@ class MradParams:
         low_open=True,
     )
     frame_contrast: float = parameter(
-        5.5,
+        3.9,
         "evidence over background level above which the contrast rule calls a frame "
         "anomalous (its anomaly score is then above 0.5)",
         0,
