@@ -98,6 +98,9 @@ class NodeInputs:
         # has, an image without its camera_info is the start-up state, not an input error
         # (the image and camera_info subscriptions are matched apart by discovery, at the
         # node's start and at each new subscription when an output's subscriber returns).
+        # The stamp of the first camera_info since (re)subscribing: an image stamped before it
+        # came before the camera_info stream (the two subscriptions match one after the other).
+        self._first_info_ns: int | None = None
         self._info_since_subscribed = False
         # Valid camera_infos by stamp: (intrinsics, frame_id, message), paired with images by
         # stamp; the message is what ~/score/camera_info is made from.
@@ -171,6 +174,7 @@ class NodeInputs:
         node = self._node
         with self._lock:
             self._info_since_subscribed = False
+            self._first_info_ns = None
         self._camera = {
             "image": node.create_subscription(
                 self._image_type,
@@ -285,6 +289,8 @@ class NodeInputs:
         with self._lock:
             self._intrinsics = intrinsics
             self._info_since_subscribed = True
+            if self._first_info_ns is None:
+                self._first_info_ns = messages.stamp_to_ns(msg.header.stamp)
 
     def on_sun(self, msg: Vector3Stamped) -> None:
         """Keep the Sun direction, in the station frame, by its stamp."""
@@ -336,8 +342,15 @@ class NodeInputs:
                 self._sun_strength,
                 self._bodies,
                 problem,
-                waiting_for_camera_info=problem is not None and not self._info_since_subscribed,
+                waiting_for_camera_info=problem is not None and self._before_camera_info(msg),
             )
+
+    def _before_camera_info(self, msg: Image | CompressedImage | None) -> bool:
+        """Whether ``msg`` came before the camera_info stream since (re)subscribing: none
+        received yet, or the first one stamped after the image (called with the lock)."""
+        if not self._info_since_subscribed or self._first_info_ns is None:
+            return True
+        return msg is not None and messages.stamp_to_ns(msg.header.stamp) < self._first_info_ns
 
     def size_refusal(self, msg: Image | CompressedImage) -> MessageError | None:
         """Why ``msg`` would be refused for its size, told without waiting or decoding: a

@@ -146,3 +146,23 @@ def test_images_before_a_new_subscription_s_first_camera_info_are_the_start_up_s
     # Once this subscription has given a camera_info, an image without its own is an error.
     missing = inputs.snapshot(_raw_image(320, 180, 11))
     assert missing.camera_problem is not None and not missing.waiting_for_camera_info
+
+
+def test_an_image_stamped_before_the_first_camera_info_is_the_start_up_state():
+    # The image subscription may match a moment before the camera_info one: the first
+    # images' own camera_infos never arrive, and a later one does. Those images came before
+    # the camera_info stream; an image after its start without its own is an input error.
+    inputs = NodeInputs(
+        _Node(), _config(), lambda: True, QoSOverridingOptions.with_default_policies
+    )
+    inputs.open(Image, "/arm_camera/image_raw", "/arm_camera/camera_info", 10, _Counts())
+    inputs.subscribe()
+    inputs.on_camera_info(_camera_info(320, 180, 9))
+    early = inputs.snapshot(_raw_image(320, 180, 7))
+    assert early.camera_problem is not None and early.waiting_for_camera_info
+    late = inputs.snapshot(_raw_image(320, 180, 11))
+    assert late.camera_problem is not None and not late.waiting_for_camera_info
+    inputs.unsubscribe()
+    inputs.subscribe()  # a new stream: its own first camera_info
+    inputs.on_camera_info(_camera_info(320, 180, 20))
+    assert inputs.snapshot(_raw_image(320, 180, 15)).waiting_for_camera_info
