@@ -153,6 +153,13 @@ def _ray_rows(
     return rows
 
 
+def _ranges_along(positions: np.ndarray, packed: np.ndarray) -> np.ndarray:
+    """(B, R): how far along each ray of ``packed`` (ring rows: origin, unit direction) each
+    object's point ``positions`` (B, 3) lies."""
+    offset = positions[:, None, :] - packed[..., 0:3]
+    return np.einsum("brj,brj->br", offset, packed[..., 3:6])
+
+
 def _row_medians(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Each row's median over its ``valid`` entries (each row has one at least): what
     ``numpy.nanmedian`` gives with the others set to NaN, without its masked-array cost."""
@@ -822,8 +829,7 @@ class ObjectTracker:
         # solution's ranges are 0 for those).
         ranges = solution.ranges
         if partial.any():
-            offset = solution.position[:, None, :] - packed[..., 0:3]
-            ranges = np.where(valid, np.einsum("brj,brj->br", offset, packed[..., 3:6]), 0.0)
+            ranges = np.where(valid, _ranges_along(solution.position, packed), 0.0)
         sizes_m = packed[..., _EXTENT] / self._focal * ranges
         if candidates:
             which = np.array(candidates)
@@ -870,10 +876,7 @@ class ObjectTracker:
         ratio = self.params.partial_size_ratio
         if ratio >= _NO_SIZE_TEST:
             return np.zeros(valid.shape, dtype=bool)
-        offset = positions[:, None, :] - packed[..., 0:3]
-        ranges = np.maximum(
-            np.einsum("brj,brj->br", offset, packed[..., 3:6]), self.params.min_range
-        )
+        ranges = np.maximum(_ranges_along(positions, packed), self.params.min_range)
         sizes = np.where(valid, packed[..., _EXTENT] * ranges, 0.0)
         return valid & (sizes.max(axis=1)[:, None] > ratio * sizes)
 

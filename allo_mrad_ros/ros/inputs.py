@@ -94,14 +94,12 @@ class NodeInputs:
         self._config = config
         self.images: LatestSlot[tuple[Image | CompressedImage, float]] = LatestSlot()
         self._intrinsics: CameraIntrinsics | None = None
-        # Whether the camera_info subscription of now has given a valid message: until it
-        # has, an image without its camera_info is the start-up state, not an input error
-        # (the image and camera_info subscriptions are matched apart by discovery, at the
-        # node's start and at each new subscription when an output's subscriber returns).
-        # The stamp of the first camera_info since (re)subscribing: an image stamped before it
-        # came before the camera_info stream (the two subscriptions match one after the other).
+        # The stamp of the first valid camera_info the subscription of now has given (None:
+        # none yet). An image without its camera_info stamped before it (or before any) is
+        # the start-up state, not an input error: the image and camera_info subscriptions are
+        # matched apart by discovery, at the node's start and at each new subscription when
+        # an output's subscriber returns.
         self._first_info_ns: int | None = None
-        self._info_since_subscribed = False
         # Valid camera_infos by stamp: (intrinsics, frame_id, message), paired with images by
         # stamp; the message is what ~/score/camera_info is made from.
         self._infos: StampedBuffer[tuple[CameraIntrinsics, str, CameraInfo]] = StampedBuffer(64)
@@ -173,7 +171,6 @@ class NodeInputs:
 
         node = self._node
         with self._lock:
-            self._info_since_subscribed = False
             self._first_info_ns = None
         self._camera = {
             "image": node.create_subscription(
@@ -288,7 +285,6 @@ class NodeInputs:
         )
         with self._lock:
             self._intrinsics = intrinsics
-            self._info_since_subscribed = True
             if self._first_info_ns is None:
                 self._first_info_ns = messages.stamp_to_ns(msg.header.stamp)
 
@@ -348,7 +344,7 @@ class NodeInputs:
     def _before_camera_info(self, msg: Image | CompressedImage | None) -> bool:
         """Whether ``msg`` came before the camera_info stream since (re)subscribing: none
         received yet, or the first one stamped after the image (called with the lock)."""
-        if not self._info_since_subscribed or self._first_info_ns is None:
+        if self._first_info_ns is None:
             return True
         return msg is not None and messages.stamp_to_ns(msg.header.stamp) < self._first_info_ns
 
