@@ -63,7 +63,6 @@ __all__ = [
     "specular_potential",
     "sun_glare",
     "sun_reach",
-    "sun_white",
     "tolerate_highlights",
 ]
 
@@ -150,7 +149,7 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
     halo = np.zeros(query.shape[:2], bool)
     if factor <= 0.0:
         return halo
-    count, labels, stats = _clipped_components(query)
+    count, labels, stats = _clipped_components(_brightest(query))
     if count <= 1:
         return halo
     clipped = labels > 0
@@ -166,11 +165,12 @@ def glare_halo(query: np.ndarray, reference: np.ndarray, factor: float) -> np.nd
 
 
 def _clipped_components(
-    query: np.ndarray, level: int = CLIPPED_LEVEL
+    brightest: np.ndarray, level: int = CLIPPED_LEVEL
 ) -> tuple[int, np.ndarray, np.ndarray]:
-    """The 8-connected components of ``query``'s clipped pixels (a channel at or above
-    ``level``): their count (the background included), labels and stats."""
-    clipped = (_brightest(query) >= level).astype(np.uint8)
+    """The 8-connected components of the clipped pixels (``brightest``, each pixel's largest
+    channel, at or above ``level``): their count (the background included), labels and
+    stats."""
+    clipped = (brightest >= level).astype(np.uint8)
     if not cv2.countNonZero(clipped):
         return 1, np.zeros(clipped.shape, np.int32), np.zeros((1, 5), np.int32)
     return cv2.connectedComponentsWithStats(clipped, connectivity=8)[:3]
@@ -203,7 +203,7 @@ def sun_glare(
     query: np.ndarray, sun_pixel: tuple[float, float] | None, factor: float
 ) -> np.ndarray:
     """H x W bool: the Sun's glare, the clipped components of ``query`` at the Sun's
-    position (clipped at the camera's white, :func:`sun_white`) with every pixel within
+    position (clipped at the camera's white, :func:`_sun_white`) with every pixel within
     ``factor * sqrt(A)`` of them (``A`` their area; at most :data:`SUN_GLARE_MAX_RADIUS` of
     the image's shorter side).
 
@@ -230,10 +230,11 @@ def sun_glare(
     left, right = max(0, column - reach), min(width, column + reach + 1)
     if top >= bottom or left >= right:
         return glare
-    level = sun_white(query, (slice(top, bottom), slice(left, right)))
+    brightest = _brightest(query)
+    level = _sun_white(brightest, (slice(top, bottom), slice(left, right)))
     if level is None:
         return glare
-    _, labels, stats = _clipped_components(query, level)
+    _, labels, stats = _clipped_components(brightest, level)
     widest = SUN_GLARE_MAX_RADIUS * min(height, width)
     for label in np.unique(labels[top:bottom, left:right]):
         if label:
@@ -248,9 +249,10 @@ def _brightest(image: np.ndarray) -> np.ndarray:
     return cv2.max(cv2.max(blue, green), red)
 
 
-def sun_white(query: np.ndarray, window: tuple[slice, slice]) -> int | None:
-    """The level from which ``query``'s pixels are the Sun's clipped disc, given the
-    ``window`` round the Sun's computed position; None when nothing there can be the Sun.
+def _sun_white(brightest: np.ndarray, window: tuple[slice, slice]) -> int | None:
+    """The level from which pixels are the Sun's clipped disc (``brightest``: each pixel's
+    largest channel), given the ``window`` round the Sun's computed position; None when
+    nothing there can be the Sun.
 
     A camera clips the Sun: its brightest pixel is the camera's white. Where that is at or
     above :data:`CLIPPED_LEVEL` the disc is the clipped pixels, as for any glare. A tone
@@ -259,7 +261,6 @@ def sun_white(query: np.ndarray, window: tuple[slice, slice]) -> int | None:
     brightest, provided that is the frame's brightest light too (within the margin) and
     above :data:`LIT_LEVEL` (a Sun behind a module leaves only the module's light there).
     """
-    brightest = _brightest(query)
     core = int(brightest[window].max())
     if core >= CLIPPED_LEVEL:
         return CLIPPED_LEVEL
