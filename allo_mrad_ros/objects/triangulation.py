@@ -265,7 +265,7 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
         # Linearised close enough to the optimum (half a standard deviation in inverse
         # range): this linearisation is the last; else step there and linearise again.
         change = (new_rho - rho) ** 2 * inverse_variance
-        if step == iterations or not np.any(change > _CONVERGED**2):
+        if step == iterations or not (change > _CONVERGED**2).any():
             break
         ab = ab + step_ab + slope * (new_rho - rho)[:, None]
         rho = new_rho
@@ -273,7 +273,8 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     free_rho = np.where(informed, mean, rho)
     rho_sigma = np.where(informed, 1.0 / np.sqrt(np.where(informed, inverse_variance, 1.0)), np.inf)
     # The interval every ray's range bound leaves the inverse range (at this direction).
-    rho_low, rho_high = _feasible(ab, geometry, rays, anchor_low, anchor_high)
+    own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low  # the anchor's own interval
+    rho_low, rho_high = _feasible(ab, geometry, rays, own_low, own_high)
     # Only where a bound lies within _TRUNCATED standard deviations does the cut change the
     # normal's moments (to rounding): the rest keep the rays' own.
     rho_mean = free_rho.copy()
@@ -294,7 +295,6 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     conflict = informed & (
         (free_rho + _CONFLICT * rho_sigma < rho_low) | (free_rho - _CONFLICT * rho_sigma > rho_high)
     )
-    own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
     # numpy.clip as minimum and maximum, here and below: its dispatch costs more than both.
     kept_rho = np.minimum(np.maximum(free_rho, 1e-3 * own_low), 1e3 * own_high)
     rho_mean = np.where(conflict, kept_rho, rho_mean)
@@ -461,12 +461,13 @@ def _feasible(
     ab: np.ndarray,
     geometry: _Geometry,
     rays: RayBatch,
-    anchor_low: np.ndarray,
-    anchor_high: np.ndarray,
+    own_low: np.ndarray,
+    own_high: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The inverse ranges along the anchor at which every ray's range lies in its interval,
     ``low_i <= (g_i + rho h_i) / rho <= high_i`` (``g_i = d_i . m``, ``h_i = d_i . b_i``):
-    linear in ``rho``. Where the rays' intervals exclude each other, the anchor's alone."""
+    linear in ``rho``. Where the rays' intervals exclude each other, the anchor's alone
+    (``own_low``, ``own_high``: its interval in inverse range)."""
     directions = geometry.directions
     g = (
         directions[..., 2]
@@ -478,15 +479,16 @@ def _feasible(
     lower = np.where(rays.valid, rays.low - h, 0.0)
     upper = np.where(rays.valid, rays.high - h, 0.0)
     # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
-    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=lower > 0)
+    # Outputs made with numpy.full and numpy.zeros (its *_like forms cost twice as much).
+    shape = g.shape
+    above = np.divide(g, lower, out=np.full(shape, np.inf), where=lower > 0)
     upper_negative = upper < 0
     if upper_negative.any():  # none in most batches (their bound is inf: changes nothing)
         above = np.minimum(
-            above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper_negative)
+            above, np.divide(g, upper, out=np.full(shape, np.inf), where=upper_negative)
         )
-    below = np.divide(g, upper, out=np.zeros_like(g), where=upper > 0)
-    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=lower < 0))
-    own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
+    below = np.divide(g, upper, out=np.zeros(shape), where=upper > 0)
+    below = np.maximum(below, np.divide(g, lower, out=np.zeros(shape), where=lower < 0))
     rho_low = np.maximum(below.max(axis=1), own_low)
     rho_high = np.minimum(above.min(axis=1), own_high)
     clash = ~(rho_low < rho_high)
