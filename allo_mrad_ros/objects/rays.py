@@ -85,29 +85,43 @@ def checked_pose(pose: object) -> np.ndarray:
     """``pose`` as a float64 rigid 4x4 transform, else :class:`ObjectsError`.
 
     The checks of :func:`~allo_mrad_ros.geometry.validate_transform`, with its tolerances,
-    in a few array operations (the tracker checks a pose every frame); a pose they refuse
-    goes through ``validate_transform`` for its message."""
+    on the sixteen values as Python floats (the tracker checks a pose every frame: a dozen
+    array operations on a 4x4 cost three times as much); a pose they refuse goes through
+    ``validate_transform`` for its message (and its verdict)."""
     matrix = np.asarray(pose, dtype=np.float64)
     if matrix.shape == (4, 4):
-        rotation = matrix[:3, :3]
-        # numpy.allclose(a, b, atol): |a - b| <= atol + 1e-5 |b|
-        row_ok = np.abs(matrix[3] - _LAST_ROW) <= _ROW_TOLERANCE
-        gram_ok = np.abs(rotation @ rotation.T - _EYE3) <= _GRAM_TOLERANCE
-        if np.isfinite(matrix).all() and row_ok.all() and gram_ok.all():
-            (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
-            if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0:
-                return matrix
+        (a, b, c, _), (d, e, f, _), (g, h, i, _), (p, q, r, s) = rows = matrix.tolist()
+        # Finite: a sum of finite values is finite unless it overflows (then the full check
+        # decides).
+        total = sum(rows[0]) + sum(rows[1]) + sum(rows[2]) + p + q + r + s
+        # numpy.allclose(x, y, atol): |x - y| <= atol + 1e-5 |y| (the last row against
+        # 0 0 0 1, atol 1e-9; R R^T against the identity, atol 1e-6).
+        if (
+            math.isfinite(total)
+            and max(abs(p), abs(q), abs(r)) <= _ROW_ATOL
+            and abs(s - 1.0) <= _ROW_ATOL + 1e-5
+            and max(
+                abs(a * a + b * b + c * c - 1.0),
+                abs(d * d + e * e + f * f - 1.0),
+                abs(g * g + h * h + i * i - 1.0),
+            )
+            <= _GRAM_ATOL + 1e-5
+            and max(
+                abs(a * d + b * e + c * f), abs(a * g + b * h + c * i), abs(d * g + e * h + f * i)
+            )
+            <= _GRAM_ATOL
+            and a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0
+        ):
+            return matrix
     try:
         return validate_transform(pose, "camera pose")
     except PoseError as error:
         raise ObjectsError(str(error)) from None
 
 
-_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
-_EYE3 = np.eye(3)
-# checked_pose's tolerances (numpy.allclose's, atol 1e-9 and 1e-6), computed once.
-_ROW_TOLERANCE = 1e-9 + 1e-5 * _LAST_ROW
-_GRAM_TOLERANCE = 1e-6 + 1e-5 * _EYE3
+# checked_pose's absolute tolerances (validate_transform's numpy.allclose atol).
+_ROW_ATOL = 1e-9
+_GRAM_ATOL = 1e-6
 
 
 def depth_array(depth: object) -> np.ndarray:

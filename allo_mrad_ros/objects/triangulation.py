@@ -65,6 +65,12 @@ _SQRT2 = math.sqrt(2.0)
 _FAR_TAIL = 30.0
 _SQRT_2_PI = math.sqrt(2.0 / math.pi)
 _EYE3 = np.eye(3)
+# The two components of (alpha, beta) swapped, and the adjugate of a 2x2 block [[a, b],
+# [b, c]] as a gather from the block ([[c, -b], [-b, a]], its off-diagonal read at (0, 1)).
+_SWAP = np.array([1, 0])
+_ADJUGATE_ROWS = np.array([[1, 0], [0, 0]])
+_ADJUGATE_COLS = np.array([[1, 1], [1, 0]])
+_ADJUGATE_SIGNS = np.array([[1.0, -1.0], [-1.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -258,14 +264,14 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     geometry = _Geometry.of(directions, baseline, rays)
     for step in range(iterations + 1):
         hessian, gradient = geometry.normal_equations(ab, rho)
-        step_ab, slope, mean, inverse_variance = _marginal(hessian, gradient, rho)
+        step_ab, slope, mean, inverse_variance, det = _marginal(hessian, gradient, rho)
         # Where the rays leave the inverse range undetermined it stays where it is.
         bounded = np.minimum(np.maximum(mean, rho_floor), rho_ceiling)
         new_rho = np.where(inverse_variance > 0, bounded, rho)
         # Linearised close enough to the optimum (half a standard deviation in inverse
         # range): this linearisation is the last; else step there and linearise again.
         change = (new_rho - rho) ** 2 * inverse_variance
-        if step == iterations or not np.any(change > _CONVERGED**2):
+        if step == iterations or not (change > _CONVERGED**2).any():
             break
         ab = ab + step_ab + slope * (new_rho - rho)[:, None]
         rho = new_rho
@@ -273,7 +279,8 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     free_rho = np.where(informed, mean, rho)
     rho_sigma = np.where(informed, 1.0 / np.sqrt(np.where(informed, inverse_variance, 1.0)), np.inf)
     # The interval every ray's range bound leaves the inverse range (at this direction).
-    rho_low, rho_high = _feasible(ab, geometry, rays, anchor_low, anchor_high)
+    own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low  # the anchor's own interval
+    rho_low, rho_high = _feasible(ab, geometry, rays, own_low, own_high)
     # Only where a bound lies within _TRUNCATED standard deviations does the cut change the
     # normal's moments (to rounding): the rest keep the rays' own.
     rho_mean = free_rho.copy()
@@ -294,7 +301,6 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     conflict = informed & (
         (free_rho + _CONFLICT * rho_sigma < rho_low) | (free_rho - _CONFLICT * rho_sigma > rho_high)
     )
-    own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
     # numpy.clip as minimum and maximum, here and below: its dispatch costs more than both.
     kept_rho = np.minimum(np.maximum(free_rho, 1e-3 * own_low), 1e3 * own_high)
     rho_mean = np.where(conflict, kept_rho, rho_mean)
@@ -307,12 +313,9 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     position = anchor_c + offset / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
     # truncated normal's; mapped through X = c_a + E^T m / rho.
-    a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
-    det = a * cc - b * b
-    cov_ab = np.empty((batch, 2, 2))
-    cov_ab[:, 0, 0] = cc / det
-    cov_ab[:, 1, 1] = a / det
-    cov_ab[:, 0, 1] = cov_ab[:, 1, 0] = -b / det
+    # The (alpha, beta) block's inverse: its adjugate (gathered, signs applied) over its
+    # determinant (_marginal's).
+    cov_ab = hessian[:, _ADJUGATE_ROWS, _ADJUGATE_COLS] * _ADJUGATE_SIGNS / det[:, None, None]
     theta = np.zeros((batch, 3, 3))
     theta[:, :2, :2] = cov_ab + slope[:, :, None] * slope[:, None, :] * rho_variance[:, None, None]
     theta[:, :2, 2] = theta[:, 2, :2] = slope * rho_variance[:, None]
@@ -433,40 +436,42 @@ class _Geometry:
 
 def _marginal(
     hessian: np.ndarray, gradient: np.ndarray, rho: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The Gauss-Newton step split along the inverse range: the step of ``(alpha, beta)``
     at the current ``rho``, its slope in ``rho``, the unconstrained ``rho`` and its
-    information (the Schur complement; 0 where the rays do not determine it)."""
-    a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
-    h0, h1 = hessian[:, 0, 2], hessian[:, 1, 2]
-    g0, g1 = gradient[:, 0], gradient[:, 1]
-    det = a * cc - b * b
-    # The 2x2 inverse of the (alpha, beta) block applied to the gradient and the coupling.
-    step_ab = np.empty((len(rho), 2))
-    step_ab[:, 0] = (cc * g0 - b * g1) / det
-    step_ab[:, 1] = (a * g1 - b * g0) / det
-    slope = np.empty((len(rho), 2))
-    slope[:, 0] = -(cc * h0 - b * h1) / det
-    slope[:, 1] = -(a * h1 - b * h0) / det
+    information (the Schur complement; 0 where the rays do not determine it), and the
+    determinant of the ``(alpha, beta)`` block."""
+    b = hessian[:, 0, 1]
+    det = hessian[:, 0, 0] * hessian[:, 1, 1] - b * b
+    # The 2x2 inverse of the (alpha, beta) block applied to the gradient and the coupling,
+    # both components at once: component k is (own_k x_k - b x_other) / det, own = (cc, a)
+    # the block's diagonal swapped (the same products, in the same order, as one per
+    # component).
+    own = hessian[:, _SWAP, _SWAP]
+    b_, det_ = b[:, None], det[:, None]
+    step_ab = (own * gradient[:, :2] - b_ * gradient[:, _SWAP]) / det_
     h_ar = hessian[:, :2, 2]
+    slope = -(own * h_ar - b_ * hessian[:, _SWAP, 2]) / det_
     information = hessian[:, 2, 2] + np.einsum("bi,bi->b", h_ar, slope)
     scale = hessian[:, 2, 2]
     determined = information > _NULL_RHO * np.maximum(scale, 1e-300)
     safe = np.where(determined, information, 1.0)
     mean = rho + (gradient[:, 2] + np.einsum("bi,bi->b", slope, gradient[:, :2])) / safe
-    return step_ab, slope, np.where(determined, mean, rho), np.where(determined, information, 0.0)
+    rho_mean = np.where(determined, mean, rho)
+    return step_ab, slope, rho_mean, np.where(determined, information, 0.0), det
 
 
 def _feasible(
     ab: np.ndarray,
     geometry: _Geometry,
     rays: RayBatch,
-    anchor_low: np.ndarray,
-    anchor_high: np.ndarray,
+    own_low: np.ndarray,
+    own_high: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The inverse ranges along the anchor at which every ray's range lies in its interval,
     ``low_i <= (g_i + rho h_i) / rho <= high_i`` (``g_i = d_i . m``, ``h_i = d_i . b_i``):
-    linear in ``rho``. Where the rays' intervals exclude each other, the anchor's alone."""
+    linear in ``rho``. Where the rays' intervals exclude each other, the anchor's alone
+    (``own_low``, ``own_high``: its interval in inverse range)."""
     directions = geometry.directions
     g = (
         directions[..., 2]
@@ -478,15 +483,16 @@ def _feasible(
     lower = np.where(rays.valid, rays.low - h, 0.0)
     upper = np.where(rays.valid, rays.high - h, 0.0)
     # Each ray bounds rho from above or below by the side its coefficient's sign puts it.
-    above = np.divide(g, lower, out=np.full_like(g, np.inf), where=lower > 0)
+    # Outputs made with numpy.full and numpy.zeros (its *_like forms cost twice as much).
+    shape = g.shape
+    above = np.divide(g, lower, out=np.full(shape, np.inf), where=lower > 0)
     upper_negative = upper < 0
     if upper_negative.any():  # none in most batches (their bound is inf: changes nothing)
         above = np.minimum(
-            above, np.divide(g, upper, out=np.full_like(g, np.inf), where=upper_negative)
+            above, np.divide(g, upper, out=np.full(shape, np.inf), where=upper_negative)
         )
-    below = np.divide(g, upper, out=np.zeros_like(g), where=upper > 0)
-    below = np.maximum(below, np.divide(g, lower, out=np.zeros_like(g), where=lower < 0))
-    own_low, own_high = 1.0 / anchor_high, 1.0 / anchor_low
+    below = np.divide(g, upper, out=np.zeros(shape), where=upper > 0)
+    below = np.maximum(below, np.divide(g, lower, out=np.zeros(shape), where=lower < 0))
     rho_low = np.maximum(below.max(axis=1), own_low)
     rho_high = np.minimum(above.min(axis=1), own_high)
     clash = ~(rho_low < rho_high)
