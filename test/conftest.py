@@ -5,6 +5,7 @@ these variables keep DDS on loopback everywhere else too, for in-process rclpy a
 every subprocess a test starts.
 """
 
+import gc
 import importlib.util
 import os
 import re
@@ -73,6 +74,15 @@ def pytest_sessionstart(session):
     """Note the Fast DDS shared-memory files there before the run (harness.shared_memory)."""
     global _SHARED_MEMORY_BEFORE
     _SHARED_MEMORY_BEFORE = present()
+
+
+def pytest_collection_finish(session):
+    """Move what collection made (every module the tests import, the test items) out of the
+    collector's reach: a full collection, which each closed renderer asks for (pyrender
+    collects before deleting its context), then walks only what the tests make. Those
+    objects live for the whole run anyway."""
+    gc.collect()
+    gc.freeze()
 
 
 def pytest_sessionfinish(session, exitstatus):
