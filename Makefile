@@ -34,8 +34,13 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
+# Each stage of `make test` runs its tests in TEST_WORKERS processes (pytest-xdist), each with
+# a DDS domain of its own (test/conftest.py); TEST_WORKERS=0 runs them in one process.
+TEST_WORKERS ?= 2
+PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS))
+
 test: lint
-	$(ISOLATED) $(PY) -m pytest -q --timeout=600
+	$(ISOLATED) $(PY) -m pytest -q --timeout=600 $(PARALLEL)
 	$(MAKE) test-distro
 	$(MAKE) test-jazzy
 
@@ -66,7 +71,7 @@ DISTRO_STAMP := $(DISTRO_VENV)/.installed
 test-distro:
 	@if [ -z "$(DISTRO_PYTHON)" ]; then echo "test-distro: no python3.10 here, skipped"; \
 	else $(MAKE) --no-print-directory $(DISTRO_STAMP) && \
-	  $(ISOLATED) $(DISTRO_VENV)/bin/python -m pytest -q --timeout=600 -p no:cacheprovider; fi
+	  $(ISOLATED) $(DISTRO_VENV)/bin/python -m pytest -q --timeout=600 -p no:cacheprovider $(PARALLEL); fi
 
 $(DISTRO_STAMP): test/data/humble_apt_stand_ins.txt requirements-distro.txt requirements-distro-nodeps.txt setup.py
 	@test -x $(DISTRO_VENV)/bin/python || $(DISTRO_PYTHON) -m venv $(DISTRO_VENV)
@@ -87,7 +92,7 @@ JAZZY_STAMP := $(JAZZY_VENV)/.installed
 test-jazzy:
 	@if [ -z "$(JAZZY_PYTHON)" ]; then echo "test-jazzy: no python3.12 here, skipped"; \
 	else $(MAKE) --no-print-directory $(JAZZY_STAMP) && \
-	  ALLO_TESTS=ros $(ISOLATED) $(JAZZY_VENV)/bin/python -m pytest -q --timeout=600 -p no:cacheprovider; fi
+	  ALLO_TESTS=ros $(ISOLATED) $(JAZZY_VENV)/bin/python -m pytest -q --timeout=600 -p no:cacheprovider $(PARALLEL); fi
 
 $(JAZZY_STAMP): requirements-jazzy.txt requirements-distro.txt requirements-distro-nodeps.txt setup.py
 	@test -x $(JAZZY_VENV)/bin/python || $(JAZZY_PYTHON) -m venv $(JAZZY_VENV)

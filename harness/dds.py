@@ -13,6 +13,12 @@ import os
 DOMAINS = 101
 """How many domains there are to take: ids 1..DOMAINS."""
 
+WORKER_DOMAIN_STEP = 42
+"""Domains between two test workers of one run (pytest-xdist; test/conftest.py). A test that
+takes domains of its own steps 17 at a time from its worker's (the sweep's nodes); from one
+worker to the next is 50 or 51 such steps (17 x 50 = 42 + 8 x 101), so it meets another
+worker's domain only after fifty domains of its own."""
+
 
 def process_domain(pid: int | None = None) -> int:
     """The domain of the process ``pid`` (this one's if None)."""

@@ -14,7 +14,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, settings
 
 from allo_mrad_ros.ros.node_process import use_loopback_profile
-from harness.dds import process_domain
+from harness.dds import WORKER_DOMAIN_STEP, current_domain, domain_apart, process_domain
 from harness.shared_memory import present, remove_orphans
 
 REPO = Path(__file__).resolve().parent.parent
@@ -26,6 +26,13 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 # A domain of its own per test run (harness.dds), so parallel runs do not hear each other.
 os.environ.setdefault("ROS_DOMAIN_ID", str(process_domain()))
+# Under pytest-xdist each worker (gw0, gw1, ...) inherits the run's domain and takes one of its
+# own, WORKER_DOMAIN_STEP apart from the next worker's.
+if os.environ.get("PYTEST_XDIST_WORKER", "").startswith("gw"):
+    _worker = int(os.environ["PYTEST_XDIST_WORKER"][2:])
+    os.environ["ROS_DOMAIN_ID"] = str(
+        domain_apart(current_domain(), WORKER_DOMAIN_STEP * (_worker + 1))
+    )
 
 # Property tests: `make test` draws the same few examples on every run (a CI run must not
 # fail by chance); `make fuzz` (ALLO_FUZZ=1) draws many new ones each time.
