@@ -307,8 +307,9 @@ def diagnosis_table(rows: list[ObjectDiagnosis]) -> str:
     count of each cause among the objects in view long enough to count for recall."""
     lines = [
         "| object | type | placement | frames showing | with a region | taken | regions "
-        "| tracks | main track | confirmed tracks | distance m | match m | cause |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "| tracks | main track | waiting / unresolved | confirmed tracks | distance m | match m "
+        "| cause |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for row in rows:
         cells = (
@@ -321,6 +322,7 @@ def diagnosis_table(rows: list[ObjectDiagnosis]) -> str:
             row.regions,
             row.tracks,
             row.main_track_regions,
+            f"{row.main_track_waiting} / {row.main_track_unresolved}",
             row.confirmed_tracks,
             _fmt(row.distance_m),
             _fmt(row.tolerance_m),

@@ -407,6 +407,12 @@ class ObjectDiagnosis:
         The regions of the track that got most of them.
     confirmed_tracks : int
         Of those tracks, how many were ever confirmed.
+    main_track_waiting : int
+        In-view frames the main track spent tentative after its ``confirm_hits``-th hit.
+    main_track_unresolved : int
+        Of those, the frames in which parallax had not yet placed it nearer than
+        ``max_range`` (:attr:`~allo_mrad_ros.objects.TrackedObject.range_resolved`): what
+        holds back a thing whose rays barely converge over the arm's baseline.
     matched : bool
         Matched one-to-one in the evaluation.
     distance_m, tolerance_m : float or None
@@ -429,6 +435,8 @@ class ObjectDiagnosis:
     tracks: int
     main_track_regions: int
     confirmed_tracks: int
+    main_track_waiting: int
+    main_track_unresolved: int
     matched: bool
     distance_m: float | None
     tolerance_m: float | None
@@ -481,12 +489,19 @@ def diagnose_objects(
         tracked: dict[int, int] = {}
         track_regions: dict[int, dict[int, int]] = {}
         last: dict[int, tuple[int, np.ndarray]] = {}
+        # Per track: in-view frames tentative with the hits to confirm, and of those the
+        # frames its range was unresolved.
+        waiting: dict[int, list[int]] = {}
         for i in indices:
             frame = run.frames[i]
             region_track = {o.region: o.id for o in records[i] if o.region is not None}
             for o in records[i]:
                 if o.state == "confirmed":
                     last[o.id] = (i, np.asarray(o.position, dtype=np.float64))
+                elif o.state == "tentative" and o.in_view and o.hits >= params.confirm_hits:
+                    tally = waiting.setdefault(o.id, [0, 0])
+                    tally[0] += 1
+                    tally[1] += not o.range_resolved
             for object_id in frame.showing:
                 shown[object_id] = shown.get(object_id, 0) + 1
             labels = instances(frame.index) if frame.showing else None
@@ -513,6 +528,8 @@ def diagnose_objects(
             counts = track_regions.get(object_id, {})
             confirmed_rows = [r for r, t in enumerate(confirmed_ids) if t in counts]
             near = min(confirmed_rows, key=lambda r: distance[r, c], default=None)
+            main = max(counts, key=counts.__getitem__, default=None)
+            main_waiting, main_unresolved = waiting.get(main, (0, 0))
             if object_id in matched:
                 cause = "matched"
             elif not touched.get(object_id):
@@ -539,6 +556,8 @@ def diagnose_objects(
                     tracks=len(counts),
                     main_track_regions=max(counts.values(), default=0),
                     confirmed_tracks=len(confirmed_rows),
+                    main_track_waiting=main_waiting,
+                    main_track_unresolved=main_unresolved,
                     matched=object_id in matched,
                     distance_m=None if near is None else float(distance[near, c]),
                     tolerance_m=None if near is None else float(tolerance[near, c]),

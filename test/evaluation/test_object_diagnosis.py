@@ -1,7 +1,8 @@
 """``diagnose_objects``: where each ground-truth object was lost, on a scene built by hand
 (regions where points project from a sweeping camera, instance masks drawn around them):
 one object matched, one without a region, one whose regions score low, one seen too briefly
-to confirm, one confirmed away from its true position; and its recall against the metrics'."""
+to confirm, one confirmed away from its true position, one so far that parallax never places
+it; and its recall against the metrics'."""
 
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ FAINT = np.array([-1.5, 1.0, 0.6])  # regions scoring 0.1, below min_region_scor
 BRIEF = np.array([1.2, -0.5, -0.8])  # regions in two frames only
 ELSEWHERE = np.array([-0.2, 1.0, 1.0])  # regions here, its table position 2 m away
 OFFSET = np.array([0.0, 2.0, 0.0])
+# 100 km out, as the Moon is to the arm: its rays keep their direction along the sweep.
+FAR = np.array([-2.0, -10.0, 0.0]) + 1e5 * np.array([-0.3, 1.0, 0.2]) / np.sqrt(1.13)
 
 
 def truth(object_id: int, position: np.ndarray) -> GroundTruthObject:
@@ -47,7 +50,7 @@ def truth(object_id: int, position: np.ndarray) -> GroundTruthObject:
 
 
 def build() -> tuple[ObjectRun, list[np.ndarray]]:
-    shown = {1: SEEN, 2: UNSEEN, 3: FAINT, 4: BRIEF, 5: ELSEWHERE}
+    shown = {1: SEEN, 2: UNSEEN, 3: FAINT, 4: BRIEF, 5: ELSEWHERE, 6: FAR}
     frames, labels_of = [], []
     for k in range(FRAMES):
         t = k / FPS
@@ -95,11 +98,18 @@ def test_each_object_is_followed_to_where_it_was_lost():
         3: "regions score low",
         4: "not confirmed",
         5: "beyond match distance",
+        6: "not confirmed",
     }
     seen = rows[1]
     assert (seen.frames_showing, seen.frames_touched, seen.frames_tracked) == (40, 40, 40)
     assert (seen.regions, seen.tracks, seen.main_track_regions) == (40, 1, 40)
     assert seen.confirmed_tracks == 1 and seen.matched and seen.eligible
+    # Noise-free rays agree at once: it waits from its third hit only for the parallax that
+    # places it; the far thing waits every frame from its third, its range unresolved in each.
+    assert 0 < seen.main_track_waiting == seen.main_track_unresolved < FRAMES - 2
+    far = rows[6]
+    assert (far.regions, far.tracks, far.confirmed_tracks) == (40, 1, 0)
+    assert far.main_track_waiting == FRAMES - 2 and far.main_track_unresolved == FRAMES - 2
     # Noise-free rays; the match distance 5 % of the range from the last frame's camera.
     last_range = np.linalg.norm(SEEN - sweep((FRAMES - 1) / FPS)[:3, 3])
     assert seen.distance_m < 1e-6 and abs(seen.tolerance_m - 0.05 * last_range) < 1e-9
