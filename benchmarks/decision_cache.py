@@ -5,8 +5,8 @@ the mask's raw score, the ranking map, the mask at the processing resolution and
 regions. None of these depend on the decision's parameters, so one detection of every frame
 serves every decision rule and operating point that :mod:`benchmarks.decision` compares.
 Each frame's arrays go to ``<cache>/<key>/<index>.npz`` (``key``: the sequence, split, frame
-limit and the pixel parameters), written as they are made, so a run that is stopped goes on
-where it was.
+limit, the pixel parameters and the package's code), written as they are made, so a run that
+is stopped goes on where it was.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from allo_mrad_ros.detector.decision import DECISION_FIELDS
 from allo_mrad_ros.evaluation.sources import open_sequence
 from allo_mrad_ros.pipeline import Pipeline, PipelineConfig
 from allo_mrad_ros.render import RenderSettings
+from benchmarks.source_digest import package_digest
 from harness.perturbations import PERTURBATIONS, agx_like, filmic
 
 ANOMALY = 2
@@ -132,7 +133,13 @@ def cache_dir(
     # The reference's supersampling joins the key only when it is on, so that the folders
     # of references rendered without it keep their names.
     key = json.dumps(
-        [item.split, limit, pixel_params(params), hashlib.sha256(frames_csv).hexdigest()]
+        [
+            item.split,
+            limit,
+            pixel_params(params),
+            hashlib.sha256(frames_csv).hexdigest(),
+            package_digest(),
+        ]
         + ([item.perturbation] if item.perturbation else [])
         + ([{"supersampling": supersampling}] if supersampling != 1 else []),
         sort_keys=True,

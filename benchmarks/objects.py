@@ -56,6 +56,7 @@ from allo_mrad_ros.objects.params import params_from as object_params_from
 from allo_mrad_ros.pipeline import PipelineConfig
 from allo_mrad_ros.sequence import read_sequence
 from benchmarks import tracker as tracker_bench
+from benchmarks.source_digest import package_digest
 from benchmarks.stations import OUTPOSTS, write_outpost
 
 # The grid searched on val (the rest of ObjectParams stays at its defaults).
@@ -215,9 +216,11 @@ def ensure_path_traced(path: Path, mesh: Path, seed: int) -> None:
 
 
 def detections(data: Path, cache: Path, split: str, config: PipelineConfig, jobs: int) -> ObjectRun:
-    """The detected frames of ``split``, from the cache when its key matches."""
+    """The detected frames of ``split``, from the cache when its key (the sequence's rows,
+    the split, the configuration and the package's code) matches."""
     frames_csv = (data / "frames.csv").read_bytes()
-    key = hashlib.sha256(frames_csv + repr((split, config)).encode()).hexdigest()[:16]
+    key = repr((split, config, package_digest()))
+    key = hashlib.sha256(frames_csv + key.encode()).hexdigest()[:16]
     path = cache / f"{split}-{key}.pkl"
     if path.is_file():
         with path.open("rb") as handle:
