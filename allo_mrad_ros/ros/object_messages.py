@@ -129,7 +129,9 @@ def object_markers(
     Per live object: a sphere at its position as wide as its size, coloured by state
     (tentative yellow, confirmed red); its uncertainty, an ellipsoid of
     :data:`UNCERTAINTY_SIGMAS` standard deviations along each principal axis of its
-    position's covariance; and its id as text above it. An ended object's three markers are
+    position's covariance; and its id and state as text above it (a tentative object whose
+    range parallax has not yet resolved says so: it waits for the camera to move). An ended
+    object's three markers are
     deleted. ``station_mesh``: a ``file://`` or ``package://`` URI of the station model,
     drawn first (with its own materials) so the objects are seen on it; empty: none.
     ``changed_only``: only the objects a region hit this frame (the only ones whose position,
@@ -163,5 +165,8 @@ def object_markers(
         label.scale.z = LABEL_HEIGHT_M
         label.color = LABEL_COLOUR
         label.text = f"{obj.id} {obj.state}"
+        if obj.state == "tentative" and not obj.range_resolved:
+            # What it waits for: the arm to move far enough for parallax to place it.
+            label.text += ", range unresolved"
         markers += [sphere, spread, label]
     return MarkerArray(markers=markers)

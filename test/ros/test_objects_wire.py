@@ -181,7 +181,9 @@ def test_objects_and_markers_read_with_vision_msgs_own_definitions(vision_msgs_s
     confirmed, tentative = by_key[(OBJECT_NS, 3)], by_key[(OBJECT_NS, 4)]
     assert confirmed.type == Marker.SPHERE and confirmed.scale.x == 0.35
     assert (confirmed.color.r, confirmed.color.g) != (tentative.color.r, tentative.color.g)
-    assert by_key[(LABEL_NS, 3)].text.startswith("3 confirmed")
+    assert by_key[(LABEL_NS, 3)].text == "3 confirmed"
+    # The tentative one waits for parallax to place it, and its label says so.
+    assert by_key[(LABEL_NS, 4)].text == "4 tentative, range unresolved"
     # The ellipsoid: its axes, rotated by its orientation, are the covariance's principal
     # axes, its diameters 2 x 3 standard deviations along them.
     spread = by_key[(UNCERTAINTY_NS, 3)]
@@ -207,3 +209,14 @@ def test_between_full_sets_only_the_objects_that_changed_get_markers():
     assert {(m.ns, m.id) for m in changed.markers} == {
         (ns, i) for ns in (OBJECT_NS, UNCERTAINTY_NS, LABEL_NS) for i in (3, 5)
     }
+
+
+def test_a_tentative_object_placed_by_parallax_is_labelled_tentative_only():
+    from dataclasses import replace
+
+    from allo_mrad_ros.ros.object_messages import object_markers
+
+    placed = replace(OBJECTS[1], range_resolved=True)
+    message = object_markers(Header(frame_id=interface.STATION_FRAME), (placed,))
+    (label,) = [m for m in message.markers if m.ns == LABEL_NS]
+    assert label.text == f"{placed.id} tentative"
