@@ -675,27 +675,7 @@ class ObjectTracker:
                         # Its tentative id ends; the object it is goes on under its old one.
                         ended.append(self._record(track, False, None, state="ended"))
                         track.id = lost_id
-            # What _record builds, inline (a call per object each frame cost a tenth of
-            # the records).
-            record = _new_record(TrackedObject)
-            _set_fields(
-                record,
-                "__dict__",
-                {
-                    "id": track.id,
-                    "state": track.state,
-                    "position": track.position,
-                    "covariance": track.covariance,
-                    "size": track.size,
-                    "score": track.score,
-                    "range_resolved": track.resolved,
-                    "in_view": seen,
-                    "region": region,
-                    "hits": track.hits,
-                    "first_stamp": track.first_stamp,
-                    "last_hit_stamp": track.last_hit,
-                },
-            )
+            record = self._record(track, seen, region)
             if track.state == "ended":
                 ended.append(record)
             else:
@@ -1117,8 +1097,7 @@ class ObjectTracker:
         self, track: _Track, in_view: bool, region: int | None, state: State | None = None
     ) -> TrackedObject:
         # Filled without the frozen dataclass's __init__ (a setattr per field): fifty
-        # objects a frame made that a tenth of the tracker's time. The fields are the same
-        # (update builds its records inline the same way).
+        # objects a frame made that a tenth of the tracker's time. The fields are the same.
         record = _new_record(TrackedObject)
         _set_fields(
             record,

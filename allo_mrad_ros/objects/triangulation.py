@@ -65,12 +65,6 @@ _SQRT2 = math.sqrt(2.0)
 _FAR_TAIL = 30.0
 _SQRT_2_PI = math.sqrt(2.0 / math.pi)
 _EYE3 = np.eye(3)
-# The two components of (alpha, beta) swapped, and the adjugate of a 2x2 block [[a, b],
-# [b, c]] as a gather from the block ([[c, -b], [-b, a]], its off-diagonal read at (0, 1)).
-_SWAP = np.array([1, 0])
-_ADJUGATE_ROWS = np.array([[1, 0], [0, 0]])
-_ADJUGATE_COLS = np.array([[1, 1], [1, 0]])
-_ADJUGATE_SIGNS = np.array([[1.0, -1.0], [-1.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -313,9 +307,12 @@ def triangulate(rays: RayBatch, *, iterations: int = 4) -> Triangulation:
     position = anchor_c + offset / rho_mean[:, None]
     # Covariance: (alpha, beta) given rho from the Gauss-Newton Hessian, rho's variance the
     # truncated normal's; mapped through X = c_a + E^T m / rho.
-    # The (alpha, beta) block's inverse: its adjugate (gathered, signs applied) over its
-    # determinant (_marginal's).
-    cov_ab = hessian[:, _ADJUGATE_ROWS, _ADJUGATE_COLS] * _ADJUGATE_SIGNS / det[:, None, None]
+    # The (alpha, beta) block's inverse, over its determinant (_marginal's).
+    a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
+    cov_ab = np.empty((batch, 2, 2))
+    cov_ab[:, 0, 0] = cc / det
+    cov_ab[:, 1, 1] = a / det
+    cov_ab[:, 0, 1] = cov_ab[:, 1, 0] = -b / det
     theta = np.zeros((batch, 3, 3))
     theta[:, :2, :2] = cov_ab + slope[:, :, None] * slope[:, None, :] * rho_variance[:, None, None]
     theta[:, :2, 2] = theta[:, 2, :2] = slope * rho_variance[:, None]
@@ -441,17 +438,18 @@ def _marginal(
     at the current ``rho``, its slope in ``rho``, the unconstrained ``rho`` and its
     information (the Schur complement; 0 where the rays do not determine it), and the
     determinant of the ``(alpha, beta)`` block."""
-    b = hessian[:, 0, 1]
-    det = hessian[:, 0, 0] * hessian[:, 1, 1] - b * b
-    # The 2x2 inverse of the (alpha, beta) block applied to the gradient and the coupling,
-    # both components at once: component k is (own_k x_k - b x_other) / det, own = (cc, a)
-    # the block's diagonal swapped (the same products, in the same order, as one per
-    # component).
-    own = hessian[:, _SWAP, _SWAP]
-    b_, det_ = b[:, None], det[:, None]
-    step_ab = (own * gradient[:, :2] - b_ * gradient[:, _SWAP]) / det_
+    a, b, cc = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
+    h0, h1 = hessian[:, 0, 2], hessian[:, 1, 2]
+    g0, g1 = gradient[:, 0], gradient[:, 1]
+    det = a * cc - b * b
+    # The 2x2 inverse of the (alpha, beta) block applied to the gradient and the coupling.
+    step_ab = np.empty((len(rho), 2))
+    step_ab[:, 0] = (cc * g0 - b * g1) / det
+    step_ab[:, 1] = (a * g1 - b * g0) / det
+    slope = np.empty((len(rho), 2))
+    slope[:, 0] = -(cc * h0 - b * h1) / det
+    slope[:, 1] = -(a * h1 - b * h0) / det
     h_ar = hessian[:, :2, 2]
-    slope = -(own * h_ar - b_ * hessian[:, _SWAP, 2]) / det_
     information = hessian[:, 2, 2] + np.einsum("bi,bi->b", h_ar, slope)
     scale = hessian[:, 2, 2]
     determined = information > _NULL_RHO * np.maximum(scale, 1e-300)
